@@ -1,0 +1,23 @@
+"""hybridfit: 3D hand pose from joint proposals by fitting an anatomically valid hand model.
+
+The method of Poier et al., "Hybrid One-Shot 3D Hand Pose Estimation by Exploiting
+Uncertainties", BMVC 2015, as a framework of pluggable hand models, objectives and
+optimisers (entry-point groups ``hybridfit.models``, ``hybridfit.objectives``,
+``hybridfit.optimizers``). Optimisers minimise; lengths are millimetres, angles radians.
+"""
+
+from .errors import HybridfitError
+from .fitting import FitResult, fit
+from .model import HandModel, Stage
+from .objective import Objective
+from .optimizer import OptimizeResult, Optimizer, Task
+from .problem import Problem
+from .registry import available, create
+from .synthetic import synthetic_proposals
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "FitResult", "HandModel", "HybridfitError", "Objective", "OptimizeResult", "Optimizer", "Problem",
+    "Stage", "Task", "available", "create", "fit", "synthetic_proposals", "__version__",
+]

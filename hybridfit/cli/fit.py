@@ -1,0 +1,48 @@
+"""``hybridfit fit``: fit the hand model to a proposals file."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from .. import fit as fit_frames
+from ..io import load_proposals, save_npz
+from ..metrics import summary
+from ._common import add_plugin_options, plugin_kwargs, positive_int
+
+
+def register(sub) -> None:
+    p = sub.add_parser("fit", help="fit the hand model to joint proposals (.npz)")
+    p.add_argument("proposals", help="npz with proposals (F,J,K,3) mm, confidences (F,J,K), optional joint_names, ground_truth")
+    p.add_argument("--out", required=True, help="output npz: params, joints, objective, evaluations, joint_names")
+    add_plugin_options(p)
+    p.add_argument("--budget", type=positive_int, default=3400, help="objective evaluations per frame (default 3400)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--jobs", type=positive_int, default=1, help="parallel processes (results do not depend on it)")
+    p.add_argument("--search-radius", type=float, default=60.0, help="position search radius around the initial guess, mm")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    data = load_proposals(args.proposals)
+    names = data.get("joint_names")
+    result = fit_frames(
+        data["proposals"], data["confidences"],
+        joint_names=None if names is None else list(names),
+        budget=args.budget, seed=args.seed, jobs=args.jobs, search_radius_mm=args.search_radius,
+        progress=sys.stderr.isatty(), **plugin_kwargs(args),
+    )
+    save_npz(args.out, **result.to_npz())
+    F = len(result.failed)
+    print(f"fitted {F - int(result.failed.sum())}/{F} frames -> {args.out}")
+    for f, msg in sorted(result.errors.items())[:10]:
+        print(f"  frame {f}: {msg}", file=sys.stderr)
+    if "ground_truth" in data and F:
+        s = summary(result.joints, data["ground_truth"])
+        print("mean joint error {mean_error_mm:.2f} mm; success rate @20/40/80 mm: "
+              "{success@20mm:.3f} / {success@40mm:.3f} / {success@80mm:.3f}".format(**s))
+    if result.interrupted:
+        print(f"interrupted: finished frames saved to {args.out}", file=sys.stderr)
+        return 130
+    return 1 if result.failed.all() and F else 0

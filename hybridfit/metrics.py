@@ -1,0 +1,29 @@
+"""Pose-estimation error measures (all distances in millimetres)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def joint_errors(predicted: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(F, J, 3), (F, J, 3) -> (F, J) Euclidean error per frame and joint, mm."""
+    return np.linalg.norm(np.asarray(predicted, float) - np.asarray(truth, float), axis=-1)
+
+
+def success_rate(errors: np.ndarray, thresholds_mm) -> np.ndarray:
+    """Share of frames whose worst joint error is within each threshold.
+
+    errors: (F, J) mm; thresholds_mm: (T,) -> (T,) in [0, 1]. Frames with NaN errors
+    (failed fits) count as failures.
+    """
+    worst = np.max(np.where(np.isnan(errors), np.inf, errors), axis=1)
+    return (worst[None, :] <= np.asarray(thresholds_mm, float)[:, None]).mean(axis=1)
+
+
+def summary(predicted: np.ndarray, truth: np.ndarray, thresholds_mm=(20, 30, 40, 50, 80)) -> dict[str, float]:
+    """Mean joint error (mm) and success rates at a few thresholds."""
+    e = joint_errors(predicted, truth)
+    out = {"mean_error_mm": float(np.nanmean(e)), "frames": int(len(e))}
+    for t, r in zip(thresholds_mm, success_rate(e, thresholds_mm)):
+        out[f"success@{t}mm"] = float(r)
+    return out

@@ -1,0 +1,70 @@
+"""The base of every plugin: a plain object configured by typed pydantic settings.
+
+Like a scikit-learn estimator, a plugin takes its parameters as keywords, validates them
+into ``self.settings`` (an instance of the class attribute ``Settings``) and keeps no
+other hidden state. ``type(p)(**p.get_params())`` rebuilds an equal plugin.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from .errors import HybridfitError
+
+
+class Settings(BaseModel):
+    """Base class of plugin settings: unknown keys are refused, values are validated."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Plugin:
+    """A configurable plugin. Subclasses set ``Settings`` and ``name``."""
+
+    Settings: ClassVar[type[Settings]] = Settings
+    #: the entry-point name the plugin is registered under (set by the registry on load)
+    name: ClassVar[str] = ""
+
+    def __init__(self, **params: Any) -> None:
+        try:
+            self.settings = self.Settings(**params)
+        except ValidationError as err:
+            raise HybridfitError(f"{type(self).__name__} settings: {format_validation_error(err)}") from None
+
+    def get_params(self) -> dict[str, Any]:
+        """The settings as a plain dict (JSON/TOML friendly)."""
+        return self.settings.model_dump(mode="json")
+
+    def with_params(self, **changes: Any):
+        """A new plugin of the same type with some settings changed."""
+        return type(self)(**{**self.get_params(), **changes})
+
+    def __eq__(self, other: object) -> bool:
+        return type(self) is type(other) and self.settings == other.settings
+
+    def __hash__(self) -> int:
+        return hash((type(self), self.settings))
+
+    def __repr__(self) -> str:
+        defaults = self.Settings().model_dump(mode="json") if _has_defaults(self.Settings) else {}
+        changed = {k: v for k, v in self.get_params().items() if defaults.get(k, object()) != v}
+        args = ", ".join(f"{k}={v!r}" for k, v in changed.items())
+        return f"{type(self).__name__}({args})"
+
+
+def _has_defaults(settings: type[Settings]) -> bool:
+    return all(not f.is_required() for f in settings.model_fields.values())
+
+
+def format_validation_error(err: ValidationError) -> str:
+    """One line naming each offending field path and what is wrong with it."""
+    parts = []
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"]) or "(settings)"
+        msg = e["msg"]
+        if e["type"] == "extra_forbidden":
+            msg = "unknown setting"
+        parts.append(f"{loc}: {msg}")
+    return "; ".join(parts)

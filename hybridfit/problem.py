@@ -1,0 +1,114 @@
+"""One frame's fitting problem: a model, an objective bound to the frame's proposals, the
+mapping of proposal points onto model points, the search box and an initial guess."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from .errors import HybridfitError
+from .geometry import kabsch, matrix_to_quaternion
+from .model import ORIENTATION, POSITION, HandModel
+from .objective import Objective, normalise_confidences
+
+
+class Problem:
+    """Minimise ``loss(points(params))`` for one frame.
+
+    proposals: (Q, K, 3) mm for the Q points named by ``point_names`` (default: the
+    model's joints); confidences: (Q, K) non-negative. The search box is the model's
+    bounds, with the position limited to ``search_radius_mm`` around the initial guess.
+    """
+
+    def __init__(
+        self,
+        model: HandModel,
+        objective: Objective,
+        proposals: np.ndarray,
+        confidences: np.ndarray,
+        point_names: Sequence[str] | None = None,
+        search_radius_mm: float = 60.0,
+    ) -> None:
+        self.model = model
+        self.objective = objective
+        self.proposals = np.ascontiguousarray(proposals, dtype=np.float64)
+        self.weights = np.ascontiguousarray(normalise_confidences(confidences))
+        self.point_names = tuple(point_names) if point_names is not None else tuple(model.joint_names)
+        if len(self.point_names) != self.proposals.shape[0]:
+            raise HybridfitError(
+                f"{len(self.point_names)} point names for {self.proposals.shape[0]} proposal points"
+            )
+        if self.point_names == tuple(model.joint_names):
+            self.point_matrix = None
+        else:
+            self.point_matrix = model.point_matrix(self.point_names)
+        self.loss = objective.bind(self.proposals, self.weights)
+        self.all_points = np.arange(len(self.point_names), dtype=np.int64)
+        self.x0 = initial_guess(self)
+        lower, upper = model.bounds()
+        lower, upper = lower.astype(float).copy(), upper.astype(float).copy()
+        lower[POSITION] = self.x0[POSITION] - search_radius_mm
+        upper[POSITION] = self.x0[POSITION] + search_radius_mm
+        lower[ORIENTATION] = np.maximum(lower[ORIENTATION], -1.0)
+        upper[ORIENTATION] = np.minimum(upper[ORIENTATION], 1.0)
+        self.lower, self.upper = lower, upper
+
+    def points(self, params: np.ndarray) -> np.ndarray:
+        """(N, P) -> (N, Q, 3) model points matching the proposals' points, mm."""
+        joints = self.model.forward(params)
+        if self.point_matrix is None:
+            return joints
+        return np.einsum("qj,njc->nqc", self.point_matrix, joints)
+
+    def evaluate(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
+        """(N, P) -> (N,) loss over the points in ``subset`` (all by default)."""
+        return self.loss(self.points(params), self.all_points if subset is None else subset)
+
+    def stage_points(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """The model's stages as (name, parameter indices, point indices).
+
+        A point is scored in the latest stage that moves any joint it depends on, so the
+        stages' point sets partition the points.
+        """
+        stages = self.model.stages()
+        owner = self.model.stage_of_joint()
+        M = np.eye(self.model.n_joints) if self.point_matrix is None else self.point_matrix
+        point_stage = np.array([owner[np.flatnonzero(row)].max() for row in M])
+        return [
+            (st.name, np.asarray(st.parameters, dtype=np.int64), np.flatnonzero(point_stage == s).astype(np.int64))
+            for s, st in enumerate(stages)
+        ]
+
+
+def top_proposals(proposals: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The most confident proposal per point and its weight: (Q, 3), (Q,)."""
+    best = weights.argmax(axis=-1)
+    q = np.arange(proposals.shape[0])
+    return proposals[q, best], weights[q, best]
+
+
+def initial_guess(problem: Problem) -> np.ndarray:
+    """Default articulation with the global pose from a weighted rigid alignment (Kabsch)
+    of the model's root-stage points onto their most confident proposals.
+
+    Falls back to all points, then to a translation only, when too few root points have
+    proposals.
+    """
+    model = problem.model
+    x = model.default_params().astype(float).copy()
+    canonical = problem.points(x[None])[0]
+    target, w = top_proposals(problem.proposals, problem.weights)
+    root_points = problem.stage_points()[0][2]
+    for candidates in (root_points, problem.all_points):
+        use = candidates[w[candidates] > 0]
+        if len(use) >= 3:
+            R, t = kabsch(canonical[use], target[use], w[use])
+            x[POSITION] = t
+            x[ORIENTATION] = matrix_to_quaternion(R)
+            return x
+    use = np.flatnonzero(w > 0)
+    if len(use) == 0:
+        raise HybridfitError("the frame has no proposals with positive confidence")
+    x[POSITION] = np.average(target[use] - canonical[use], axis=0, weights=w[use])
+    return x

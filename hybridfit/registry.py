@@ -1,0 +1,121 @@
+"""Plugin discovery through Python entry points.
+
+Three entry-point groups: ``hybridfit.models``, ``hybridfit.objectives`` and
+``hybridfit.optimizers``. The core never imports a plugin by name: every plugin, the
+reference ones included, is found here. A plugin whose import fails is reported as a
+warning naming the entry point and its error, and every other plugin keeps working.
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib.metadata as metadata
+import warnings
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+from .errors import HybridfitError, UnknownPluginError
+
+GROUPS = {
+    "model": "hybridfit.models",
+    "objective": "hybridfit.objectives",
+    "optimizer": "hybridfit.optimizers",
+}
+
+
+@dataclass(frozen=True)
+class PluginInfo:
+    """One registered plugin: its name, distribution, one-line doc and load error (if any)."""
+
+    kind: str
+    name: str
+    value: str
+    distribution: str
+    doc: str
+    error: str | None
+
+
+def _group(kind: str) -> str:
+    try:
+        return GROUPS[kind]
+    except KeyError:
+        raise HybridfitError(f"unknown plugin kind {kind!r}; choose from {sorted(GROUPS)}") from None
+
+
+def _entry_points(kind: str) -> dict[str, metadata.EntryPoint]:
+    found: dict[str, metadata.EntryPoint] = {}
+    for ep in metadata.entry_points(group=_group(kind)):
+        other = found.get(ep.name)
+        if other is not None and other.value != ep.value:
+            warnings.warn(
+                f"hybridfit: {_group(kind)} entry point {ep.name!r} is registered twice "
+                f"({other.value} and {ep.value}); using the first",
+                stacklevel=3,
+            )
+            continue
+        found[ep.name] = ep
+    return found
+
+
+def names(kind: str) -> list[str]:
+    """Registered plugin names of a kind ('model', 'objective' or 'optimizer')."""
+    return sorted(_entry_points(kind))
+
+
+def _load(kind: str, ep: metadata.EntryPoint) -> type:
+    cls = ep.load()
+    # the registry tells the class the name it is registered under
+    if getattr(cls, "name", None) in ("", None):
+        cls.name = ep.name
+    return cls
+
+
+def get(kind: str, name: str) -> type:
+    """The plugin class registered under ``name``.
+
+    Raises UnknownPluginError listing the registered names and the closest match, or
+    HybridfitError when the plugin's import fails.
+    """
+    eps = _entry_points(kind)
+    if name not in eps:
+        known = sorted(eps)
+        close = difflib.get_close_matches(name, known, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise UnknownPluginError(
+            f"unknown {kind} {name!r}{hint} (registered {kind}s: {', '.join(known) or 'none'})"
+        )
+    try:
+        return _load(kind, eps[name])
+    except Exception as err:  # a broken third-party plugin must not look like ours
+        raise HybridfitError(
+            f"{_group(kind)} plugin {name!r} ({eps[name].value}) failed to import: "
+            f"{type(err).__name__}: {err}"
+        ) from err
+
+
+def create(kind: str, spec: Any, config: Mapping[str, Any] | None = None):
+    """A configured plugin from a name (plus settings) or an existing plugin instance."""
+    if isinstance(spec, str):
+        return get(kind, spec)(**dict(config or {}))
+    if config:
+        return spec.with_params(**config)
+    return spec
+
+
+def available(kind: str) -> list[PluginInfo]:
+    """Every registered plugin of a kind; import failures are warned about and kept."""
+    infos = []
+    for name, ep in sorted(_entry_points(kind).items()):
+        dist = ep.dist.name if ep.dist is not None else "?"
+        try:
+            cls = _load(kind, ep)
+            doc = (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
+            error = None
+        except Exception as err:
+            doc, error = "", f"{type(err).__name__}: {err}"
+            warnings.warn(
+                f"hybridfit: plugin {name!r} ({_group(kind)} = {ep.value}) failed to import: {error}",
+                stacklevel=2,
+            )
+        infos.append(PluginInfo(kind, name, ep.value, dist, doc, error))
+    return infos

@@ -1,0 +1,258 @@
+"""``hand26``: the paper's 26-DoF joints-only hand model (27 parameters, 21 joints).
+
+Parameters (27): palm centre position x, y, z (mm); orientation quaternion w, x, y, z
+(normalised inside the model); then per finger (thumb, index, middle, ring, little) four
+angles in radians: base flexion, base abduction, and two hinge flexions. Joints (21):
+the wrist, then per finger its base joint, two further joints and the tip (for the thumb:
+CMC, MCP, IP, tip; for the other fingers: MCP, PIP, DIP, tip).
+
+Hand frame (right hand, before the global rotation): x radial (towards the thumb), y
+distal (wrist to fingers), z palmar (out of the palm). The origin is the palm centre: the
+mean of the wrist and the four finger MCPs (the derived point ``palm_centre``). Flexion is
+positive towards the palm, abduction positive towards the little finger. ``mirror=True``
+gives the left hand (x negated in the hand frame).
+
+Anatomical limits (degrees; static constraints):
+- fingers, Lin, Wu & Huang, "Modeling the constraints of human hand motion", IEEE HUMO
+  2000: MCP flexion 0..90, MCP abduction -15..15, PIP 0..110, DIP 0..90;
+- thumb, active ranges of motion of the American Academy of Orthopaedic Surgeons (Greene &
+  Heckman, "The clinical measurement of joint motion", 1994), as used for the thumb by
+  model-based trackers (Oikonomidis et al., BMVC 2011): CMC flexion -20..60 and
+  abduction -30..40 (the thumb's rest frame already points it away from the palm), MCP
+  0..80, IP -20..90 (the IP joint hyperextends).
+
+Default bone lengths are those of an average adult hand (about 190 mm long): phalanx
+lengths after Buchholz, Armstrong & Goldstein, "Anthropometric data for describing the
+kinematics of the human hand", Ergonomics 1992 (ratios of hand length), rounded to mm.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import numba as nb
+import numpy as np
+from pydantic import Field, field_validator
+
+from hybridfit.geometry import quaternion_matrix
+from hybridfit.model import HandModel, Stage
+from hybridfit.plugin import Settings
+
+FINGERS = ("thumb", "index", "middle", "ring", "little")
+FINGER_JOINTS = {
+    "thumb": ("cmc", "mcp", "ip", "tip"),
+    **{f: ("mcp", "pip", "dip", "tip") for f in FINGERS[1:]},
+}
+FINGER_ANGLES = {
+    "thumb": ("cmc_flexion", "cmc_abduction", "mcp_flexion", "ip_flexion"),
+    **{f: ("mcp_flexion", "mcp_abduction", "pip_flexion", "dip_flexion") for f in FINGERS[1:]},
+}
+SEGMENTS = {"thumb": ("metacarpal", "proximal", "distal"), **{f: ("proximal", "middle", "distal") for f in FINGERS[1:]}}
+
+#: base joint positions relative to the wrist in the hand frame (mm, scale 1)
+BASE_POSITIONS = {
+    "thumb": (22.0, 22.0, 12.0),
+    "index": (25.0, 80.0, 0.0),
+    "middle": (6.0, 82.0, 0.0),
+    "ring": (-12.0, 77.0, 0.0),
+    "little": (-28.0, 70.0, 0.0),
+}
+#: segment lengths (mm, scale 1), base to tip
+BONE_LENGTHS = {
+    "thumb": (44.0, 32.0, 27.0),
+    "index": (40.0, 24.0, 19.0),
+    "middle": (45.0, 28.0, 20.0),
+    "ring": (42.0, 27.0, 20.0),
+    "little": (33.0, 20.0, 18.0),
+}
+#: rest direction of each finger's first segment in the hand frame, and its bending direction
+REST_DIRECTIONS = {
+    "thumb": ((0.65, 0.75, 0.10), (-0.55, 0.0, 0.85)),
+    "index": ((0.12, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    "middle": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    "ring": ((-0.08, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    "little": ((-0.20, 1.0, 0.0), (0.0, 0.0, 1.0)),
+}
+LIMITS_DEG = {
+    "thumb": ((-20.0, 60.0), (-30.0, 40.0), (0.0, 80.0), (-20.0, 90.0)),
+    **{f: ((0.0, 90.0), (-15.0, 15.0), (0.0, 110.0), (0.0, 90.0)) for f in FINGERS[1:]},
+}
+#: a relaxed hand: fingers slightly flexed (degrees)
+DEFAULT_POSE_DEG = {
+    "thumb": (5.0, 0.0, 5.0, 5.0),
+    **{f: (10.0, 0.0, 10.0, 5.0) for f in FINGERS[1:]},
+}
+
+PARAMETER_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz") + tuple(
+    f"{f}_{a}" for f in FINGERS for a in FINGER_ANGLES[f]
+)
+JOINT_NAMES = ("wrist",) + tuple(f"{f}_{j}" for f in FINGERS for j in FINGER_JOINTS[f])
+BONE_NAMES = tuple(f"{f}_{s}" for f in FINGERS for s in SEGMENTS[f])
+
+
+class Hand26Settings(Settings):
+    """Geometry of the hand26 model. Lengths in millimetres, angles in degrees."""
+
+    scale: float = Field(1.0, gt=0, description="global scale of every length")
+    bone_lengths: dict[str, float] = Field(
+        default_factory=dict, description="per-bone length overrides in mm before scaling, e.g. {'index_proximal': 42}"
+    )
+    base_positions: dict[str, tuple[float, float, float]] = Field(
+        default_factory=dict, description="per-finger base joint position relative to the wrist (hand frame, mm)"
+    )
+    limits_deg: dict[str, tuple[float, float]] = Field(
+        default_factory=dict, description="per-angle limit overrides in degrees, e.g. {'index_mcp_flexion': [-10, 90]}"
+    )
+    mirror: bool = Field(False, description="left hand (mirror image of the right hand)")
+
+    @field_validator("bone_lengths")
+    @classmethod
+    def _bones(cls, v):
+        for name, length in v.items():
+            if name not in BONE_NAMES:
+                raise ValueError(f"unknown bone {name!r} (bones: {', '.join(BONE_NAMES)})")
+            if not length > 0:
+                raise ValueError(f"bone {name!r} must have a positive length, got {length}")
+        return v
+
+    @field_validator("base_positions")
+    @classmethod
+    def _bases(cls, v):
+        for name in v:
+            if name not in FINGERS:
+                raise ValueError(f"unknown finger {name!r} (fingers: {', '.join(FINGERS)})")
+        return v
+
+    @field_validator("limits_deg")
+    @classmethod
+    def _limits(cls, v):
+        for name, (lo, hi) in v.items():
+            if name not in PARAMETER_NAMES[7:]:
+                raise ValueError(f"unknown angle {name!r} (angles: {', '.join(PARAMETER_NAMES[7:])})")
+            if not lo <= hi:
+                raise ValueError(f"limits of {name!r} must satisfy lower <= upper, got ({lo}, {hi})")
+        return v
+
+
+@nb.njit(cache=True, fastmath=True)
+def hand26_forward(params, wrist, bases, rest, lengths, sx, out):
+    """params (N, 27) -> out (N, 21, 3). wrist (3,), bases (5, 3), rest (5, 3, 3) columns =
+    finger axes in the hand frame, lengths (5, 3), sx = -1 mirrors x in the hand frame."""
+    G = np.empty((3, 3))
+    local = np.empty((21, 3))
+    for n in range(params.shape[0]):
+        p = params[n]
+        quaternion_matrix(p[3], p[4], p[5], p[6], G)
+        for c in range(3):
+            local[0, c] = wrist[c]
+        for f in range(5):
+            a0 = 7 + 4 * f
+            flex = p[a0]
+            sb = np.sin(p[a0 + 1])
+            cb = np.cos(p[a0 + 1])
+            j = 1 + 4 * f
+            for c in range(3):
+                local[j, c] = bases[f, c]
+            for s in range(3):
+                if s == 1:
+                    flex += p[a0 + 2]
+                elif s == 2:
+                    flex += p[a0 + 3]
+                cf = np.cos(flex)
+                # segment direction in the finger frame: Rz(abduction) Rx(flexion) e_y
+                dx = -cf * sb
+                dy = cf * cb
+                dz = np.sin(flex)
+                L = lengths[f, s]
+                for c in range(3):
+                    local[j + 1, c] = local[j, c] + L * (rest[f, c, 0] * dx + rest[f, c, 1] * dy + rest[f, c, 2] * dz)
+                j += 1
+        for i in range(21):
+            lx = sx * local[i, 0]
+            ly = local[i, 1]
+            lz = local[i, 2]
+            for c in range(3):
+                out[n, i, c] = G[c, 0] * lx + G[c, 1] * ly + G[c, 2] * lz + p[c]
+    return out
+
+
+def _frame(direction, bend) -> np.ndarray:
+    """Finger rest frame: columns x (flexion axis), y (along the bone), z (bending side)."""
+    y = np.asarray(direction, float)
+    y /= np.linalg.norm(y)
+    z = np.asarray(bend, float) - np.dot(bend, y) * y
+    z /= np.linalg.norm(z)
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+class Hand26(HandModel):
+    """The paper's 26-DoF (27-parameter) joints-only hand model with anatomical limits."""
+
+    Settings = Hand26Settings
+    parameter_names = PARAMETER_NAMES
+    joint_names = JOINT_NAMES
+    bone_names = BONE_NAMES
+
+    @cached_property
+    def _geometry(self):
+        s = self.settings
+        bases = np.array([s.base_positions.get(f, BASE_POSITIONS[f]) for f in FINGERS], float)
+        lengths = np.array(
+            [[s.bone_lengths.get(f"{f}_{seg}", L) for seg, L in zip(SEGMENTS[f], BONE_LENGTHS[f])] for f in FINGERS]
+        )
+        wrist = np.zeros(3)
+        centre = (wrist + bases[1:].sum(axis=0)) / 5.0  # palm_centre is the origin
+        rest = np.stack([_frame(*REST_DIRECTIONS[f]) for f in FINGERS])
+        return (
+            np.ascontiguousarray((wrist - centre) * s.scale),
+            np.ascontiguousarray((bases - centre) * s.scale),
+            rest,
+            np.ascontiguousarray(lengths * s.scale),
+            -1.0 if s.mirror else 1.0,
+        )
+
+    @property
+    def parents(self) -> np.ndarray:
+        parents = [-1]
+        for f in range(5):
+            parents += [0, 1 + 4 * f, 2 + 4 * f, 3 + 4 * f]
+        return np.array(parents)
+
+    @property
+    def derived_points(self):
+        return {"palm_centre": {j: 0.2 for j in ("wrist", "index_mcp", "middle_mcp", "ring_mcp", "little_mcp")}}
+
+    def bone_lengths(self) -> dict[str, float]:
+        """Each bone's length in mm (scale applied), by bone name."""
+        lengths = self._geometry[3]
+        return {f"{f}_{seg}": float(lengths[i, k]) for i, f in enumerate(FINGERS) for k, seg in enumerate(SEGMENTS[f])}
+
+    def bounds(self):
+        lower = np.full(27, -np.inf)
+        upper = np.full(27, np.inf)
+        lower[3:7], upper[3:7] = -1.0, 1.0
+        for i, name in enumerate(PARAMETER_NAMES[7:], start=7):
+            f = FINGERS[(i - 7) // 4]
+            lo, hi = self.settings.limits_deg.get(name, LIMITS_DEG[f][(i - 7) % 4])
+            lower[i], upper[i] = np.radians(lo), np.radians(hi)
+        return lower, upper
+
+    def default_params(self):
+        x = np.zeros(27)
+        x[3] = 1.0
+        x[7:] = np.radians([a for f in FINGERS for a in DEFAULT_POSE_DEG[f]])
+        lower, upper = self.bounds()
+        return np.clip(x, lower, upper)
+
+    def stages(self):
+        palm = Stage("palm", tuple(range(7)), (0,) + tuple(1 + 4 * f for f in range(5)))
+        fingers = tuple(
+            Stage(f, tuple(range(7 + 4 * i, 11 + 4 * i)), tuple(range(2 + 4 * i, 5 + 4 * i)))
+            for i, f in enumerate(FINGERS)
+        )
+        return (palm,) + fingers
+
+    def _forward(self, params):
+        wrist, bases, rest, lengths, sx = self._geometry
+        out = np.empty((params.shape[0], 21, 3))
+        return hand26_forward(params, wrist, bases, rest, lengths, sx, out)

@@ -1,0 +1,77 @@
+"""``clamped-confidence``: the paper's objective (Poier et al. 2015, Eq. 1).
+
+    E(P, h) = sum_j max_r w_jr (1 - d_jr^2),   d_jr = min(1, ||p_jr - delta_j(h)|| / d_max)
+
+w_jr are the confidences normalised per joint (they sum to 1, or are all 0 for a joint
+without proposals, which then contributes nothing). E lies in [0, J]; optimisers minimise,
+so the loss returned is -E, in [-J, 0].
+
+d_max (the clamping distance) is not given in the paper. The default, 40 mm, was chosen by
+measurement on synthetic proposals (``benchmarks/bench_dmax.py``): it is about twice the
+typical proposal error and half a finger's length, so a proposal on a neighbouring finger
+(15-20 mm away) still pulls, while outliers further than 40 mm are ignored.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+from pydantic import Field
+
+from hybridfit.objective import Objective
+from hybridfit.plugin import Settings
+
+
+class ClampedConfidenceSettings(Settings):
+    d_max_mm: float = Field(40.0, gt=0, description="clamping distance d_max in millimetres")
+
+
+@nb.njit(cache=True, fastmath=True)
+def clamped_confidence_loss(points, proposals, weights, subset, inv_d_max_sq):
+    """points (N, Q, 3), proposals (Q, K, 3), weights (Q, K), subset (m,) -> (N,) -E."""
+    N = points.shape[0]
+    K = proposals.shape[1]
+    out = np.empty(N)
+    for n in range(N):
+        total = 0.0
+        for jj in range(subset.shape[0]):
+            j = subset[jj]
+            x = points[n, j, 0]
+            y = points[n, j, 1]
+            z = points[n, j, 2]
+            best = 0.0
+            for r in range(K):
+                w = weights[j, r]
+                if w <= 0.0:
+                    continue
+                dx = proposals[j, r, 0] - x
+                dy = proposals[j, r, 1] - y
+                dz = proposals[j, r, 2] - z
+                d2 = (dx * dx + dy * dy + dz * dz) * inv_d_max_sq
+                if d2 < 1.0:
+                    v = w * (1.0 - d2)
+                    if v > best:
+                        best = v
+            total += best
+        out[n] = -total
+    return out
+
+
+class ClampedConfidence(Objective):
+    """The paper's clamped, confidence-weighted objective; loss = -E in [-J, 0]."""
+
+    Settings = ClampedConfidenceSettings
+
+    def bind(self, proposals, weights):
+        proposals = np.ascontiguousarray(proposals, dtype=np.float64)
+        weights = np.ascontiguousarray(weights, dtype=np.float64)
+        inv = 1.0 / self.settings.d_max_mm**2
+
+        def loss(points, subset):
+            return clamped_confidence_loss(np.ascontiguousarray(points, dtype=np.float64), proposals, weights,
+                                           np.asarray(subset, dtype=np.int64), inv)
+
+        return loss
+
+    def lower_bound(self, weights):
+        return -float(np.max(weights, axis=-1).sum())

@@ -1,0 +1,110 @@
+"""``pso``: Particle Swarm Optimisation as used in model-based hand tracking.
+
+Global-best PSO with Clerc-Kennedy constriction (Clerc & Kennedy, IEEE TEC 2002), the
+variant of the FORTH hand tracker (Oikonomidis, Kyriazis & Argyros, BMVC 2011, which uses
+cognitive c1 = 2.8 and social c2 = 1.3, so psi = c1 + c2 = 4.1 and the constriction factor
+chi = 2 / |2 - psi - sqrt(psi^2 - 4 psi)| = 0.7298).
+
+Initialisation: a share of the particles is drawn around the task's initial guess
+(Gaussian, ``init_sigma`` times the search range), the rest uniformly in the bounds.
+Positions are clipped to the bounds (a particle that hits a bound stops in that
+dimension). The whole swarm is evaluated in one batched call per generation; the last
+generation is cut short so the budget is used exactly.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+from pydantic import Field
+
+from hybridfit.optimizer import Optimizer, Task
+from hybridfit.plugin import Settings
+
+
+class PSOSettings(Settings):
+    particles: int | None = Field(
+        None, ge=2, description="swarm size; None = a square swarm, sqrt(budget) particles (the paper's 64x64, 29x29)"
+    )
+    cognitive: float = Field(2.8, gt=0, description="c1, attraction to a particle's own best")
+    social: float = Field(1.3, gt=0, description="c2, attraction to the swarm's best")
+    init_share: float = Field(0.5, ge=0, le=1, description="share of particles started around the initial guess")
+    init_sigma: float = Field(0.1, gt=0, description="spread around the initial guess, as a fraction of the range")
+    max_velocity: float = Field(0.5, gt=0, description="velocity limit per generation, as a fraction of the range")
+
+
+@nb.njit(cache=True, fastmath=True)
+def pso_step(x, v, pbest_x, gbest_x, r1, r2, chi, c1, c2, vmax, lower, upper, m):
+    """Constricted velocity and position update of the first m particles, in place."""
+    d = x.shape[1]
+    for i in range(m):
+        for k in range(d):
+            vk = chi * (v[i, k] + c1 * r1[i, k] * (pbest_x[i, k] - x[i, k]) + c2 * r2[i, k] * (gbest_x[k] - x[i, k]))
+            if vk > vmax[k]:
+                vk = vmax[k]
+            elif vk < -vmax[k]:
+                vk = -vmax[k]
+            xk = x[i, k] + vk
+            if xk < lower[k]:
+                xk = lower[k]
+                vk = 0.0
+            elif xk > upper[k]:
+                xk = upper[k]
+                vk = 0.0
+            x[i, k] = xk
+            v[i, k] = vk
+
+
+@nb.njit(cache=True)
+def update_bests(x, f, pbest_x, pbest_f, m):
+    """Personal bests of the first m particles; returns the index of the swarm's best."""
+    for i in range(m):
+        if f[i] < pbest_f[i]:
+            pbest_f[i] = f[i]
+            for k in range(x.shape[1]):
+                pbest_x[i, k] = x[i, k]
+    return np.argmin(pbest_f)
+
+
+def constriction(c1: float, c2: float) -> float:
+    """Clerc-Kennedy constriction factor for psi = c1 + c2 (1.0 when psi <= 4)."""
+    psi = c1 + c2
+    return 1.0 if psi <= 4 else 2.0 / abs(2.0 - psi - np.sqrt(psi * psi - 4.0 * psi))
+
+
+class PSO(Optimizer):
+    """Particle Swarm Optimisation with constriction (global best), batched per generation."""
+
+    Settings = PSOSettings
+
+    def swarm_size(self, budget: int) -> int:
+        n = self.settings.particles
+        return max(2, int(round(np.sqrt(budget)))) if n is None else n
+
+    def min_budget(self, task: Task) -> int:
+        # one initial generation and at least one update
+        return 2 * (self.settings.particles or 2)
+
+    def minimize(self, task: Task, rng: np.random.Generator) -> None:
+        s = self.settings
+        n = min(self.swarm_size(task.budget), task.remaining)
+        lower, upper = task.lower, task.upper
+        span = upper - lower
+        x = rng.uniform(lower, upper, size=(n, task.dim))
+        near = int(round(s.init_share * n))
+        if near:
+            x[:near] = task.x0 + rng.normal(0.0, s.init_sigma, size=(near, task.dim)) * span
+            x[0] = task.x0  # the guess itself is always tried
+        np.clip(x, lower, upper, out=x)
+        v = np.zeros_like(x)
+        f = task.evaluate(x)
+        pbest_x, pbest_f = x.copy(), f.copy()
+        g = int(np.argmin(pbest_f))
+        chi = constriction(s.cognitive, s.social)
+        vmax = s.max_velocity * span
+        while task.remaining > 0:
+            m = min(n, task.remaining)
+            r = rng.random((2, m, task.dim))
+            pso_step(x, v, pbest_x, pbest_x[g].copy(), r[0], r[1], chi, s.cognitive, s.social, vmax, lower, upper, m)
+            f[:m] = task.evaluate(x[:m])
+            g = update_bests(x, f, pbest_x, pbest_f, m)

@@ -1,0 +1,97 @@
+"""``stepwise`` and ``stepwise-pso``: the paper's stepwise optimisation as a wrapper.
+
+The model's stages are optimised in order (for hand26: the palm's 7 global parameters on
+the palm joints, then each finger's 4 angles on that finger's joints), each with its own
+share of the budget, each starting from the result of the stages before. With
+``schedule = "joint"`` the same code runs one stage with all parameters on all points, so
+the paper's ablation (91x91 jointly vs 64x64 + 5 x 29x29 stepwise) is one setting away.
+
+Budget split: ``root_share`` of the budget goes to the first (global) stage and the rest
+is split equally between the other stages; ``stage_weights`` overrides this with one
+relative weight per stage (the paper's ablation: [4096, 841, 841, 841, 841, 841]).
+Stage budgets are rounded by largest remainder, so they add up to the budget exactly.
+The default root share, 0.5, is the paper's ablation split (4096 of 8301 evaluations =
+0.49); ``benchmarks/bench_stepwise.py`` measures the alternatives.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import Field
+
+from hybridfit import registry
+from hybridfit.errors import HybridfitError
+from hybridfit.optimizer import Optimizer, Task
+from hybridfit.plugin import Settings
+
+
+class StepwiseSettings(Settings):
+    optimizer: str = Field("pso", description="the optimiser run on each stage (a registered name)")
+    optimizer_config: dict[str, Any] = Field(default_factory=dict, description="its settings")
+    schedule: Literal["stepwise", "joint"] = Field("stepwise", description="stage by stage, or all parameters at once")
+    root_share: float = Field(0.5, gt=0, lt=1, description="share of the budget for the global-pose stage")
+    stage_weights: list[float] | None = Field(None, description="relative budget per stage (overrides root_share)")
+
+
+def split_budget(budget: int, weights) -> list[int]:
+    """Integer budgets proportional to weights that add up to ``budget`` exactly."""
+    w = np.asarray(weights, float)
+    ideal = budget * w / w.sum()
+    out = np.floor(ideal).astype(int)
+    for i in np.argsort(-(ideal - out), kind="stable")[: budget - out.sum()]:
+        out[i] += 1
+    return [int(b) for b in out]
+
+
+class Stepwise(Optimizer):
+    """Runs any registered optimiser stage by stage (palm first, then fingers) or jointly."""
+
+    Settings = StepwiseSettings
+
+    def inner(self) -> Optimizer:
+        s = self.settings
+        if s.optimizer in ("stepwise", self.name):
+            raise HybridfitError(f"{self.name}: the inner optimizer cannot be a stepwise optimizer itself")
+        return registry.create("optimizer", s.optimizer, s.optimizer_config)
+
+    def _stages(self, task: Task):
+        stages = task.problem.stage_points()
+        if self.settings.schedule == "joint":
+            return [("joint", task.parameters, task.points)], [1.0]
+        w = self.settings.stage_weights
+        if w is None:
+            rest = (1.0 - self.settings.root_share) / (len(stages) - 1)
+            w = [self.settings.root_share] + [rest] * (len(stages) - 1)
+        elif len(w) != len(stages) or min(w) <= 0:
+            raise HybridfitError(
+                f"{self.name}: stage_weights needs {len(stages)} positive weights "
+                f"({', '.join(s[0] for s in stages)}), got {w}"
+            )
+        return stages, w
+
+    def min_budget(self, task: Task) -> int:
+        inner = self.inner()
+        stages, w = self._stages(task)
+        w = np.asarray(w) / np.sum(w)
+        need = [inner.min_budget(task.stage(n, p, q, task.budget)) / share for (n, p, q), share in zip(stages, w)]
+        return int(np.ceil(max(need)))
+
+    def minimize(self, task: Task, rng: np.random.Generator) -> None:
+        inner = self.inner()
+        stages, w = self._stages(task)
+        for (name, params, points), budget in zip(stages, split_budget(task.budget, w)):
+            stage = task.stage(name, params, points, budget)
+            inner.minimize(stage, rng)
+            task.commit(stage)
+
+
+class StepwisePSOSettings(StepwiseSettings):
+    optimizer: Literal["pso"] = Field("pso", description="always PSO")
+
+
+class StepwisePSO(Stepwise):
+    """The paper's optimiser: PSO stage by stage, palm first, then each finger."""
+
+    Settings = StepwisePSOSettings
