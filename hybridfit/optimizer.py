@@ -71,8 +71,11 @@ class Task:
     @property
     def remaining(self) -> int:
         """Evaluations still allowed (also within every ancestor's budget)."""
-        left = self.budget - self.used
-        return left if self.parent is None else min(left, self.parent.remaining)
+        left, task = self.budget - self.used, self.parent
+        while task is not None:
+            left = min(left, task.budget - task.used)
+            task = task.parent
+        return left
 
     def full(self, X: np.ndarray) -> np.ndarray:
         """(n, dim) free parameters -> (n, P) full parameter vectors."""

@@ -9,6 +9,7 @@ warning naming the entry point and its error, and every other plugin keeps worki
 from __future__ import annotations
 
 import difflib
+import functools
 import importlib.metadata as metadata
 import warnings
 from dataclasses import dataclass
@@ -42,7 +43,9 @@ def _group(kind: str) -> str:
         raise HybridfitError(f"unknown plugin kind {kind!r}; choose from {sorted(GROUPS)}") from None
 
 
+@functools.cache
 def _entry_points(kind: str) -> dict[str, metadata.EntryPoint]:
+    """The group's entry points by name (read once per process; see :func:`refresh`)."""
     found: dict[str, metadata.EntryPoint] = {}
     for ep in metadata.entry_points(group=_group(kind)):
         other = found.get(ep.name)
@@ -55,6 +58,11 @@ def _entry_points(kind: str) -> dict[str, metadata.EntryPoint]:
             continue
         found[ep.name] = ep
     return found
+
+
+def refresh() -> None:
+    """Forget the entry points read so far (after installing a plugin package at run time)."""
+    _entry_points.cache_clear()
 
 
 def names(kind: str) -> list[str]:

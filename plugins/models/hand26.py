@@ -28,14 +28,12 @@ kinematics of the human hand", Ergonomics 1992 (ratios of hand length), rounded 
 
 from __future__ import annotations
 
-from functools import cached_property
 
-import numba as nb
 import numpy as np
 from pydantic import Field, field_validator
 
-from hybridfit.geometry import quaternion_matrix
-from hybridfit.model import HandModel, Stage
+from hybridfit.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
+from hybridfit.model import Stage
 from hybridfit.plugin import Settings
 
 FINGERS = ("thumb", "index", "middle", "ring", "little")
@@ -134,46 +132,6 @@ class Hand26Settings(Settings):
         return v
 
 
-@nb.njit(cache=True, fastmath=True)
-def hand26_forward(params, wrist, bases, rest, lengths, sx, out):
-    """params (N, 27) -> out (N, 21, 3). wrist (3,), bases (5, 3), rest (5, 3, 3) columns =
-    finger axes in the hand frame, lengths (5, 3), sx = -1 mirrors x in the hand frame."""
-    G = np.empty((3, 3))
-    local = np.empty((21, 3))
-    for n in range(params.shape[0]):
-        p = params[n]
-        quaternion_matrix(p[3], p[4], p[5], p[6], G)
-        for c in range(3):
-            local[0, c] = wrist[c]
-        for f in range(5):
-            a0 = 7 + 4 * f
-            flex = p[a0]
-            sb = np.sin(p[a0 + 1])
-            cb = np.cos(p[a0 + 1])
-            j = 1 + 4 * f
-            for c in range(3):
-                local[j, c] = bases[f, c]
-            for s in range(3):
-                if s == 1:
-                    flex += p[a0 + 2]
-                elif s == 2:
-                    flex += p[a0 + 3]
-                cf = np.cos(flex)
-                # segment direction in the finger frame: Rz(abduction) Rx(flexion) e_y
-                dx = -cf * sb
-                dy = cf * cb
-                dz = np.sin(flex)
-                L = lengths[f, s]
-                for c in range(3):
-                    local[j + 1, c] = local[j, c] + L * (rest[f, c, 0] * dx + rest[f, c, 1] * dy + rest[f, c, 2] * dz)
-                j += 1
-        for i in range(21):
-            lx = sx * local[i, 0]
-            ly = local[i, 1]
-            lz = local[i, 2]
-            for c in range(3):
-                out[n, i, c] = G[c, 0] * lx + G[c, 1] * ly + G[c, 2] * lz + p[c]
-    return out
 
 
 def _frame(direction, bend) -> np.ndarray:
@@ -185,7 +143,7 @@ def _frame(direction, bend) -> np.ndarray:
     return np.stack([np.cross(y, z), y, z], axis=1)
 
 
-class Hand26(HandModel):
+class Hand26(TreeHandModel):
     """The paper's 26-DoF (27-parameter) joints-only hand model with anatomical limits."""
 
     Settings = Hand26Settings
@@ -193,30 +151,36 @@ class Hand26(HandModel):
     joint_names = JOINT_NAMES
     bone_names = BONE_NAMES
 
-    @cached_property
-    def _geometry(self):
+    def kinematic_tree(self) -> KinematicTree:
+        """Wrist (root) -> each finger's base joint -> two further joints -> tip."""
         s = self.settings
-        bases = np.array([s.base_positions.get(f, BASE_POSITIONS[f]) for f in FINGERS], float)
-        lengths = np.array(
+        bases = np.array([s.base_positions.get(f, BASE_POSITIONS[f]) for f in FINGERS], float) * s.scale
+        lengths = self._lengths()
+        centre = bases[1:].sum(axis=0) / 5.0  # palm_centre (mean of the wrist at 0 and 4 MCPs) is the origin
+        J = len(JOINT_NAMES)
+        parents = np.zeros(J, dtype=np.int64)
+        offsets = np.zeros((J, 3))
+        rest = np.tile(np.eye(3), (J, 1, 1))
+        axes = np.full((J, 2), NO_AXIS, dtype=np.int64)
+        axis_params = np.zeros((J, 2), dtype=np.int64)
+        parents[0], offsets[0] = -1, -centre
+        for f, finger in enumerate(FINGERS):
+            base, first = 1 + 4 * f, 7 + 4 * f
+            parents[base], offsets[base], rest[base] = 0, bases[f], _frame(*REST_DIRECTIONS[finger])
+            axes[base], axis_params[base] = (Z_AXIS, X_AXIS), (first + 1, first)  # abduction, then flexion
+            for k in range(3):
+                j = base + 1 + k
+                parents[j], offsets[j] = j - 1, (0.0, lengths[f, k], 0.0)
+                if k < 2:
+                    axes[j, 0], axis_params[j, 0] = X_AXIS, first + 2 + k
+        return KinematicTree(parents, offsets, rest, axes, axis_params, -1.0 if s.mirror else 1.0)
+
+    def _lengths(self) -> np.ndarray:
+        """(5, 3) segment lengths in mm, scale applied."""
+        s = self.settings
+        return s.scale * np.array(
             [[s.bone_lengths.get(f"{f}_{seg}", L) for seg, L in zip(SEGMENTS[f], BONE_LENGTHS[f])] for f in FINGERS]
         )
-        wrist = np.zeros(3)
-        centre = (wrist + bases[1:].sum(axis=0)) / 5.0  # palm_centre is the origin
-        rest = np.stack([_frame(*REST_DIRECTIONS[f]) for f in FINGERS])
-        return (
-            np.ascontiguousarray((wrist - centre) * s.scale),
-            np.ascontiguousarray((bases - centre) * s.scale),
-            rest,
-            np.ascontiguousarray(lengths * s.scale),
-            -1.0 if s.mirror else 1.0,
-        )
-
-    @property
-    def parents(self) -> np.ndarray:
-        parents = [-1]
-        for f in range(5):
-            parents += [0, 1 + 4 * f, 2 + 4 * f, 3 + 4 * f]
-        return np.array(parents)
 
     @property
     def derived_points(self):
@@ -224,7 +188,7 @@ class Hand26(HandModel):
 
     def bone_lengths(self) -> dict[str, float]:
         """Each bone's length in mm (scale applied), by bone name."""
-        lengths = self._geometry[3]
+        lengths = self._lengths()
         return {f"{f}_{seg}": float(lengths[i, k]) for i, f in enumerate(FINGERS) for k, seg in enumerate(SEGMENTS[f])}
 
     def bounds(self):
@@ -251,8 +215,3 @@ class Hand26(HandModel):
             for i, f in enumerate(FINGERS)
         )
         return (palm,) + fingers
-
-    def _forward(self, params):
-        wrist, bases, rest, lengths, sx = self._geometry
-        out = np.empty((params.shape[0], 21, 3))
-        return hand26_forward(params, wrist, bases, rest, lengths, sx, out)

@@ -16,6 +16,7 @@ The default root share, 0.5, is the paper's ablation split (4096 of 8301 evaluat
 
 from __future__ import annotations
 
+from functools import cached_property
 from typing import Any, Literal
 
 import numpy as np
@@ -50,7 +51,9 @@ class Stepwise(Optimizer):
 
     Settings = StepwiseSettings
 
+    @cached_property
     def inner(self) -> Optimizer:
+        """The configured per-stage optimiser."""
         s = self.settings
         if s.optimizer in ("stepwise", self.name):
             raise HybridfitError(f"{self.name}: the inner optimizer cannot be a stepwise optimizer itself")
@@ -72,14 +75,14 @@ class Stepwise(Optimizer):
         return stages, w
 
     def min_budget(self, task: Task) -> int:
-        inner = self.inner()
+        inner = self.inner
         stages, w = self._stages(task)
         w = np.asarray(w) / np.sum(w)
         need = [inner.min_budget(task.stage(n, p, q, task.budget)) / share for (n, p, q), share in zip(stages, w)]
         return int(np.ceil(max(need)))
 
     def minimize(self, task: Task, rng: np.random.Generator) -> None:
-        inner = self.inner()
+        inner = self.inner
         stages, w = self._stages(task)
         for (name, params, points), budget in zip(stages, split_budget(task.budget, w)):
             stage = task.stage(name, params, points, budget)
