@@ -109,8 +109,14 @@ class Task:
         return Task(self.problem, budget, parameters, points, base=self.base, name=name, parent=self)
 
     def commit(self, child: "Task") -> None:
-        """Fix a finished child's best parameters into this task's base."""
+        """Fix a finished child's best parameters into this task's base.
+
+        Committed children whose points partition this task's points add up to its loss; a
+        child scored on all of this task's points (a final refinement) replaces them.
+        """
         self.base[child.parameters] = child.best_x
+        if len(child.points) == len(self.points) and np.array_equal(np.sort(child.points), np.sort(self.points)):
+            self._committed = []
         self._committed.append(child)
 
     def result(self) -> OptimizeResult:

@@ -73,7 +73,7 @@ def names(kind: str) -> list[str]:
 def _load(kind: str, ep: metadata.EntryPoint) -> type:
     cls = ep.load()
     # the registry tells the class the name it is registered under
-    if getattr(cls, "name", None) in ("", None):
+    if not cls.__dict__.get("name"):  # its own name, not one inherited from a registered base
         cls.name = ep.name
     return cls
 

@@ -1,0 +1,80 @@
+"""`hybridfit fit` and `hybridfit plugins` from the command line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import hybridfit
+from hybridfit.cli import main
+
+
+@pytest.fixture(scope="module")
+def proposals_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cli") / "synthetic.npz"
+    assert main(["synth", "proposals", "--frames", "4", "--out", str(path), "--seed", "3"]) == 0
+    return path
+
+
+def test_plugins_lists_the_reference_plugins(capsys):
+    assert main(["plugins"]) == 0
+    out = capsys.readouterr().out
+    for name in ("hand26", "clamped-confidence", "pso", "stepwise-pso"):
+        assert name in out
+    assert "[hybridfit]" in out
+
+
+def test_fit_writes_the_documented_keys(proposals_file, tmp_path, capsys):
+    out = tmp_path / "fits.npz"
+    assert main(["fit", str(proposals_file), "--out", str(out), "--budget", "600", "--jobs", "2"]) == 0
+    assert "mean joint error" in capsys.readouterr().out
+    with np.load(out) as fits:
+        assert {"params", "joints", "objective", "evaluations", "joint_names"} <= set(fits.files)
+        assert fits["params"].shape == (4, 27) and (fits["evaluations"] == 600).all()
+        assert list(fits["joint_names"]) == list(hybridfit.create("model", "hand26").joint_names)
+
+
+def test_plugin_settings_from_toml(proposals_file, tmp_path):
+    cfg = tmp_path / "opt.toml"
+    cfg.write_text('schedule = "joint"\n')
+    out = tmp_path / "fits.npz"
+    assert main(["fit", str(proposals_file), "--out", str(out), "--budget", "300", "--optimizer-config", str(cfg)]) == 0
+    cfg.write_text('schedule = "diagonal"\n')
+    assert main(["fit", str(proposals_file), "--out", str(out), "--optimizer-config", str(cfg)]) == 2
+
+
+def corrupt(tmp_path):
+    path = tmp_path / "corrupt.npz"
+    path.write_bytes(b"PK\x03\x04 this is not a zip archive")
+    return path
+
+
+def missing_key(tmp_path):
+    path = tmp_path / "nokey.npz"
+    np.savez(path, proposals=np.zeros((1, 21, 1, 3)))
+    return path
+
+
+def nan_frame(tmp_path):
+    d = hybridfit.synthetic_proposals(3, seed=1)
+    d["proposals"][1, 4, 0, 2] = np.nan
+    path = tmp_path / "nan.npz"
+    np.savez(path, **d)
+    return path
+
+
+@pytest.mark.parametrize("make, args, message", [
+    (lambda t: t / "absent.npz", [], "absent.npz: no such file"),
+    (corrupt, [], "corrupt.npz: not a readable .npz file"),
+    (missing_key, [], "missing key 'confidences'"),
+    (nan_frame, [], "NaN or inf values (first in frame 1)"),
+    (None, ["--optimizer", "psx"], "unknown optimizer 'psx'; did you mean 'pso'?"),
+    (None, ["--budget", "9"], "budget 9 is too small"),
+])
+def test_user_errors_are_one_line_with_exit_code_2(proposals_file, tmp_path, capsys, make, args, message):
+    source = proposals_file if make is None else make(tmp_path)
+    code = main(["fit", str(source), "--out", str(tmp_path / "x.npz"), *args])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "x.npz").exists()

@@ -1,0 +1,39 @@
+"""Shared fixtures: plugins and small synthetic frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import hybridfit
+
+
+@pytest.fixture(scope="session")
+def hand26():
+    return hybridfit.create("model", "hand26")
+
+
+@pytest.fixture(scope="session")
+def clamped():
+    return hybridfit.create("objective", "clamped-confidence")
+
+
+@pytest.fixture(scope="session")
+def frames():
+    """8 synthetic frames with k = 3 noisy proposals and decoys."""
+    return hybridfit.synthetic_proposals(8, k=3, seed=11)
+
+
+@pytest.fixture(scope="session")
+def exact_frames():
+    """4 synthetic frames whose single proposal per joint is the true joint."""
+    return hybridfit.synthetic_proposals(4, k=1, noise_mm=0.0, p_missing=0.0, seed=5)
+
+
+def random_params(model, n, rng):
+    """(n, P) parameters within the model's bounds (positions within +-200 mm)."""
+    lower, upper = model.bounds()
+    lower, upper = lower.copy(), upper.copy()
+    lower[:3], upper[:3] = -200.0, 200.0
+    upper[:3] += [0, 0, 600]
+    return rng.uniform(lower, upper, size=(n, model.n_params))

@@ -1,0 +1,125 @@
+"""hand26: kinematics keep bone lengths, normalise quaternions, respect limits."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+import hybridfit
+from hybridfit.errors import HybridfitError
+from tests.conftest import random_params
+
+MODEL = hybridfit.create("model", "hand26")
+LOWER, UPPER = MODEL.bounds()
+
+
+def bone_lengths(joints, parents):
+    return np.linalg.norm(joints[..., 1:, :] - joints[..., parents[1:], :], axis=-1)
+
+
+angles = arrays(np.float64, 20, elements=st.floats(-4, 4))
+quaternion = arrays(np.float64, 4, elements=st.floats(-1, 1)).filter(lambda q: np.linalg.norm(q) > 1e-3)
+position = arrays(np.float64, 3, elements=st.floats(-500, 500))
+
+
+@settings(max_examples=60, deadline=None)
+@given(position, quaternion, angles)
+def test_bone_lengths_do_not_depend_on_parameters(pos, q, a):
+    x = np.concatenate([pos, q, a])
+    reference = bone_lengths(MODEL.forward(MODEL.default_params()), MODEL.parents)
+    np.testing.assert_allclose(bone_lengths(MODEL.forward(x), MODEL.parents), reference, rtol=1e-9, atol=1e-9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(quaternion, st.floats(0.01, 100), st.sampled_from([-1.0, 1.0]))
+def test_quaternion_is_normalised_inside_the_model(q, scale, sign):
+    x = MODEL.default_params()
+    x[3:7] = q
+    y = x.copy()
+    y[3:7] = sign * scale * q  # any non-zero multiple is the same rotation
+    np.testing.assert_allclose(MODEL.forward(x), MODEL.forward(y), atol=1e-9)
+
+
+def test_shapes_and_batching(hand26):
+    X = random_params(hand26, 7, np.random.default_rng(0))
+    J = hand26.forward(X)
+    assert J.shape == (7, 21, 3) and hand26.forward(X[3]).shape == (21, 3)
+    np.testing.assert_array_equal(hand26.forward(X[3:4])[0], J[3])
+    with pytest.raises(HybridfitError, match=r"shape \(N, 27\)"):
+        hand26.forward(np.zeros((2, 26)))
+
+
+def test_parameter_and_joint_names(hand26):
+    assert hand26.n_params == 27 and len(set(hand26.parameter_names)) == 27
+    assert hand26.n_joints == 21 and hand26.joint_names[0] == "wrist"
+    assert {"thumb_tip", "index_tip", "middle_tip", "ring_tip", "little_tip"} <= set(hand26.joint_names)
+
+
+def test_limits_are_anatomical_and_default_pose_valid(hand26):
+    lower, upper = hand26.bounds()
+    x = hand26.default_params()
+    assert np.all(x >= lower) and np.all(x <= upper)
+    i = hand26.parameter_names.index("index_pip_flexion")
+    assert np.degrees([lower[i], upper[i]]) == pytest.approx([0, 110])  # Lin, Wu & Huang 2000
+    i = hand26.parameter_names.index("ring_mcp_abduction")
+    assert np.degrees([lower[i], upper[i]]) == pytest.approx([-15, 15])
+    assert np.isinf(lower[:3]).all() and (lower[3:7] == -1).all()
+
+
+def test_flexion_bends_fingers_towards_the_palm(hand26):
+    x = hand26.default_params()
+    x[7:] = 0.0
+    flat = hand26.forward(x)
+    x[hand26.parameter_names.index("index_mcp_flexion")] = np.radians(90)
+    bent = hand26.forward(x)
+    tip = hand26.joint_names.index("index_tip")
+    # hand frame: z is palmar; a 90 degree MCP flexion points the finger out of the palm
+    assert bent[tip, 2] - flat[tip, 2] > 50
+    np.testing.assert_allclose(bent[: tip - 3], flat[: tip - 3])  # other joints unmoved
+
+
+def test_origin_is_the_palm_centre(hand26):
+    x = hand26.default_params()
+    x[:3] = [10.0, -20.0, 300.0]
+    np.testing.assert_allclose(hand26.points(x, ["palm_centre"])[0, 0], x[:3], atol=1e-9)
+
+
+def test_mirror_gives_the_left_hand(hand26):
+    left = hybridfit.create("model", "hand26", {"mirror": True})
+    x = hand26.default_params()
+    right_joints, left_joints = hand26.forward(x), left.forward(x)
+    np.testing.assert_allclose(left_joints[:, 0], -right_joints[:, 0], atol=1e-9)
+    np.testing.assert_allclose(left_joints[:, 1:], right_joints[:, 1:], atol=1e-9)
+
+
+def test_geometry_settings(hand26):
+    big = hybridfit.create("model", "hand26", {"scale": 1.1, "bone_lengths": {"index_proximal": 50.0}})
+    assert big.bone_lengths()["index_proximal"] == pytest.approx(55.0)
+    assert big.bone_lengths()["middle_middle"] == pytest.approx(1.1 * hand26.bone_lengths()["middle_middle"])
+    with pytest.raises(HybridfitError, match="unknown bone 'index_femur'"):
+        hybridfit.create("model", "hand26", {"bone_lengths": {"index_femur": 3.0}})
+    with pytest.raises(HybridfitError, match="scale"):
+        hybridfit.create("model", "hand26", {"scale": -1})
+    with pytest.raises(HybridfitError, match="unknown setting"):
+        hybridfit.create("model", "hand26", {"colour": "red"})
+
+
+def test_stages_partition_parameters_and_joints(hand26):
+    stages = hand26.stages()
+    assert [s.name for s in stages] == ["palm", "thumb", "index", "middle", "ring", "little"]
+    assert sorted(p for s in stages for p in s.parameters) == list(range(27))
+    assert sorted(j for s in stages for j in s.joints) == list(range(21))
+    assert stages[0].parameters == tuple(range(7)) and all(len(s.parameters) == 4 for s in stages[1:])
+
+
+def test_a_finger_stage_moves_only_its_own_joints(hand26):
+    rng = np.random.default_rng(1)
+    x = hand26.default_params()
+    for stage in hand26.stages()[1:]:
+        y = x.copy()
+        y[list(stage.parameters)] = rng.uniform(LOWER[list(stage.parameters)], UPPER[list(stage.parameters)])
+        moved = np.flatnonzero(np.linalg.norm(hand26.forward(y) - hand26.forward(x), axis=1) > 1e-9)
+        assert set(moved) <= set(stage.joints)

@@ -1,0 +1,77 @@
+"""clamped-confidence: the paper's objective, loss = -E in [-J, 0]."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+import hybridfit
+from hybridfit.errors import HybridfitError
+from hybridfit.objective import normalise_confidences
+
+OBJ = hybridfit.create("objective", "clamped-confidence")
+J, K = 5, 3
+
+proposals_st = arrays(np.float64, (J, K, 3), elements=st.floats(-100, 100))
+confidence_st = arrays(np.float64, (J, K), elements=st.floats(0, 10))
+points_st = arrays(np.float64, (4, J, 3), elements=st.floats(-150, 150))
+
+
+@settings(max_examples=80, deadline=None)
+@given(proposals_st, confidence_st, points_st)
+def test_loss_lies_between_minus_j_and_zero(p, c, x):
+    w = normalise_confidences(c)
+    loss = OBJ.bind(p, w)(x, np.arange(J))
+    assert loss.shape == (4,)
+    assert np.all(loss <= 0) and np.all(loss >= -J - 1e-12)
+    assert np.all(loss >= OBJ.lower_bound(w) - 1e-12)
+
+
+@settings(max_examples=80, deadline=None)
+@given(proposals_st, confidence_st)
+def test_optimum_at_the_most_confident_proposals(p, c):
+    w = normalise_confidences(c)
+    best = p[np.arange(J), w.argmax(axis=1)]
+    loss = OBJ.bind(p, w)(best[None], np.arange(J))[0]
+    assert loss == pytest.approx(OBJ.lower_bound(w))
+
+
+@settings(max_examples=50, deadline=None)
+@given(proposals_st, confidence_st, points_st)
+def test_loss_is_a_sum_over_points(p, c, x):
+    loss = OBJ.bind(p, normalise_confidences(c))
+    parts = sum(loss(x, np.array([j])) for j in range(J))
+    np.testing.assert_allclose(loss(x, np.arange(J)), parts, atol=1e-9)
+
+
+def test_paper_formula_by_hand():
+    p = np.zeros((1, 2, 3))
+    p[0, 1] = [30.0, 0, 0]
+    w = np.array([[0.25, 0.75]])
+    x = np.array([[[10.0, 0.0, 0.0]]])
+    # E = max(0.25 (1 - (10/40)^2), 0.75 (1 - (20/40)^2)) = max(0.234375, 0.5625)
+    assert OBJ.bind(p, w)(x, np.array([0]))[0] == pytest.approx(-0.5625)
+    far = np.array([[[500.0, 0.0, 0.0]]])  # clamped: d = 1 for every proposal
+    assert OBJ.bind(p, w)(far, np.array([0]))[0] == 0.0
+
+
+def test_joint_without_proposals_contributes_nothing():
+    p = np.zeros((2, 2, 3))
+    w = normalise_confidences(np.array([[0.0, 0.0], [1.0, 1.0]]))
+    assert (w[0] == 0).all()
+    assert OBJ.bind(p, w)(np.zeros((1, 2, 3)), np.array([0, 1]))[0] == pytest.approx(-0.5)
+
+
+def test_d_max_setting():
+    assert OBJ.settings.d_max_mm == 40.0
+    wide = OBJ.with_params(d_max_mm=80.0)
+    p = np.zeros((1, 1, 3))
+    w = np.ones((1, 1))
+    x = np.array([[[40.0, 0, 0]]])
+    assert OBJ.bind(p, w)(x, np.array([0]))[0] == 0.0
+    assert wide.bind(p, w)(x, np.array([0]))[0] == pytest.approx(-0.75)
+    with pytest.raises(HybridfitError, match="d_max_mm"):
+        OBJ.with_params(d_max_mm=0)

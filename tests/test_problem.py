@@ -1,0 +1,44 @@
+"""Problem: point mapping, stages over points, initial guess by rigid alignment."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import hybridfit
+from hybridfit.errors import HybridfitError
+from hybridfit.metrics import joint_errors
+from hybridfit.problem import Problem
+
+
+def test_initial_guess_recovers_the_global_pose_of_a_default_hand(hand26, clamped):
+    truth = hand26.default_params()
+    truth[:3] = [30.0, -10.0, 420.0]
+    truth[3:7] = [0.2, 0.9, -0.3, 0.1]
+    joints = hand26.forward(truth)
+    p = Problem(hand26, clamped, joints[:, None, :], np.ones((21, 1)))
+    assert joint_errors(hand26.forward(p.x0), joints).max() < 1e-6
+
+
+def test_search_box_is_centred_on_the_guess(hand26, clamped, frames):
+    p = Problem(hand26, clamped, frames["proposals"][0], frames["confidences"][0], search_radius_mm=25.0)
+    np.testing.assert_allclose(p.upper[:3] - p.x0[:3], 25.0)
+    assert np.all(p.lower[3:7] == -1) and np.all(p.upper[3:7] == 1)
+
+
+def test_points_can_be_derived_points(hand26, clamped):
+    x = hand26.default_params()
+    x[:3] = [0.0, 0.0, 400.0]
+    names = ["palm_centre", "index_tip", "thumb_tip"]
+    pts = hand26.points(x, names)[0]
+    p = Problem(hand26, clamped, pts[:, None, :], np.ones((3, 1)), names)
+    assert p.points(x[None]).shape == (1, 3, 3)
+    stages = p.stage_points()
+    assert [list(s[2]) for s in stages] == [[0], [2], [1], [], [], []]  # palm_centre scored with the palm
+    with pytest.raises(HybridfitError, match="'pinky' is neither a joint nor a derived point"):
+        Problem(hand26, clamped, pts[:, None, :], np.ones((3, 1)), ["pinky", "index_tip", "thumb_tip"])
+
+
+def test_frame_without_any_proposal_is_an_error(hand26, clamped):
+    with pytest.raises(HybridfitError, match="no proposals with positive confidence"):
+        Problem(hand26, clamped, np.zeros((21, 2, 3)), np.zeros((21, 2)))

@@ -1,0 +1,76 @@
+"""Plugin discovery through entry points: names, errors, broken plugins."""
+
+from __future__ import annotations
+
+import sys
+import warnings
+
+import pytest
+
+import hybridfit
+from hybridfit import registry
+from hybridfit.errors import HybridfitError, UnknownPluginError
+
+
+def test_reference_plugins_are_registered():
+    assert "hand26" in registry.names("model")
+    assert "clamped-confidence" in registry.names("objective")
+    assert {"pso", "stepwise-pso", "stepwise"} <= set(registry.names("optimizer"))
+
+
+def test_unknown_name_lists_registered_names_and_closest_match():
+    with pytest.raises(UnknownPluginError) as err:
+        registry.get("optimizer", "stepwise-psp")
+    message = str(err.value)
+    assert "did you mean 'stepwise-pso'?" in message and "pso" in message and "registered optimizers" in message
+    with pytest.raises(HybridfitError, match="unknown plugin kind"):
+        registry.get("renderer", "x")
+
+
+def test_create_from_name_config_or_instance():
+    pso = registry.create("optimizer", "pso", {"particles": 10})
+    assert pso.settings.particles == 10 and pso.name == "pso"
+    assert registry.create("optimizer", pso) is pso
+    assert registry.create("optimizer", pso, {"particles": 12}).settings.particles == 12
+
+
+def test_settings_round_trip_and_repr():
+    pso = registry.create("optimizer", "pso", {"particles": 10, "social": 1.5})
+    assert type(pso)(**pso.get_params()) == pso
+    assert repr(pso) == "PSO(particles=10, social=1.5)"
+
+
+@pytest.fixture
+def broken_distribution(tmp_path):
+    """A fake installed distribution with one broken and one working plugin."""
+    dist = tmp_path / "brokenplugins-1.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: brokenplugins\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text(
+        "[hybridfit.optimizers]\n"
+        "broken-opt = brokenplugins_mod:Missing\n"
+        "fine-opt = brokenplugins_mod:Fine\n"
+    )
+    (tmp_path / "brokenplugins_mod.py").write_text(
+        "from hybridfit_plugins.optimizers.pso import PSO\n"
+        "class Fine(PSO):\n    '''A working third-party optimiser.'''\n"
+    )
+    sys.path.insert(0, str(tmp_path))
+    registry.refresh()
+    yield
+    sys.path.remove(str(tmp_path))
+    sys.modules.pop("brokenplugins_mod", None)
+    registry.refresh()
+
+
+def test_a_broken_plugin_warns_and_the_others_keep_working(broken_distribution):
+    with pytest.warns(UserWarning, match=r"plugin 'broken-opt' \(hybridfit.optimizers = brokenplugins_mod:Missing\) failed"):
+        infos = {i.name: i for i in registry.available("optimizer")}
+    assert infos["broken-opt"].error and "Missing" in infos["broken-opt"].error
+    assert infos["fine-opt"].error is None and infos["fine-opt"].distribution == "brokenplugins"
+    assert infos["pso"].error is None
+    with pytest.raises(HybridfitError, match="broken-opt.*failed to import"):
+        registry.get("optimizer", "broken-opt")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert registry.create("optimizer", "fine-opt").settings.particles is None
