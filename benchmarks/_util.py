@@ -1,0 +1,26 @@
+"""Small helpers shared by the benchmark scripts: timing medians and Markdown tables."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+
+def median_time(fn, repeat: int = 7, number: int = 1) -> float:
+    """Median wall time of ``fn()`` in seconds over ``repeat`` runs of ``number`` calls each."""
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        for _ in range(number):
+            fn()
+        times.append((time.perf_counter() - t) / number)
+    return float(np.median(times))
+
+
+def table(header: list[str], rows: list[list]) -> str:
+    """A Markdown table."""
+    fmt = lambda v: f"{v:.3g}" if isinstance(v, float) else str(v)  # noqa: E731
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in rows]
+    return "\n".join(lines)
