@@ -73,3 +73,21 @@ def test_synthetic_proposals_layout():
     assert 5 < s["mean_error_mm"] < 40
     with pytest.raises(HybridfitError, match="k >= 1"):
         hybridfit.synthetic_proposals(3, k=0)
+
+
+def test_an_interrupt_keeps_the_finished_frames(frames, monkeypatch):
+    from hybridfit import fitting
+
+    real = fitting._fit_chunk
+
+    def interrupted_at_frame_2(spec, chunk, proposals, confidences):
+        if chunk[0] == 2:
+            raise KeyboardInterrupt
+        return real(spec, chunk, proposals, confidences)
+
+    monkeypatch.setattr(fitting, "_fit_chunk", interrupted_at_frame_2)
+    result = hybridfit.fit(frames["proposals"][:4], frames["confidences"][:4], budget=300)
+    assert result.interrupted
+    assert list(result.failed) == [False, False, True, True]
+    assert result.errors == {2: "interrupted", 3: "interrupted"}
+    assert np.isfinite(result.joints[:2]).all()

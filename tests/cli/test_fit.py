@@ -78,3 +78,21 @@ def test_user_errors_are_one_line_with_exit_code_2(proposals_file, tmp_path, cap
     assert code == 2
     assert message in err and err.count("\n") == 1 and "Traceback" not in err
     assert not (tmp_path / "x.npz").exists()
+
+
+def test_an_interrupted_fit_saves_finished_frames_and_exits_130(proposals_file, tmp_path, monkeypatch):
+    from hybridfit import fitting
+
+    real = fitting._fit_chunk
+
+    def interrupted_at_frame_1(spec, chunk, proposals, confidences):
+        if chunk[0] == 1:
+            raise KeyboardInterrupt
+        return real(spec, chunk, proposals, confidences)
+
+    monkeypatch.setattr(fitting, "_fit_chunk", interrupted_at_frame_1)
+    out = tmp_path / "partial.npz"
+    assert main(["fit", str(proposals_file), "--out", str(out), "--budget", "300"]) == 130
+    with np.load(out) as fits:
+        assert list(fits["failed"]) == [False, True, True, True]
+        assert np.isfinite(fits["joints"][0]).all()
