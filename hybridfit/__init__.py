@@ -7,6 +7,7 @@ optimisers (entry-point groups ``hybridfit.models``, ``hybridfit.objectives``,
 """
 
 from .errors import HybridfitError
+from .estimator import HybridEstimator
 from .fitting import FitResult, fit
 from .model import HandModel, Stage
 from .objective import Objective

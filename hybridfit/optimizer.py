@@ -118,6 +118,8 @@ class Task:
         if len(child.points) == len(self.points) and np.array_equal(np.sort(child.points), np.sort(self.points)):
             self._committed = []
         self._committed.append(child)
+        self.best_x = self.base[self.parameters].copy()
+        self.best_loss = float(sum(c.best_loss for c in self._committed))
 
     def result(self) -> OptimizeResult:
         """The best evaluated parameters (full vector) and loss.
@@ -125,11 +127,7 @@ class Task:
         After stages were committed, the loss is the sum of the stages' best losses (exact,
         since the objective is a sum over points and the stages partition the points).
         """
-        if self._committed:
-            params, loss = self.base.copy(), float(sum(c.best_loss for c in self._committed))
-        else:
-            params = self.full(self.best_x[None])[0]
-            loss = self.best_loss
+        params, loss = self.full(self.best_x[None])[0], self.best_loss
         hist = self.root._history
         return OptimizeResult(
             params=params,

@@ -7,6 +7,8 @@ import sys
 import numpy as np
 
 from .. import fit as fit_frames
+from ..datasets.skeletons import skeleton, with_derived_points
+from ..errors import HybridfitError
 from ..io import load_proposals, save_npz
 from ..metrics import summary
 from ._common import add_plugin_options, plugin_kwargs, positive_int
@@ -20,6 +22,8 @@ def register(sub) -> None:
     p.add_argument("--budget", type=positive_int, default=3400, help="objective evaluations per frame (default 3400)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--jobs", type=positive_int, default=1, help="parallel processes (results do not depend on it)")
+    p.add_argument("--dataset", help="icvl, nyu or msra: the proposals' skeleton when the npz has no joint_names "
+                   "(and the dataset's derived points for hand26)")
     p.add_argument("--search-radius", type=float, default=60.0, help="position search radius around the initial guess, mm")
     p.set_defaults(func=run)
 
@@ -27,13 +31,25 @@ def register(sub) -> None:
 def run(args) -> int:
     data = load_proposals(args.proposals)
     names = data.get("joint_names")
+    plugins = plugin_kwargs(args)
+    extra = {}
+    if args.dataset:
+        sk = skeleton(args.dataset)
+        if names is None:
+            if data["proposals"].shape[1] != len(sk):
+                raise HybridfitError(f"{args.proposals}: {data['proposals'].shape[1]} points, "
+                                     f"but the {sk.dataset} skeleton has {len(sk)}")
+            names = sk.model_names
+        if plugins["model"] == "hand26":
+            plugins["model_config"] = with_derived_points(plugins["model_config"], sk.dataset)
+        extra["dataset"] = np.asarray(sk.dataset)
     result = fit_frames(
         data["proposals"], data["confidences"],
         joint_names=None if names is None else list(names),
         budget=args.budget, seed=args.seed, jobs=args.jobs, search_radius_mm=args.search_radius,
-        progress=sys.stderr.isatty(), **plugin_kwargs(args),
+        progress=sys.stderr.isatty(), **plugins,
     )
-    save_npz(args.out, **result.to_npz())
+    save_npz(args.out, **result.to_npz(), **extra)
     F = len(result.failed)
     print(f"fitted {F - int(result.failed.sum())}/{F} frames -> {args.out}")
     for f, msg in sorted(result.errors.items())[:10]:

@@ -1,6 +1,9 @@
-"""``hybridfit synth``: generate synthetic data (``proposals``: proposal frames from the model)."""
+"""``hybridfit synth``: generate synthetic data (``proposals``: proposal frames from the model;
+``train``: the rendered training grid; ``test``: the rendered TrackSeq-like test sequence)."""
 
 from __future__ import annotations
+
+import sys
 
 from ..io import save_npz
 from ..synthetic import synthetic_proposals
@@ -20,10 +23,48 @@ def register(sub) -> None:
     q.add_argument("--model-config", metavar="TOML")
     q.set_defaults(func=run_proposals)
 
+    t = kinds.add_parser("train", help="rendered training grid: finger articulations x viewpoints (default 7168 frames)")
+    t.set_defaults(func=run_train)
+    s = kinds.add_parser("test", help="rendered TrackSeq-like test sequence of natural motions")
+    s.add_argument("--frames", type=positive_int, help="frames kept (default 400)")
+    s.set_defaults(func=run_test)
+    for c in (t, s):
+        c.add_argument("--out", required=True, help="output data set folder (replaced if it is a data set)")
+        c.add_argument("--config", metavar="TOML", help="settings file (keys of hybridfit.synthdata.GridConfig / SequenceConfig)")
+        c.add_argument("--seed", type=int, help="random seed (motions and noise; default 0)")
+        c.add_argument("--distance", type=float, metavar="MM", help="palm distance from the camera, mm (default 400)")
+        c.add_argument("--noise", action="store_true", help="add the default sensor noise model")
+
 
 def run_proposals(args) -> int:
     data = synthetic_proposals(args.frames, k=args.k, noise_mm=args.noise, seed=args.seed,
                                model=args.model, model_config=load_toml(args.model_config))
     save_npz(args.out, **data)
     print(f"wrote {args.frames} synthetic frames (k={args.k}) -> {args.out}")
+    return 0
+
+
+def _config(cls, args):
+    """The settings file with the command-line options on top."""
+    from ..synthdata import parse_config
+
+    base = load_toml(args.config)
+    options = {"seed": args.seed, "distance_mm": args.distance, "frames": getattr(args, "frames", None),
+               "noise": base.get("noise", {}) if args.noise else None}
+    return parse_config(cls, base, **{k: v for k, v in options.items() if v is not None})
+
+
+def run_train(args) -> int:
+    from ..synthdata import GridConfig, make_train
+
+    path = make_train(args.out, _config(GridConfig, args), progress=sys.stderr.isatty())
+    print(f"wrote the training grid -> {path}")
+    return 0
+
+
+def run_test(args) -> int:
+    from ..synthdata import SequenceConfig, make_test
+
+    path = make_test(args.out, _config(SequenceConfig, args), progress=sys.stderr.isatty())
+    print(f"wrote the test sequence -> {path}")
     return 0

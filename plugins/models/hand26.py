@@ -102,6 +102,11 @@ class Hand26Settings(Settings):
         default_factory=dict, description="per-angle limit overrides in degrees, e.g. {'index_mcp_flexion': [-10, 90]}"
     )
     mirror: bool = Field(False, description="left hand (mirror image of the right hand)")
+    derived_points: dict[str, dict[str, float]] = Field(
+        default_factory=dict,
+        description="extra named points as joint weights, e.g. {'icvl_palm': {'wrist': 0.5, 'middle_mcp': 0.5}}; "
+        "a name given here replaces a built-in derived point of that name",
+    )
 
     @field_validator("bone_lengths")
     @classmethod
@@ -131,7 +136,18 @@ class Hand26Settings(Settings):
                 raise ValueError(f"limits of {name!r} must satisfy lower <= upper, got ({lo}, {hi})")
         return v
 
-
+    @field_validator("derived_points")
+    @classmethod
+    def _derived(cls, v):
+        for name, weights in v.items():
+            if name in JOINT_NAMES:
+                raise ValueError(f"derived point {name!r} has the name of a joint")
+            if not weights:
+                raise ValueError(f"derived point {name!r} has no joint weights")
+            for joint in weights:
+                if joint not in JOINT_NAMES:
+                    raise ValueError(f"derived point {name!r}: unknown joint {joint!r} (joints: {', '.join(JOINT_NAMES)})")
+        return v
 
 
 def _frame(direction, bend) -> np.ndarray:
@@ -184,7 +200,9 @@ class Hand26(TreeHandModel):
 
     @property
     def derived_points(self):
-        return {"palm_centre": {j: 0.2 for j in ("wrist", "index_mcp", "middle_mcp", "ring_mcp", "little_mcp")}}
+        """``palm_centre`` (mean of the wrist and the four finger MCPs) and the settings' points."""
+        builtin = {"palm_centre": {j: 0.2 for j in ("wrist", "index_mcp", "middle_mcp", "ring_mcp", "little_mcp")}}
+        return {**builtin, **self.settings.derived_points}
 
     def bone_lengths(self) -> dict[str, float]:
         """Each bone's length in mm (scale applied), by bone name."""

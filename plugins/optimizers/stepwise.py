@@ -67,9 +67,14 @@ class Stepwise(Optimizer):
         return registry.create("optimizer", s.optimizer, s.optimizer_config)
 
     def _stages(self, task: Task):
-        stages = task.problem.stage_points()
+        """The stages restricted to the task's parameters and points, with budget weights.
+
+        Stages left with no free parameters or no points to score are skipped (their
+        parameters stay at the task's base) and their budget goes to the others.
+        """
         if self.settings.schedule == "joint":
             return [("joint", task.parameters, task.points)], [1.0]
+        stages = task.problem.stage_points()
         w = self.settings.stage_weights
         if w is None:
             rest = (1.0 - self.settings.root_share) / (len(stages) - 1)
@@ -79,7 +84,20 @@ class Stepwise(Optimizer):
                 f"{self.name}: stage_weights needs {len(stages)} positive weights "
                 f"({', '.join(s[0] for s in stages)}), got {w}"
             )
-        return stages, w
+        kept, weights = [], []
+        for (name, params, points), weight in zip(stages, w):
+            params = np.intersect1d(params, task.parameters)
+            points = np.intersect1d(points, task.points)
+            if len(params) and len(points):
+                kept.append((name, params, points))
+                weights.append(weight)
+        if not kept:
+            return [("joint", task.parameters, task.points)], [1.0]
+        # points no kept stage scores only add a constant: score them with the first stage
+        # so that the stage losses still add up to the task's loss
+        left = np.setdiff1d(task.points, np.concatenate([k[2] for k in kept]))
+        kept[0] = (kept[0][0], kept[0][1], np.union1d(kept[0][2], left))
+        return kept, weights
 
     def min_budget(self, task: Task) -> int:
         inner = self.inner

@@ -1,0 +1,116 @@
+"""ICVL benchmark: calibrate on 100 frames, then fit the ground truth, LRF and the paper's proposals.
+
+    python benchmarks/bench_icvl.py [--data ../shared/data/icvl] [--out bench_out/icvl] [--jobs 2]
+                                    [--d-max 40] [--budget 3400]
+
+Runs exactly these commands (printed as they run) and prints the tables:
+(a) the model-fit floor: calibrate on frames 0:100 (the first 100 frames of sequence 1),
+    fit the ground truth of every other frame as k = 1 proposals;
+(b) LRF's predictions refined by fitting them (k = 1) with the calibrated model;
+(c) the paper's own proposals (poier2015_proposals.npz, k = 3) fitted with it;
+with per-joint errors beside the paper's fitted model. Errors are over all 1596 frames
+(as in the data README) and over the 1496 frames not used for calibration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hybridfit.datasets.results import read_xyz
+from hybridfit.datasets.skeletons import skeleton
+from hybridfit.metrics import joint_errors, success_rate
+
+REPO = Path(__file__).resolve().parents[1]
+CALIB = "0:100"
+TEST = slice(100, None)
+
+
+def sh(*args: str) -> None:
+    cmd = ["hybridfit", *args]
+    print("$ " + " ".join(cmd), flush=True)
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "hybridfit", *args], check=True, stdout=subprocess.DEVNULL)
+    print(f"  ({time.perf_counter() - t:.0f} s)", flush=True)
+
+
+def row(label, pred, truth):
+    e = joint_errors(pred, truth)
+    s = success_rate(e, (20, 40, 80))
+    return f"| {label} | {np.nanmean(e):.2f} | {np.nanmean(e[:, list(skeleton('icvl').fingertips)]):.2f} | " \
+           f"{s[0]:.3f} | {s[1]:.3f} | {s[2]:.3f} |"
+
+
+def table(title, rows):
+    print(f"\n{title}\n")
+    print("| method | mean (mm) | fingertips (mm) | success@20 | success@40 | success@80 |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for r in rows:
+        print(r)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", default=str(REPO.parent / "shared" / "data" / "icvl"))
+    ap.add_argument("--out", default=str(Path(tempfile.gettempdir()) / "hybridfit_bench_icvl"))
+    ap.add_argument("--jobs", default="2")
+    ap.add_argument("--budget", default="3400")
+    ap.add_argument("--d-max", type=float, default=40.0, help="clamped-confidence d_max in mm")
+    a = ap.parse_args()
+    data, out = Path(a.data), Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    gt, lrf, poier = data / "icvl_test_groundtruth_label.txt", data / "lrf_cvpr14_predictions.txt", \
+        data / "poier2015_proposals.npz"
+    objective = out / "objective.toml"
+    objective.write_text(f"d_max_mm = {a.d_max}\n")
+    fit = ["--dataset", "icvl", "--model-config", str(out / "model.toml"), "--objective-config", str(objective),
+           "--budget", a.budget, "--jobs", a.jobs]
+
+    sh("calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--frames", CALIB, "--out", str(out / "model.toml"),
+       "--jobs", a.jobs)
+    sh("proposals", "from-results", "--dataset", "icvl", str(gt), "--frames", "100:", "--ground-truth", str(gt),
+       "--out", str(out / "gt_test.npz"))
+    sh("fit", str(out / "gt_test.npz"), *fit, "--out", str(out / "fit_gt.npz"))
+    sh("proposals", "from-results", "--dataset", "icvl", str(lrf), "--ground-truth", str(gt), "--out", str(out / "lrf.npz"))
+    sh("fit", str(out / "lrf.npz"), *fit, "--out", str(out / "fit_lrf.npz"))
+    sh("export-results", str(out / "fit_lrf.npz"), "--dataset", "icvl", "--out", str(out / "lrf_fitted.txt"))
+    sh("fit", str(poier), *fit, "--out", str(out / "fit_poier.npz"))
+    sh("export-results", str(out / "fit_poier.npz"), "--dataset", "icvl", "--out", str(out / "poier_fitted.txt"))
+    sh("evaluate", str(out / "poier_fitted.txt"), "--dataset", "icvl", "--ground-truth", str(gt),
+       "--compare", str(poier), str(out / "lrf_fitted.txt"), str(lrf), "--plot", str(out / "success_icvl.png"))
+
+    truth = read_xyz(gt, "icvl")
+    z = np.load(poier)
+    top1 = z["proposals"][:, :, 0].astype(float)  # sorted by confidence
+    paper = z["optimized"].astype(float)
+    fit_gt = np.load(out / "fit_gt.npz")["joints"]
+    fit_lrf, fit_poier = read_xyz(out / "lrf_fitted.txt", "icvl"), read_xyz(out / "poier_fitted.txt", "icvl")
+    raw_lrf = read_xyz(lrf, "icvl")
+
+    table("(a) model-fit floor: calibrated model fitted to the ground truth (k = 1), frames 100-1595",
+          [row("fit of the ground truth", fit_gt, truth[TEST])])
+    for name, sel in (("all 1596 frames", slice(None)), ("frames 100-1595 (not used for calibration)", TEST)):
+        table(f"(b) LRF refined, {name}", [row("LRF (published)", raw_lrf[sel], truth[sel]),
+                                            row("LRF fitted (k = 1, ours)", fit_lrf[sel], truth[sel])])
+        table(f"(c) the paper's proposals, {name}", [
+            row("top-1 proposals", top1[sel], truth[sel]),
+            row("paper's fit (optimized)", paper[sel], truth[sel]),
+            row("our fit of the proposals (k = 3)", fit_poier[sel], truth[sel])])
+    names = skeleton("icvl").names
+    cols = {"paper's fit": paper, "our fit (c)": fit_poier, "top-1": top1, "LRF": raw_lrf, "LRF fitted (b)": fit_lrf}
+    print("\nper-joint mean error (mm), all 1596 frames\n")
+    print("| joint | " + " | ".join(cols) + " |")
+    print("| --- |" + " --- |" * len(cols))
+    errs = {k: np.nanmean(joint_errors(v, truth), axis=0) for k, v in cols.items()}
+    for j, n in enumerate(names):
+        print(f"| {n} | " + " | ".join(f"{errs[k][j]:.2f}" for k in cols) + " |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,59 @@
+"""``hybridfit estimate``: depth frames -> forest proposals -> fitted hand poses."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from ..estimator import HybridEstimator
+from ..io import save_npz
+from ..metrics import summary
+from ._common import add_plugin_options, plugin_kwargs, positive_int
+from ._forest import frame_indices, ground_truth, open_dataset, report_empty
+from .propose import add_proposal_options
+
+
+def register(sub) -> None:
+    p = sub.add_parser("estimate", help="hand poses from depth frames: forest proposals + model fitting")
+    p.add_argument("forest", help="forest file (.npz from `hybridfit train`)")
+    p.add_argument("data", help="data-set folder")
+    p.add_argument("--out", required=True, help="output npz: the `hybridfit fit` keys plus proposals, confidences, empty")
+    add_proposal_options(p)
+    add_plugin_options(p)
+    p.add_argument("--budget", type=positive_int, default=3400, help="objective evaluations per frame (default 3400)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--jobs", type=positive_int, default=1, help="parallel fitting processes (results do not depend on it)")
+    p.add_argument("--search-radius", type=float, default=60.0, help="position search radius around the initial guess, mm")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    est = HybridEstimator(args.forest, k=args.k, proposal_set=args.proposal_set, stride=args.stride,
+                          bandwidth_mm=args.bandwidth, budget=args.budget, seed=args.seed, jobs=args.jobs,
+                          search_radius_mm=args.search_radius, **plugin_kwargs(args))
+    est.get_forest()
+    ds = open_dataset(args.data)
+    idx = frame_indices(ds, args.frames)
+    result = est.estimate_dataset(ds, idx, args.foreground, progress=sys.stderr.isatty())
+    fit = result.fit
+    out = {**fit.to_npz(), "proposals": result.proposals.proposals, "confidences": result.proposals.confidences,
+           "empty": result.proposals.empty, "frames": idx}
+    gt = ground_truth(ds, idx)
+    if gt is not None and gt.shape == fit.joints.shape:
+        out["ground_truth"] = gt
+    save_npz(args.out, **out)
+    F = len(idx)
+    print(f"estimated {F - int(fit.failed.sum())}/{F} frames -> {args.out}")
+    report_empty(result.proposals.empty, idx, sys.stderr)
+    for f, msg in sorted(fit.errors.items()):
+        if not result.proposals.empty[f]:
+            print(f"  frame {int(idx[f])}: {msg}", file=sys.stderr)
+    if "ground_truth" in out and (~fit.failed).any():
+        s = summary(fit.joints[~fit.failed], gt[~fit.failed])
+        print("fitted: mean joint error {mean_error_mm:.2f} mm; success rate @20/40/80 mm: "
+              "{success@20mm:.3f} / {success@40mm:.3f} / {success@80mm:.3f}".format(**s))
+    if fit.interrupted:
+        print(f"interrupted: finished frames saved to {args.out}", file=sys.stderr)
+        return 130
+    return 1 if F and fit.failed.all() else 0

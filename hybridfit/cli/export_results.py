@@ -1,0 +1,47 @@
+"""``hybridfit export-results``: fits (.npz) -> the common results format of a dataset."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..datasets.results import write_xyz
+from ..datasets.skeletons import skeleton
+from ..errors import HybridfitError
+from ..io import load_npz
+
+
+def in_skeleton_order(joints: np.ndarray, names, dataset: str, where: str) -> np.ndarray:
+    """(F, Q, 3) points named ``names`` (model point names, or None for the skeleton's
+    order) -> (F, J, 3) in the dataset's skeleton order; errors name the missing points."""
+    sk = skeleton(dataset)
+    if names is None:
+        if joints.shape[1] != len(sk):
+            raise HybridfitError(f"{where}: {joints.shape[1]} points without joint_names; {dataset} has {len(sk)}")
+        return joints
+    index = {str(n): i for i, n in enumerate(names)}
+    missing = [n for n in sk.model_names if n not in index]
+    if missing:
+        raise HybridfitError(f"{where}: no points for {dataset}'s {', '.join(missing)} (joint_names: {', '.join(index)})")
+    return joints[:, [index[n] for n in sk.model_names]]
+
+
+def register(sub) -> None:
+    p = sub.add_parser("export-results", help="write fitted joints in a dataset's common results format")
+    p.add_argument("fits", help="npz from `hybridfit fit` (joints, joint_names)")
+    p.add_argument("--dataset", required=True, help="icvl, nyu or msra")
+    p.add_argument("--out", required=True, help="results text file: one line per frame, J x (u, v, d)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    data = load_npz(args.fits)
+    if "joints" not in data:
+        raise HybridfitError(f"{args.fits}: missing key 'joints' (is it a fit result?)")
+    joints = in_skeleton_order(data["joints"], data.get("joint_names"), args.dataset, args.fits)
+    failed = ~np.isfinite(joints).all(axis=(1, 2))
+    if failed.any():
+        raise HybridfitError(f"{args.fits}: {int(failed.sum())} failed frames (first {int(np.argmax(failed))}) "
+                             "cannot be written in the results format")
+    write_xyz(args.out, joints, args.dataset)
+    print(f"wrote {len(joints)} frames -> {args.out}")
+    return 0

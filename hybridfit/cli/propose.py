@@ -1,0 +1,56 @@
+"""``hybridfit propose``: joint proposals with confidences from a forest (a `hybridfit fit` input)."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from ..estimator import HybridEstimator
+from ..io import save_npz
+from ..metrics import joint_errors
+from ._common import positive_int
+from ._forest import frame_indices, ground_truth, open_dataset, report_empty
+
+
+def add_proposal_options(p) -> None:
+    g = p.add_argument_group("proposals")
+    g.add_argument("-k", type=positive_int, default=3, help="proposals per joint (default 3)")
+    g.add_argument("--proposal-set", type=positive_int, default=200, help="|P~|: most confident votes per joint for mean-shift (default 200)")
+    g.add_argument("--stride", type=positive_int, default=2, help="pixel grid step of the dense sampling (default 2)")
+    g.add_argument("--bandwidth", type=float, default=10.0, help="mean-shift bandwidth, mm (default 10)")
+    g.add_argument("--foreground", choices=("auto", "labels", "depth", "segment"), default="auto",
+                   help="hand pixels: part labels, depth > 0, or nearest-object segmentation (default auto: labels if the data has them)")
+    g.add_argument("--frames", type=positive_int, help="the first N frames only")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("propose", help="joint proposals from a forest (-> proposals .npz, a `hybridfit fit` input)")
+    p.add_argument("forest", help="forest file (.npz from `hybridfit train`)")
+    p.add_argument("data", help="data-set folder")
+    p.add_argument("--out", required=True, help="output npz: proposals, confidences, joint_names, empty, ground_truth")
+    add_proposal_options(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    est = HybridEstimator(args.forest, k=args.k, proposal_set=args.proposal_set, stride=args.stride,
+                          bandwidth_mm=args.bandwidth)
+    est.get_forest()  # a bad forest file fails before the data is read
+    ds = open_dataset(args.data)
+    idx = frame_indices(ds, args.frames)
+    props = est.propose_dataset(ds, idx, args.foreground, progress=sys.stderr.isatty())
+    out = {"proposals": props.proposals, "confidences": props.confidences,
+           "joint_names": np.asarray(props.joint_names), "empty": props.empty, "frames": idx}
+    gt = ground_truth(ds, idx)
+    if gt is not None and gt.shape == props.proposals.shape[:2] + (3,):
+        out["ground_truth"] = gt
+    save_npz(args.out, **out)
+    print(f"proposals for {len(idx)} frames (k={args.k}, |P~|={args.proposal_set}) -> {args.out}")
+    report_empty(props.empty, idx, sys.stderr)
+    if "ground_truth" in out and (~props.empty).any():
+        ok = ~props.empty
+        top = joint_errors(props.proposals[ok, :, 0], gt[ok]).mean()
+        oracle = np.linalg.norm(props.proposals[ok] - gt[ok][:, :, None], axis=-1).min(-1).mean()
+        print(f"mean joint error: top proposal {top:.2f} mm, oracle (best of k) {oracle:.2f} mm")
+    return 1 if len(idx) and props.empty.all() else 0

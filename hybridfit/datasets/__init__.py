@@ -1,0 +1,69 @@
+"""Real hand-pose datasets (ICVL, NYU, MSRA 2015), their skeleton mappings onto the model,
+their camera conventions and the common results format.
+
+``open_dataset(path)`` detects the format of a folder or file and returns an object with
+the frame-access interface of :mod:`hybridfit.datasets.base` (the synthetic data set's
+interface), so training and estimation accept real folders.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from ..errors import HybridfitError
+from .base import RealDataset
+from .conventions import CONVENTIONS, Convention, convention
+from .icvl import ICVL, LABEL_FILES
+from .msra import MSRA
+from .nyu import NYU
+from .skeletons import SKELETONS, Skeleton, skeleton
+
+READERS = {"icvl": ICVL, "nyu": NYU, "msra": MSRA}
+DATASETS = tuple(READERS)
+
+
+def detect(path: str | os.PathLike) -> str:
+    """The format of a folder or file: 'synthetic', 'icvl', 'nyu' or 'msra'."""
+    p = Path(path)
+    if not p.exists():
+        raise HybridfitError(f"{p}: no such file or folder")
+    if p.is_file():
+        if p.name == "joint_data.mat":
+            return "nyu"
+        if p.name == "joint.txt":
+            return "msra"
+        if p.suffix == ".txt":
+            return "icvl"
+    else:
+        if (p / "meta.json").is_file():
+            return "synthetic"
+        if (p / "joint_data.mat").is_file():
+            return "nyu"
+        if any((p / f).is_file() for f in LABEL_FILES):
+            return "icvl"
+        if (p / "joint.txt").is_file() or next(p.glob("*/joint.txt"), None) or next(p.glob("*/*/joint.txt"), None):
+            return "msra"
+    raise HybridfitError(
+        f"{p}: not a recognised data set (synthetic meta.json, ICVL labels.txt, NYU joint_data.mat, MSRA joint.txt)"
+    )
+
+
+def open_dataset(path: str | os.PathLike, dataset: str | None = None):
+    """Open a data set folder or file; ``dataset`` forces the format (else it is detected)."""
+    kind = (dataset or detect(path)).lower()
+    if kind == "synthetic":
+        try:
+            from ..dataset import load_dataset
+        except ImportError:
+            raise HybridfitError(f"{path}: synthetic data sets need hybridfit.dataset, which is not installed") from None
+        return load_dataset(path)
+    if kind not in READERS:
+        raise HybridfitError(f"unknown dataset {dataset!r} (known: synthetic, {', '.join(READERS)})")
+    return READERS[kind](path)
+
+
+__all__ = [
+    "CONVENTIONS", "Convention", "DATASETS", "ICVL", "MSRA", "NYU", "RealDataset", "SKELETONS", "Skeleton",
+    "convention", "detect", "open_dataset", "skeleton",
+]

@@ -1,0 +1,65 @@
+"""The common results format used to compare published methods on ICVL, NYU and MSRA.
+
+One line per frame: J points x (u, v, d), whitespace separated (u, v pixels, d mm), J =
+16 (icvl), 14 (nyu) or 21 (msra), in the dataset's skeleton order (``skeletons``).
+Read as predictions, ground truth or proposals; our fits are written in it.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import HybridfitError
+from .conventions import convention
+from .skeletons import skeleton
+
+
+def read_uvd(path: str | os.PathLike, dataset: str) -> np.ndarray:
+    """A results file -> (F, J, 3) u, v, d; errors name the file and line."""
+    path, J = Path(path), len(skeleton(dataset))
+    if not path.is_file():
+        raise HybridfitError(f"{path}: no such file")
+    rows = []
+    with open(path) as fh:
+        for n, line in enumerate(fh, start=1):
+            fields = line.split()
+            if not fields:
+                continue
+            if len(fields) != 3 * J:
+                raise HybridfitError(
+                    f"{path}:{n}: expected {3 * J} numbers ({J} {dataset} points x u v d), got {len(fields)}"
+                )
+            try:
+                values = np.array(fields, dtype=np.float64)
+            except ValueError:
+                raise HybridfitError(f"{path}:{n}: not a number in {line.strip()[:60]!r}") from None
+            if not np.isfinite(values).all():
+                raise HybridfitError(f"{path}:{n}: NaN or inf value")
+            rows.append(values.reshape(J, 3))
+    if not rows:
+        raise HybridfitError(f"{path}: no frames")
+    return np.stack(rows)
+
+
+def read_xyz(path: str | os.PathLike, dataset: str) -> np.ndarray:
+    """A results file -> (F, J, 3) xyz mm in the dataset's own convention."""
+    return convention(dataset).to_xyz(read_uvd(path, dataset))
+
+
+def write_uvd(path: str | os.PathLike, uvd: np.ndarray, dataset: str) -> None:
+    """Write (F, J, 3) u, v, d as a results file."""
+    uvd = np.asarray(uvd, dtype=np.float64)
+    J = len(skeleton(dataset))
+    if uvd.ndim != 3 or uvd.shape[1:] != (J, 3):
+        raise HybridfitError(f"{path}: {dataset} results need shape (frames, {J}, 3), got {uvd.shape}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savetxt(path, uvd.reshape(len(uvd), -1), fmt="%.4f")
+
+
+def write_xyz(path: str | os.PathLike, xyz: np.ndarray, dataset: str) -> None:
+    """Write (F, J, 3) xyz mm (the dataset's convention) as a results file."""
+    write_uvd(path, convention(dataset).to_uvd(xyz), dataset)

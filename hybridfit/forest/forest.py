@@ -1,0 +1,279 @@
+"""The Forest: joint proposals with confidences from depth frames, and its .npz file.
+
+Inference (Shotton et al. 2013; Poier et al. 2015, "Joint Regression"): foreground pixels
+on a ``stride`` grid go down every tree; each adds its leaf's offset modes as weighted
+votes for every joint. Per joint the ``proposal_set`` (|P~|) most confident votes are
+clustered by mean-shift and the ``k`` modes with the most supporting votes become the
+proposals; a mode's confidence is its number of supporting votes, normalised so the k
+confidences of a joint sum to 1. With fewer than k modes the top proposal is repeated
+with confidence 0. Ties between equally confident votes are broken by a fixed hash of
+the pixel position, so the choice is spread over the hand and reproducible.
+
+File: one uncompressed .npz (no pickles) with ``format`` = "hybridfit-forest",
+``version``, the training ``config`` and ``intrinsics`` as JSON, ``joint_names``, the
+concatenated node arrays and the leaf modes (see ``Forest``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from numba import njit
+from tqdm.auto import tqdm
+
+from ..camera import Intrinsics
+from ..errors import HybridfitError
+from .features import pack_crops, traverse
+from .meanshift import mean_shift
+from .train import ForestConfig, TrainingSet, grow_forest
+
+FORMAT = "hybridfit-forest"
+VERSION = 1
+_ARRAYS = ("node_feature", "node_threshold", "node_left", "node_right", "node_leaf", "roots",
+           "leaf_offsets", "leaf_weights")
+
+
+@dataclass
+class Proposals:
+    """proposals (F, J, k, 3) mm, confidences (F, J, k) summing to 1 per joint (0 where a
+    joint got no votes), empty (F,) bool: frames without foreground pixels (all-0 confidences)."""
+
+    proposals: np.ndarray
+    confidences: np.ndarray
+    empty: np.ndarray
+    joint_names: tuple[str, ...]
+
+
+class Forest:
+    """A trained forest. Nodes of all trees are concatenated: node_feature (N, 4) float32 mm
+    offsets (ux, uy, vx, vy), node_threshold (N,) float32 mm, node_left / node_right (N,)
+    int32 children (-1 at leaves), node_leaf (N,) int32 leaf index (-1 at split nodes),
+    roots (T,) int32; leaf_offsets (L, J, M, 3) float32 mm and leaf_weights (L, J, M) float32."""
+
+    def __init__(self, config: ForestConfig, joint_names: Sequence[str], intrinsics: Intrinsics, **arrays):
+        self.config, self.joint_names, self.intrinsics = config, tuple(joint_names), intrinsics
+        for name in _ARRAYS:
+            setattr(self, name, arrays[name])
+
+    @property
+    def n_trees(self) -> int:
+        return len(self.roots)
+
+    @property
+    def n_joints(self) -> int:
+        return self.leaf_offsets.shape[1]
+
+    @classmethod
+    def from_trees(cls, trees: list[dict], config: ForestConfig, joint_names, intrinsics) -> "Forest":
+        """Concatenate per-tree arrays from ``train.grow_tree``."""
+        out = {k: [] for k in _ARRAYS}
+        n_nodes = n_leaves = 0
+        for t in trees:
+            out["roots"].append(n_nodes)
+            out["node_feature"].append(t["feature"])
+            out["node_threshold"].append(t["threshold"])
+            for side in ("left", "right"):
+                out[f"node_{side}"].append(np.where(t[side] >= 0, t[side] + n_nodes, -1).astype(np.int32))
+            out["node_leaf"].append(np.where(t["leaf"] >= 0, t["leaf"] + n_leaves, -1).astype(np.int32))
+            out["leaf_offsets"].append(t["leaf_offsets"])
+            out["leaf_weights"].append(t["leaf_weights"])
+            n_nodes += len(t["threshold"])
+            n_leaves += len(t["leaf_weights"])
+        arrays = {k: np.asarray(v, np.int32) if k == "roots" else np.concatenate(v) for k, v in out.items()}
+        return cls(config, joint_names, intrinsics, **arrays)
+
+    # ------------------------------------------------------------------------- file
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the forest as one .npz (atomically)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez(tmp, format=np.asarray(FORMAT), version=np.asarray(VERSION),
+                 config=np.asarray(self.config.model_dump_json()), intrinsics=np.asarray(self.intrinsics.model_dump_json()),
+                 joint_names=np.asarray(self.joint_names), **{k: getattr(self, k) for k in _ARRAYS})
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Forest":
+        """Read a forest file; a corrupt file or another format version raises HybridfitError naming it."""
+        path = Path(path)
+        if not path.is_file():
+            raise HybridfitError(f"{path}: no such forest file")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                d = {k: data[k] for k in data.files}
+        except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
+            raise HybridfitError(f"{path}: not a readable forest file ({type(err).__name__}: {err})") from None
+        if "format" not in d or str(d["format"]) != FORMAT:
+            raise HybridfitError(f"{path}: not a hybridfit forest file")
+        if int(d.get("version", -1)) != VERSION:
+            raise HybridfitError(f"{path}: forest file version {int(d.get('version', -1))}, this hybridfit reads version {VERSION}; retrain the forest")
+        missing = [k for k in (*_ARRAYS, "config", "intrinsics", "joint_names") if k not in d]
+        if missing:
+            raise HybridfitError(f"{path}: forest file lacks {', '.join(missing)}")
+        try:
+            config = ForestConfig.model_validate_json(str(d["config"]))
+            intrinsics = Intrinsics.model_validate_json(str(d["intrinsics"]))
+        except ValueError as err:
+            raise HybridfitError(f"{path}: bad forest settings ({err})") from None
+        forest = cls(config, [str(n) for n in d["joint_names"]], intrinsics, **{k: d[k] for k in _ARRAYS})
+        forest._check(path)
+        return forest
+
+    def _check(self, where) -> None:
+        N, L = len(self.node_threshold), len(self.leaf_weights)
+        ok = (self.node_feature.shape == (N, 4) and all(len(getattr(self, k)) == N for k in ("node_left", "node_right", "node_leaf"))
+              and self.leaf_offsets.shape[:3] == self.leaf_weights.shape and self.leaf_offsets.shape[3:] == (3,)
+              and self.leaf_offsets.shape[1] == len(self.joint_names) and len(self.roots) >= 1
+              and (self.roots >= 0).all() and (self.roots < N).all()
+              and (self.node_left < N).all() and (self.node_right < N).all() and (self.node_leaf < L).all()
+              and ((self.node_left >= 0) | (self.node_leaf >= 0)).all())
+        if not ok:
+            raise HybridfitError(f"{where}: inconsistent forest arrays (corrupt file?)")
+        for k, dt in (("node_feature", np.float32), ("node_threshold", np.float32), ("node_left", np.int32),
+                      ("node_right", np.int32), ("node_leaf", np.int32), ("roots", np.int32),
+                      ("leaf_offsets", np.float32), ("leaf_weights", np.float32)):
+            setattr(self, k, np.ascontiguousarray(getattr(self, k), dtype=dt))
+
+    # ------------------------------------------------------------------------- inference
+
+    def propose(self, depths: np.ndarray, intrinsics: Intrinsics, masks: np.ndarray | None = None, *,
+                k: int = 3, proposal_set: int = 200, stride: int = 2, bandwidth_mm: float = 10.0,
+                progress: bool = False) -> Proposals:
+        """Joint proposals for depth frames (n, H, W) or one frame (H, W), uint16 mm.
+
+        masks: foreground (same shape, bool); default depth > 0. Returns ``Proposals``
+        (a single frame still gives a leading frame axis of 1)."""
+        depths = np.asarray(depths)
+        if depths.ndim == 2:
+            depths = depths[None]
+            masks = None if masks is None else np.asarray(masks)[None]
+        if depths.ndim != 3 or depths.dtype != np.uint16:
+            raise HybridfitError(f"depth frames must be (frames, H, W) or (H, W) uint16 mm, got {depths.shape} {depths.dtype}")
+        if depths.shape[1:] != (intrinsics.height, intrinsics.width):
+            raise HybridfitError(f"depth frames are {depths.shape[2]}x{depths.shape[1]} but the intrinsics say {intrinsics.width}x{intrinsics.height}")
+        masks = depths > 0 if masks is None else np.asarray(masks)
+        if masks.shape != depths.shape or masks.dtype != bool:
+            raise HybridfitError(f"masks must be {depths.shape} bool, got {masks.shape} {masks.dtype}")
+        for name, value, lo in (("k", k, 1), ("proposal_set", proposal_set, 1), ("stride", stride, 1)):
+            if int(value) != value or value < lo:
+                raise HybridfitError(f"{name} must be a positive integer, got {value!r}")
+        if not bandwidth_mm > 0:
+            raise HybridfitError(f"bandwidth_mm must be positive, got {bandwidth_mm!r}")
+        masks = masks & (depths > 0)
+        F, J = len(depths), self.n_joints
+        out = Proposals(np.zeros((F, J, k, 3)), np.zeros((F, J, k)), np.zeros(F, bool), self.joint_names)
+        buf, meta = pack_crops(depths, masks)
+        fx, fy, bg = float(intrinsics.fx), float(intrinsics.fy), np.float32(self.config.background_mm)
+        for f in tqdm(range(F), disable=not progress, unit="frame", desc="propose"):
+            v, u = np.nonzero(masks[f, ::stride, ::stride])
+            if len(v) == 0:
+                out.empty[f] = True
+                continue
+            u, v = u.astype(np.int32) * stride, v.astype(np.int32) * stride
+            order = np.argsort((u.astype(np.uint32) * np.uint32(2654435761)) ^ (v.astype(np.uint32) * np.uint32(40503)), kind="stable")
+            u, v = u[order], v[order]
+            d = depths[f, v, u].astype(np.float32)
+            leaves = traverse(buf, meta, np.full(len(u), f, np.int32), u, v, d, self.node_feature, self.node_threshold,
+                              self.node_left, self.node_right, self.node_leaf, self.roots, fx, fy, bg)
+            xyz = np.stack([(u - intrinsics.cx) * d / intrinsics.fx, (v - intrinsics.cy) * d / intrinsics.fy,
+                            d.astype(np.float64)], axis=-1)
+            out.proposals[f], out.confidences[f] = frame_proposals(
+                xyz, leaves, self.leaf_offsets, self.leaf_weights, int(proposal_set), int(k), float(bandwidth_mm))
+        return out
+
+
+@njit(cache=True, nogil=True)
+def frame_proposals(xyz, leaves, leaf_offsets, leaf_weights, proposal_set, k, bandwidth):
+    """One frame's proposals (J, k, 3) mm and confidences (J, k) from pixel points xyz (n, 3)
+    mm and their leaves (n, T); see the module docstring."""
+    n, T = leaves.shape
+    J, M = leaf_weights.shape[1], leaf_weights.shape[2]
+    props = np.zeros((J, k, 3))
+    conf = np.zeros((J, k))
+    centre = np.zeros(3)
+    for i in range(n):
+        centre += xyz[i]
+    centre /= max(n, 1)
+    nv = n * T * M
+    W = np.empty((J, nv))  # vote weights, gathered leaf by leaf (each leaf's (J, M) block is contiguous)
+    for i in range(n):
+        for t in range(T):
+            leaf = leaves[i, t]
+            for j in range(J):
+                for m in range(M):
+                    W[j, (i * T + t) * M + m] = leaf_weights[leaf, j, m]
+    pts = np.empty((proposal_set, 3))
+    wts = np.empty(proposal_set)
+    for j in range(J):
+        w = W[j]
+        cut = 0.0
+        if nv > proposal_set:
+            cut = max(np.partition(w, nv - proposal_set)[nv - proposal_set], 0.0)
+        p = 0
+        for strict in (True, False):  # votes above the cut first, then ties at the cut
+            for c in range(nv):
+                if p == proposal_set:
+                    break
+                if (w[c] > cut) if strict else (w[c] == cut and w[c] > 0.0):
+                    i, r = c // (T * M), c % (T * M)
+                    off = leaf_offsets[leaves[i, r // M], j, r % M]
+                    pts[p, 0] = xyz[i, 0] + off[0]
+                    pts[p, 1] = xyz[i, 1] + off[1]
+                    pts[p, 2] = xyz[i, 2] + off[2]
+                    wts[p] = w[c]
+                    p += 1
+        if p == 0:
+            for q in range(k):
+                props[j, q] = centre
+            continue
+        modes, support = mean_shift(pts[:p], wts[:p], bandwidth)
+        kk = min(k, modes.shape[0])
+        total = 0.0
+        for q in range(kk):
+            total += support[q]
+        for q in range(k):
+            props[j, q] = modes[q] if q < kk else modes[0]
+            conf[j, q] = support[q] / total if q < kk else 0.0
+    return props, conf
+
+
+def train_forest(depths: np.ndarray, joints_xyz: np.ndarray, intrinsics: Intrinsics, parts: np.ndarray | None = None,
+                 config: ForestConfig | None = None, joint_names: Sequence[str] | None = None,
+                 jobs: int | None = None, progress: bool = False) -> Forest:
+    """Train on arrays: depths (F, H, W) uint16 mm, joints_xyz (F, J, 3) mm, parts (F, H, W)
+    uint8 (0 background, j + 1 closest joint; None: foreground depth > 0, nearest joint)."""
+    config = config or ForestConfig()
+    ts = TrainingSet(config, intrinsics)
+    ts.add(depths, joints_xyz, parts)
+    J = np.asarray(joints_xyz).shape[1]
+    names = tuple(joint_names) if joint_names is not None else tuple(f"joint{j}" for j in range(J))
+    if len(names) != J:
+        raise HybridfitError(f"{len(names)} joint names for {J} joints")
+    return Forest.from_trees(grow_forest(ts.finish(), jobs, progress), config, names, intrinsics)
+
+
+def train_forest_dataset(ds, config: ForestConfig | None = None, indices: Sequence[int] | None = None,
+                         jobs: int | None = None, progress: bool = False, chunk: int = 256) -> Forest:
+    """Train on a Dataset (``hybridfit.dataset`` interface), reading ``chunk`` frames at a time."""
+    config = config or ForestConfig()
+    idx = np.arange(len(ds)) if indices is None else np.asarray(indices, np.int64)
+    ts = TrainingSet(config, ds.intrinsics)
+    joints = np.asarray(ds.joints_xyz)
+    for s in tqdm(range(0, len(idx), chunk), disable=not progress, unit="chunk", desc="sample"):
+        part = idx[s:s + chunk]
+        depths = np.asarray(ds.depths(part))
+        try:
+            parts = np.asarray(ds.part_labels(part))
+            parts = parts if parts.any() else None
+        except (AttributeError, NotImplementedError, KeyError, OSError, HybridfitError):
+            parts = None  # no part labels: foreground depth > 0, labels from the nearest joint
+        ts.add(depths, joints[part], parts)
+    return Forest.from_trees(grow_forest(ts.finish(), jobs, progress), config, tuple(ds.joint_names), ds.intrinsics)

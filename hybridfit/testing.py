@@ -1,0 +1,395 @@
+"""Conformance checks that every hybridfit plugin, built-in or third-party, must pass.
+
+In the spirit of scikit-learn's ``check_estimator``: each check is a separate public
+function taking a configured plugin and raising ``AssertionError`` with a message naming
+the plugin and what is wrong, so a test suite can parametrize over (plugin, check) with
+one test id each::
+
+    from hybridfit import registry, testing
+
+    @pytest.mark.parametrize("check", testing.checks("optimizer"), ids=lambda c: c.__name__)
+    def test_my_optimizer(check):
+        check(registry.create("optimizer", "my-optimizer"))
+
+``check_model``, ``check_objective`` and ``check_optimizer`` run all checks of a kind.
+Optimiser checks fit small synthetic frames of the reference model (hand26) with the
+reference objective (clamped-confidence), so they take seconds, not minutes.
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+from typing import Callable
+
+import numpy as np
+
+from . import registry
+from .errors import HybridfitError
+from .model import HandModel
+from .objective import Objective, normalise_confidences
+from .optimizer import Optimizer, Task
+from .problem import Problem
+from .synthetic import synthetic_proposals
+
+__all__ = [
+    "RecordingTask", "check_config_round_trip", "check_pickle", "check_unknown_setting", "checks",
+    "check_model", "check_objective", "check_optimizer", "check_plugin",
+]
+
+#: evaluations per optimiser check (raised to the optimiser's min_budget when that is larger)
+CHECK_BUDGET = 150
+
+
+def _require(condition: bool, message: str) -> None:
+    if not condition:
+        raise AssertionError(message)
+
+
+def _label(plugin) -> str:
+    return f"{type(plugin).__name__} ({plugin.name or 'unregistered'})"
+
+
+# ------------------------------------------------------------------ every plugin
+def check_config_round_trip(plugin) -> None:
+    """``type(p)(**p.get_params()) == p``, through JSON too, and ``with_params()`` equals p."""
+    params = plugin.get_params()
+    _require(type(plugin)(**params) == plugin, f"{_label(plugin)}: rebuilding from get_params() gives a different plugin")
+    again = json.loads(json.dumps(params))
+    _require(type(plugin)(**again) == plugin, f"{_label(plugin)}: get_params() does not survive a JSON round trip")
+    _require(plugin.with_params() == plugin, f"{_label(plugin)}: with_params() without changes is not equal")
+    _require(isinstance(repr(plugin), str), f"{_label(plugin)}: repr failed")
+
+
+def check_unknown_setting(plugin) -> None:
+    """An unknown setting is refused with a HybridfitError naming it."""
+    try:
+        type(plugin)(**plugin.get_params(), no_such_setting_xyz=1)
+    except HybridfitError as err:
+        _require("no_such_setting_xyz" in str(err), f"{_label(plugin)}: the error does not name the setting: {err}")
+    else:
+        raise AssertionError(f"{_label(plugin)}: an unknown setting was accepted")
+
+
+def check_pickle(plugin) -> None:
+    """Plugins travel to worker processes (``fit(jobs=...)``): pickling keeps them equal."""
+    _require(pickle.loads(pickle.dumps(plugin)) == plugin, f"{_label(plugin)}: not equal after pickling")
+
+
+# ------------------------------------------------------------------ models
+def _random_params(model: HandModel, rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, P) parameters within the model's bounds (infinite bounds: +-100 around the default)."""
+    lower, upper = model.bounds()
+    x0 = model.default_params()
+    lower = np.where(np.isfinite(lower), lower, x0 - 100.0)
+    upper = np.where(np.isfinite(upper), upper, x0 + 100.0)
+    X = rng.uniform(lower, upper, size=(n, model.n_params))
+    X[:, 3:7] = rng.normal(size=(n, 4))
+    return X
+
+
+def check_model_shapes(model: HandModel) -> None:
+    """Names, parents, bounds and forward() have the documented shapes; bad shapes are refused."""
+    P, J = model.n_params, model.n_joints
+    _require(P >= 7, f"{_label(model)}: needs at least the 7 global pose parameters, has {P}")
+    parents = np.asarray(model.parents)
+    _require(parents.shape == (J,), f"{_label(model)}: parents has shape {parents.shape}, expected ({J},)")
+    _require(int((parents < 0).sum()) == 1 and all(p < j for j, p in enumerate(parents)),
+             f"{_label(model)}: parents must have one root (-1) and list parents before children")
+    lower, upper = model.bounds()
+    _require(lower.shape == (P,) and upper.shape == (P,), f"{_label(model)}: bounds must be two ({P},) arrays")
+    _require(bool((lower <= upper).all()), f"{_label(model)}: some lower bounds exceed the upper bounds")
+    X = _random_params(model, np.random.default_rng(0), 4)
+    out = model.forward(X)
+    _require(out.shape == (4, J, 3) and out.dtype == np.float64, f"{_label(model)}: forward((4, P)) gave {out.shape}")
+    _require(model.forward(X[0]).shape == (J, 3), f"{_label(model)}: forward((P,)) must give (J, 3)")
+    _require(model.forward(X[:0]).shape == (0, J, 3), f"{_label(model)}: forward((0, P)) must give (0, J, 3)")
+    try:
+        model.forward(np.zeros((2, P + 1)))
+    except HybridfitError:
+        pass
+    else:
+        raise AssertionError(f"{_label(model)}: forward accepted parameters of the wrong length")
+
+
+def check_model_batching(model: HandModel) -> None:
+    """A batch gives the same joints as its rows one at a time."""
+    X = _random_params(model, np.random.default_rng(1), 8)
+    batch = model.forward(X)
+    rows = np.stack([model.forward(X[i : i + 1])[0] for i in range(len(X))])
+    np.testing.assert_allclose(batch, rows, rtol=1e-12, atol=1e-9, err_msg=f"{_label(model)}: batch != rows")
+
+
+def check_model_default_pose(model: HandModel) -> None:
+    """The default pose lies within the bounds and its joints are finite."""
+    x0 = model.default_params()
+    lower, upper = model.bounds()
+    _require(x0.shape == (model.n_params,), f"{_label(model)}: default_params has shape {x0.shape}")
+    _require(bool(((x0 >= lower) & (x0 <= upper)).all()), f"{_label(model)}: the default pose violates the bounds")
+    _require(bool(np.isfinite(model.forward(x0)).all()), f"{_label(model)}: the default pose has non-finite joints")
+
+
+def check_model_bone_lengths(model: HandModel) -> None:
+    """Every joint keeps its distance to its parent under any parameters (rigid bones)."""
+    parents = np.asarray(model.parents)
+    child = np.flatnonzero(parents >= 0)
+    X = np.vstack([model.default_params()[None], _random_params(model, np.random.default_rng(2), 32)])
+    joints = model.forward(X)
+    lengths = np.linalg.norm(joints[:, child] - joints[:, parents[child]], axis=-1)
+    worst = np.abs(lengths - lengths[0]).max(axis=0)
+    bad = np.flatnonzero(worst > 1e-6 * max(1.0, float(lengths[0].max())))
+    _require(len(bad) == 0, f"{_label(model)}: bones change length: "
+             + ", ".join(f"{model.joint_names[child[b]]} (by {worst[b]:.3g} mm)" for b in bad[:5]))
+
+
+def check_model_stages(model: HandModel) -> None:
+    """Stages partition the parameters and the joints; the root stage holds the global pose;
+    a stage's parameters never move the joints of earlier stages."""
+    stages = model.stages()
+    params = sorted(p for s in stages for p in s.parameters)
+    joints = sorted(j for s in stages for j in s.joints)
+    _require(params == list(range(model.n_params)), f"{_label(model)}: stage parameters do not partition 0..P-1")
+    _require(joints == list(range(model.n_joints)), f"{_label(model)}: stage joints do not partition 0..J-1")
+    _require(set(range(7)) <= set(stages[0].parameters), f"{_label(model)}: the first stage must hold parameters 0..6")
+    rng = np.random.default_rng(3)
+    x = _random_params(model, rng, 1)[0]
+    lower, upper = model.bounds()
+    base = model.forward(x)
+    for s, stage in enumerate(stages):
+        moved = x.copy()
+        idx = list(stage.parameters)
+        moved[idx] = np.clip(x[idx] + rng.normal(0, 0.1, len(idx)) * np.maximum(1.0, np.abs(x[idx])), lower[idx], upper[idx])
+        delta = np.abs(model.forward(moved) - base).max(axis=-1)
+        earlier = [j for t in stages[:s] for j in t.joints]
+        _require(bool((delta[earlier] < 1e-9).all()) if earlier else True,
+                 f"{_label(model)}: stage {stage.name!r} moves joints of an earlier stage")
+
+
+# ------------------------------------------------------------------ objectives
+def _objective_frame(seed: int = 0, Q: int = 6, K: int = 3):
+    """Random proposals (Q, K, 3), weights (Q, K) with point 1 empty, points (5, Q, 3)."""
+    rng = np.random.default_rng(seed)
+    proposals = rng.normal(0.0, 30.0, size=(Q, K, 3))
+    conf = rng.random((Q, K))
+    conf[1] = 0.0
+    points = proposals[None, :, 0] + rng.normal(0.0, 15.0, size=(5, Q, 3))
+    return proposals, normalise_confidences(conf), points
+
+
+def check_objective_shapes(objective: Objective) -> None:
+    """loss(points (N, Q, 3), subset) is (N,) finite float64, N = 0 included."""
+    proposals, weights, points = _objective_frame()
+    loss = objective.bind(proposals, weights)
+    every = np.arange(len(proposals), dtype=np.int64)
+    out = loss(points, every)
+    _require(isinstance(out, np.ndarray) and out.shape == (5,) and out.dtype == np.float64,
+             f"{_label(objective)}: loss must be a (N,) float64 array, got {getattr(out, 'shape', type(out))}")
+    _require(bool(np.isfinite(out).all()), f"{_label(objective)}: non-finite losses {out}")
+    _require(loss(points[:0], every).shape == (0,), f"{_label(objective)}: N = 0 must give an empty array")
+
+
+def check_objective_batching(objective: Objective) -> None:
+    """Scoring a batch gives the same losses as scoring each hypothesis alone."""
+    proposals, weights, points = _objective_frame(1)
+    loss = objective.bind(proposals, weights)
+    every = np.arange(len(proposals), dtype=np.int64)
+    rows = np.array([loss(points[i : i + 1], every)[0] for i in range(len(points))])
+    np.testing.assert_allclose(loss(points, every), rows, rtol=1e-12, atol=1e-12,
+                               err_msg=f"{_label(objective)}: batch != rows")
+
+
+def check_objective_sum_over_points(objective: Objective) -> None:
+    """The loss is a sum over points: disjoint subsets add up, the empty subset scores 0,
+    and a point without proposals contributes nothing wherever it is."""
+    proposals, weights, points = _objective_frame(2)
+    loss = objective.bind(proposals, weights)
+    Q = len(proposals)
+    a, b = np.arange(0, Q, 2, dtype=np.int64), np.arange(1, Q, 2, dtype=np.int64)
+    whole = loss(points, np.arange(Q, dtype=np.int64))
+    np.testing.assert_allclose(loss(points, a) + loss(points, b), whole, rtol=1e-9, atol=1e-9,
+                               err_msg=f"{_label(objective)}: subset losses do not add up")
+    _require(bool((loss(points, np.zeros(0, dtype=np.int64)) == 0).all()), f"{_label(objective)}: empty subset != 0")
+    empty = np.array([1], dtype=np.int64)  # point 1 has all-zero weights
+    _require(bool((loss(points, empty) == 0).all()), f"{_label(objective)}: a point without proposals contributes")
+    moved = points.copy()
+    moved[:, 1] += 500.0
+    np.testing.assert_array_equal(loss(moved, np.arange(Q, dtype=np.int64)), whole,
+                                  err_msg=f"{_label(objective)}: moving a point without proposals changes the loss")
+
+
+def check_objective_lower_bound(objective: Objective) -> None:
+    """No loss is below ``lower_bound(weights)``, at the proposals themselves included."""
+    proposals, weights, points = _objective_frame(3)
+    loss = objective.bind(proposals, weights)
+    every = np.arange(len(proposals), dtype=np.int64)
+    at_top = proposals[np.arange(len(proposals)), weights.argmax(axis=-1)][None]
+    low = objective.lower_bound(weights)
+    values = np.concatenate([loss(points, every), loss(at_top, every)])
+    _require(bool((values >= low - 1e-9 * max(1.0, abs(low))).all()),
+             f"{_label(objective)}: losses {values.min()} below lower_bound {low}")
+
+
+def check_objective_deterministic(objective: Objective) -> None:
+    """Binding twice and scoring twice gives bit-identical losses."""
+    proposals, weights, points = _objective_frame(4)
+    every = np.arange(len(proposals), dtype=np.int64)
+    first = objective.bind(proposals, weights)(points, every)
+    second = objective.bind(proposals.copy(), weights.copy())(points.copy(), every)
+    np.testing.assert_array_equal(first, second, err_msg=f"{_label(objective)}: not deterministic")
+
+
+# ------------------------------------------------------------------ optimizers
+class RecordingTask(Task):
+    """A Task that records every evaluated batch (its stages share the record)."""
+
+    def __init__(self, *args, record: list | None = None, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.record: list[tuple[Task, np.ndarray]] = [] if record is None else record
+
+    def evaluate(self, X):
+        X = np.array(X, dtype=np.float64)
+        losses = super().evaluate(X)
+        self.record.append((self, X))
+        return losses
+
+    def stage(self, name, parameters, points, budget):
+        return RecordingTask(self.problem, budget, parameters, points, base=self.base, name=name, parent=self,
+                             record=self.record)
+
+
+def check_problem(seed: int = 0) -> Problem:
+    """A small synthetic frame (hand26, clamped-confidence, k = 3) for the optimiser checks."""
+    data = synthetic_proposals(1, k=3, seed=seed)
+    return Problem(registry.create("model", "hand26"), registry.create("objective", "clamped-confidence"),
+                   data["proposals"][0], data["confidences"][0])
+
+
+def _budget(optimizer: Optimizer, task: Task) -> int:
+    return max(CHECK_BUDGET, int(optimizer.min_budget(task)))
+
+
+def _counting(problem: Problem) -> list[int]:
+    """Count the rows that reach the problem's loss (the evaluations really made)."""
+    rows = [0]
+    evaluate = problem.evaluate
+
+    def counted(params, subset=None):
+        rows[0] += len(params)
+        return evaluate(params, subset)
+
+    problem.evaluate = counted
+    return rows
+
+
+def check_optimizer_budget(optimizer: Optimizer) -> None:
+    """Never more evaluations than the budget, and the reported number is the real one."""
+    problem = check_problem(1)
+    base = _budget(optimizer, Task(problem, 1))
+    for budget in (base, base + 37):
+        rows = _counting(problem)
+        result = optimizer.run(problem, budget, seed=0)
+        _require(rows[0] <= budget, f"{_label(optimizer)}: {rows[0]} evaluations for a budget of {budget}")
+        _require(result.evaluations == rows[0],
+                 f"{_label(optimizer)}: reports {result.evaluations} evaluations but made {rows[0]}")
+        del problem.evaluate
+        task = RecordingTask(problem, budget)
+        optimizer.minimize(task, np.random.default_rng(0))
+        _require(task.used == sum(len(X) for _, X in task.record) and task.used <= budget,
+                 f"{_label(optimizer)}: task.used {task.used} for budget {budget}")
+
+
+def check_optimizer_deterministic(optimizer: Optimizer) -> None:
+    """One seed gives a bit-identical result, whatever ran in between and whatever the
+    global numpy random state is (all randomness must come from the rng passed in)."""
+    problem = check_problem(2)
+    budget = _budget(optimizer, Task(problem, 1))
+    state = np.random.get_state()
+    try:
+        np.random.seed(1)
+        first = optimizer.run(problem, budget, seed=5)
+        optimizer.run(problem, budget, seed=6)
+        np.random.seed(2)
+        again = optimizer.run(problem, budget, seed=5)
+    finally:
+        np.random.set_state(state)
+    for field in ("params", "loss", "evaluations", "history_loss", "history_evaluations"):
+        np.testing.assert_array_equal(getattr(first, field), getattr(again, field),
+                                      err_msg=f"{_label(optimizer)}: {field} differs between runs with one seed")
+
+
+def check_optimizer_bounds(optimizer: Optimizer) -> None:
+    """Every evaluated hypothesis is finite and within its task's bounds."""
+    problem = check_problem(3)
+    task = RecordingTask(problem, _budget(optimizer, Task(problem, 1)))
+    optimizer.minimize(task, np.random.default_rng(0))
+    _require(bool(task.record), f"{_label(optimizer)}: evaluated nothing")
+    for t, X in task.record:
+        _require(bool(np.isfinite(X).all()), f"{_label(optimizer)}: non-finite hypotheses in task {t.name}")
+        outside = (X < t.lower) | (X > t.upper)
+        _require(not outside.any(), f"{_label(optimizer)}: {int(outside.any(axis=1).sum())} hypotheses outside "
+                 f"the bounds of task {t.name}")
+
+
+def check_optimizer_subset(optimizer: Optimizer) -> None:
+    """It works on a stage: a subset of the parameters (the others frozen) and points."""
+    problem = check_problem(4)
+    root = Task(problem, 10**6)
+    name, params, points = problem.stage_points()[2]
+    budget = _budget(optimizer, root.stage(name, params, points, 1))
+    stage = RecordingTask(problem, budget, params, points, base=root.base, name=name)
+    optimizer.minimize(stage, np.random.default_rng(0))
+    _require(0 < stage.used <= budget, f"{_label(optimizer)}: used {stage.used} of a stage budget of {budget}")
+    _require(all(X.shape[1] == len(params) for _, X in stage.record), f"{_label(optimizer)}: wrong dimension")
+    _require(np.isfinite(stage.best_loss), f"{_label(optimizer)}: no finite loss on the stage")
+
+
+def check_optimizer_min_budget(optimizer: Optimizer) -> None:
+    """min_budget is a positive int; a smaller budget is refused with a HybridfitError."""
+    problem = check_problem(5)
+    need = optimizer.min_budget(Task(problem, 1))
+    _require(isinstance(need, (int, np.integer)) and need >= 1, f"{_label(optimizer)}: min_budget {need!r}")
+    if need > 1:
+        try:
+            optimizer.run(problem, need - 1)
+        except HybridfitError as err:
+            _require(str(need) in str(err), f"{_label(optimizer)}: the error does not say the minimum: {err}")
+        else:
+            raise AssertionError(f"{_label(optimizer)}: a budget below min_budget ({need}) was accepted")
+
+
+# ------------------------------------------------------------------ registry of checks
+_COMMON = (check_config_round_trip, check_unknown_setting, check_pickle)
+_CHECKS: dict[str, tuple[Callable, ...]] = {
+    "model": _COMMON + (check_model_shapes, check_model_batching, check_model_default_pose,
+                        check_model_bone_lengths, check_model_stages),
+    "objective": _COMMON + (check_objective_shapes, check_objective_batching, check_objective_sum_over_points,
+                            check_objective_lower_bound, check_objective_deterministic),
+    "optimizer": _COMMON + (check_optimizer_budget, check_optimizer_deterministic, check_optimizer_bounds,
+                            check_optimizer_subset, check_optimizer_min_budget),
+}
+
+
+def checks(kind: str) -> tuple[Callable, ...]:
+    """The checks for a plugin kind ('model', 'objective' or 'optimizer'), in order."""
+    try:
+        return _CHECKS[kind]
+    except KeyError:
+        raise HybridfitError(f"unknown plugin kind {kind!r}; choose from {sorted(_CHECKS)}") from None
+
+
+def check_plugin(kind: str, plugin) -> None:
+    """Run every check of the kind on a configured plugin (raises on the first failure)."""
+    for check in checks(kind):
+        check(plugin)
+
+
+def check_model(model: HandModel) -> None:
+    check_plugin("model", model)
+
+
+def check_objective(objective: Objective) -> None:
+    check_plugin("objective", objective)
+
+
+def check_optimizer(optimizer: Optimizer) -> None:
+    check_plugin("optimizer", optimizer)

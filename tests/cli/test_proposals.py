@@ -1,0 +1,37 @@
+"""`hybridfit proposals from-results`."""
+
+import numpy as np
+
+from hybridfit.cli import main
+from hybridfit.datasets import skeleton
+
+from ._icvl_files import write_results
+
+
+def test_each_file_is_one_proposal_per_joint(tmp_path):
+    a, truth = write_results(tmp_path, name="a.txt")
+    b, _ = write_results(tmp_path, noise=5, seed=1, name="b.txt")
+    out = tmp_path / "p.npz"
+    assert main(["proposals", "from-results", "--dataset", "icvl", str(a), str(b), "--confidences", "3", "1",
+                 "--ground-truth", str(a), "--out", str(out)]) == 0
+    z = np.load(out)
+    assert z["proposals"].shape == (4, 16, 2, 3)
+    np.testing.assert_allclose(z["proposals"][:, :, 0], truth, atol=0.01)
+    np.testing.assert_allclose(z["confidences"][0, 0], [3, 1])
+    assert list(z["joint_names"]) == list(skeleton("icvl").model_names)
+    assert z["ground_truth"].shape == (4, 16, 3)
+
+
+def test_frame_selection_and_errors(tmp_path, capsys):
+    a, _ = write_results(tmp_path, frames=4, name="a.txt")
+    out = tmp_path / "p.npz"
+    assert main(["proposals", "from-results", "--dataset", "icvl", str(a), "--frames", "1:3", "--out", str(out)]) == 0
+    assert np.load(out)["proposals"].shape[0] == 2
+    b, _ = write_results(tmp_path, frames=3, name="b.txt")
+    assert main(["proposals", "from-results", "--dataset", "icvl", str(a), str(b), "--out", str(out)]) == 2
+    assert "b.txt: 3 frames" in capsys.readouterr().err
+    assert main(["proposals", "from-results", "--dataset", "nyu", str(a), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "a.txt:1: expected 42 numbers" in err and len(err.strip().splitlines()) == 1
+    assert main(["proposals", "from-results", "--dataset", "icvl", str(a), "--confidences", "1", "2",
+                 "--out", str(out)]) == 2

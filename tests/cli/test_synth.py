@@ -1,0 +1,52 @@
+import numpy as np
+import pytest
+
+from hybridfit.cli import main
+from hybridfit.dataset import load_dataset
+
+SMALL_GRID = """
+viewpoints_deg = [[0, 0, 0], [0, 0, 30]]
+[articulations_deg]
+thumb = [[-10, -20, 5, 0], [40, 30, 30, 20]]
+index = [[5, 0, 5, 5], [80, 0, 100, 70]]
+"""
+
+
+def test_synth_test_writes_a_data_set(tmp_path, capsys):
+    out = tmp_path / "seq"
+    assert main(["synth", "test", "--out", str(out), "--frames", "4", "--seed", "3"]) == 0
+    ds = load_dataset(out)
+    assert ds.frames == 4 and ds.meta["seed"] == 3 and ds.meta["config"]["frames"] == 4
+    assert ds.meta["generator"] == "hybridfit.synthdata.make_test"
+    assert ds.depths().shape == (4, 240, 320) and (ds.depths() > 0).any()
+    assert "wrote the test sequence" in capsys.readouterr().out
+
+
+def test_synth_train_with_a_settings_file(tmp_path):
+    config = tmp_path / "grid.toml"
+    config.write_text(SMALL_GRID)
+    out = tmp_path / "train"
+    assert main(["synth", "train", "--out", str(out), "--config", str(config), "--distance", "450", "--noise"]) == 0
+    ds = load_dataset(out)
+    assert ds.frames == 2 * 2 * 2
+    np.testing.assert_allclose(ds.params[:, 2], 450.0)
+    assert ds.meta["config"]["noise"] is not None and ds.meta["config"]["distance_mm"] == 450
+
+
+@pytest.mark.parametrize("args, match", [
+    (["synth", "test", "--distance", "-5"], "distance_mm"),
+    (["synth", "test", "--distance", "45"], "leaves the"),
+    (["synth", "train", "--config", "{toml}", "--distance", "60"], "leaves the"),
+    (["synth", "test", "--config", "{bad}"], "unknown setting"),
+    (["synth", "test", "--config", "{far}"], "leaves the 320x240 image"),
+    (["synth", "test", "--config", "missing.toml"], "no such file"),
+])
+def test_bad_input_exits_with_code_2(tmp_path, capsys, args, match):
+    (tmp_path / "grid.toml").write_text(SMALL_GRID)
+    (tmp_path / "bad.toml").write_text("colour = 'blue'\n")
+    (tmp_path / "far.toml").write_text("[intrinsics]\nfx = 2000\nfy = 2000\n")
+    args = [a.format(toml=tmp_path / "grid.toml", bad=tmp_path / "bad.toml", far=tmp_path / "far.toml") for a in args]
+    assert main(args + ["--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert match in err and err.count("\n") == 1
+    assert not (tmp_path / "out").exists()

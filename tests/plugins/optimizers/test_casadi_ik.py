@@ -1,0 +1,88 @@
+"""casadi-ik: IPOPT on a smooth surrogate with symbolic kinematics and honest accounting."""
+
+import numpy as np
+import pytest
+
+import hybridfit
+from hybridfit import registry, testing
+from hybridfit.errors import HybridfitError
+from hybridfit.optimizer import Task
+
+pytest.importorskip("casadi")
+
+
+def _exact(frames=1):
+    return hybridfit.synthetic_proposals(frames, k=1, noise_mm=0.0, p_missing=0.0, seed=3)
+
+
+def test_recovers_a_known_pose_from_exact_proposals():
+    data = _exact()
+    fit = hybridfit.fit(data["proposals"], data["confidences"], objective="least-squares", budget=1000,
+                        optimizer="casadi-ik")
+    assert np.linalg.norm(fit.joints - data["ground_truth"], axis=-1).max() < 0.05
+
+
+def test_stepwise_on_parameter_subsets_recovers_the_pose():
+    data = _exact()
+    fit = hybridfit.fit(data["proposals"], data["confidences"], budget=600,
+                        optimizer="stepwise", optimizer_config={"optimizer": "casadi-ik"})
+    assert np.linalg.norm(fit.joints - data["ground_truth"], axis=-1).max() < 0.05
+
+
+def test_every_function_and_gradient_is_charged():
+    problem = testing.check_problem()
+    for cost in (0, 2, 5):
+        task = testing.RecordingTask(problem, 120)
+        registry.create("optimizer", "casadi-ik", {"gradient_cost": cost}).minimize(task, np.random.default_rng(0))
+        sizes = [len(X) for _, X in task.record]
+        assert sizes[0] == 8  # the candidates, one batch
+        # then one row per new value, gradient_cost rows per gradient (+1 with a new value)
+        assert set(sizes[1:]) <= {1, cost, cost + 1} - {0}
+        assert 120 - 2 * (1 + cost) < task.used <= 120  # stopped before the budget runs out
+
+
+def test_reported_loss_is_the_task_objective_of_the_reported_params():
+    problem = testing.check_problem()
+    result = registry.create("optimizer", "casadi-ik").run(problem, 200)
+    assert result.loss == problem.evaluate(result.params[None])[0]
+
+
+def test_frozen_parameters_stay_at_the_base():
+    problem = testing.check_problem()
+    root = Task(problem, 1000)
+    name, params, points = problem.stage_points()[3]
+    stage = root.stage(name, params, points, 150)
+    registry.create("optimizer", "casadi-ik").minimize(stage, np.random.default_rng(0))
+    root.commit(stage)
+    others = np.setdiff1d(np.arange(27), params)
+    np.testing.assert_array_equal(root.base[others], problem.x0[others])
+
+
+def test_a_solver_failure_fails_its_frame_only():
+    data = hybridfit.synthetic_proposals(3, k=2, seed=0)
+    proposals = data["proposals"].copy()
+    proposals[1, 20] = 1e200  # the surrogate is NaN for frame 1: IPOPT cannot start
+    for on_failure in ("restart", "raise"):
+        fit = hybridfit.fit(proposals, data["confidences"], budget=200, optimizer="casadi-ik",
+                            optimizer_config={"on_failure": on_failure})
+        assert fit.failed.tolist() == [False, True, False]
+        assert "IPOPT failed" in fit.errors[1] and "Invalid_Number_Detected" in fit.errors[1]
+        assert np.isfinite(fit.joints[[0, 2]]).all()
+
+
+def test_budget_and_settings_errors():
+    data = hybridfit.synthetic_proposals(1)
+    with pytest.raises(HybridfitError, match="needs at least 20 evaluations"):
+        hybridfit.fit(data["proposals"], data["confidences"], budget=10, optimizer="casadi-ik")
+    with pytest.raises(HybridfitError, match="on_failure"):
+        registry.create("optimizer", "casadi-ik", {"on_failure": "ignore"})
+
+
+def test_a_model_without_a_kinematic_tree_is_refused():
+    from hybridfit_plugins.optimizers.casadi_ik import surrogate
+
+    problem = testing.check_problem()
+    task = Task(problem, 10)
+    problem.model = type("Opaque", (), {"name": "opaque"})()
+    with pytest.raises(HybridfitError, match="no kinematic_tree"):
+        surrogate(task, 15.0, np.ones(27))
