@@ -12,6 +12,7 @@ from .fitting import FitResult, fit
 from .model import HandModel, Stage
 from .objective import Objective
 from .optimizer import OptimizeResult, Optimizer, Task
+from .plugin import Plugin, Settings
 from .problem import Problem
 from .registry import available, create
 from .synthetic import synthetic_proposals
@@ -19,6 +20,7 @@ from .synthetic import synthetic_proposals
 __version__ = "0.1.0"
 
 __all__ = [
-    "FitResult", "HandModel", "HybridfitError", "Objective", "OptimizeResult", "Optimizer", "Problem",
-    "Stage", "Task", "available", "create", "fit", "synthetic_proposals", "__version__",
+    "FitResult", "HandModel", "HybridEstimator", "HybridfitError", "Objective", "OptimizeResult", "Optimizer",
+    "Plugin", "Problem", "Settings", "Stage", "Task", "available", "create", "fit", "synthetic_proposals",
+    "__version__",
 ]

@@ -2,7 +2,7 @@
 
 Used twice: at the leaves on training offsets, and at test time on the votes for a joint.
 Seeding by bins (as scikit-learn's ``bin_seeding``): the points are binned on a grid of
-cell size ``bandwidth`` and each occupied cell's weighted centroid seeds one search, the
+cell size ``2 * bandwidth`` and each occupied cell's weighted centroid seeds one search, the
 heaviest cells first; a search stops as soon as it comes within ``bandwidth / 2`` of a mode
 already found. The support of a mode is the number of points whose nearest mode it is
 (the number of votes supporting it).
@@ -36,11 +36,12 @@ def mean_shift(points, weights, bandwidth, max_iter=30, tol=0.1):
     if n == 0:
         return np.empty((0, 3)), np.zeros(0, np.int64)
     # bin seeding: one seed per occupied cell, the heaviest cells first
+    cell = 2.0 * bandwidth
     keys = np.empty(n, np.int64)
     for i in range(n):
-        a = np.int64(np.floor(points[i, 0] / bandwidth)) + 1048576
-        b = np.int64(np.floor(points[i, 1] / bandwidth)) + 1048576
-        c = np.int64(np.floor(points[i, 2] / bandwidth)) + 1048576
+        a = np.int64(np.floor(points[i, 0] / cell)) + 1048576
+        b = np.int64(np.floor(points[i, 1] / cell)) + 1048576
+        c = np.int64(np.floor(points[i, 2] / cell)) + 1048576
         keys[i] = (a << 42) | (b << 21) | c
     order = np.argsort(keys, kind="mergesort")
     seeds = np.zeros((n, 3))
@@ -57,7 +58,7 @@ def mean_shift(points, weights, bandwidth, max_iter=30, tol=0.1):
         mass[s] += w
     S = s + 1
     inv2s2 = 0.5 / (bandwidth * bandwidth)
-    cutoff2 = 9.0 * bandwidth * bandwidth
+    cutoff2 = 4.0 * bandwidth * bandwidth  # the kernel is cut at 2 sigma
     merge2 = 0.25 * bandwidth * bandwidth
     tol2 = (tol * bandwidth) ** 2
     modes = np.empty((S, 3))
