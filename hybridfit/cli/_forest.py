@@ -7,13 +7,48 @@ import numpy as np
 from ..errors import HybridfitError
 
 
-def open_dataset(path: str):
-    """A data-set folder through ``hybridfit.dataset.load_dataset`` (errors name the folder)."""
-    try:
-        from ..dataset import load_dataset
-    except ImportError as err:
-        raise HybridfitError(f"{path}: reading data sets needs hybridfit.dataset ({err})") from None
-    return load_dataset(path)
+class CameraFrame:
+    """A data set seen in the forest's frame: camera coordinates, x right, y down, z forward (mm).
+
+    Real datasets keep their own xyz convention (NYU and MSRA are y-up, MSRA has z = -d);
+    the forest and the fit work in camera coordinates, and ``to_dataset`` turns their
+    outputs back into the dataset's convention.
+    """
+
+    def __init__(self, ds) -> None:
+        self.source = ds
+        self.signs = np.array([1.0, getattr(ds, "y_sign", 1.0), getattr(ds, "z_sign", 1.0)])
+
+    def __getattr__(self, name):
+        return getattr(self.source, name)
+
+    def __len__(self) -> int:
+        return len(self.source)
+
+    @property
+    def joints_xyz(self) -> np.ndarray:
+        return self.source.joints_xyz * self.signs
+
+    def to_dataset(self, xyz: np.ndarray) -> np.ndarray:
+        """(..., 3) camera coordinates -> the dataset's xyz convention."""
+        return np.asarray(xyz) * self.signs
+
+    def model_config(self, model: str, config: dict) -> dict:
+        """The fitting model's settings with the dataset's derived points (hand26 only)."""
+        name = getattr(self.source, "dataset", "")
+        if model != "hand26" or not name:
+            return config
+        from ..datasets.skeletons import with_derived_points
+
+        return with_derived_points(config, name)
+
+
+def open_dataset(path: str) -> CameraFrame:
+    """A synthetic data-set folder or an ICVL, NYU or MSRA folder (detected), in camera
+    coordinates; errors name the folder."""
+    from ..datasets import open_dataset as open_any
+
+    return CameraFrame(open_any(path))
 
 
 def frame_indices(ds, frames: int | None) -> np.ndarray:
@@ -25,7 +60,7 @@ def frame_indices(ds, frames: int | None) -> np.ndarray:
 def ground_truth(ds, indices: np.ndarray) -> np.ndarray | None:
     """(n, J, 3) mm joints of the frames, or None where the data set has none."""
     try:
-        gt = ds.joints_xyz
+        gt = ds.source.joints_xyz  # in the dataset's own convention
     except (AttributeError, NotImplementedError, KeyError):
         return None
     if gt is None:

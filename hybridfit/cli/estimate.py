@@ -29,15 +29,18 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    ds = open_dataset(args.data)
+    plugins = plugin_kwargs(args)
+    plugins["model_config"] = ds.model_config(plugins["model"], plugins["model_config"])
     est = HybridEstimator(args.forest, k=args.k, proposal_set=args.proposal_set, stride=args.stride,
                           bandwidth_mm=args.bandwidth, budget=args.budget, seed=args.seed, jobs=args.jobs,
-                          search_radius_mm=args.search_radius, **plugin_kwargs(args))
+                          search_radius_mm=args.search_radius, **plugins)
     est.get_forest()
-    ds = open_dataset(args.data)
     idx = frame_indices(ds, args.frames)
     result = est.estimate_dataset(ds, idx, args.foreground, progress=sys.stderr.isatty())
     fit = result.fit
-    out = {**fit.to_npz(), "proposals": result.proposals.proposals, "confidences": result.proposals.confidences,
+    fit.joints, fit.model_joints = ds.to_dataset(fit.joints), ds.to_dataset(fit.model_joints)
+    out = {**fit.to_npz(), "proposals": ds.to_dataset(result.proposals.proposals), "confidences": result.proposals.confidences,
            "empty": result.proposals.empty, "frames": idx}
     gt = ground_truth(ds, idx)
     if gt is not None and gt.shape == fit.joints.shape:

@@ -40,6 +40,7 @@ def run(args) -> int:
     ds = open_dataset(args.data)
     idx = frame_indices(ds, args.frames)
     props = est.propose_dataset(ds, idx, args.foreground, progress=sys.stderr.isatty())
+    props.proposals = ds.to_dataset(props.proposals)
     out = {"proposals": props.proposals, "confidences": props.confidences,
            "joint_names": np.asarray(props.joint_names), "empty": props.empty, "frames": idx}
     gt = ground_truth(ds, idx)
