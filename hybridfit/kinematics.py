@@ -52,8 +52,11 @@ class KinematicTree:
 
 
 @nb.njit(cache=True, fastmath=True)
-def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, out):
-    """params (N, P) -> out (N, J, 3) mm: forward kinematics of a KinematicTree."""
+def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, active, out):
+    """params (N, P) -> out (N, J, 3) mm: forward kinematics of a KinematicTree.
+
+    Only joints with ``active[j]`` are computed (the others are NaN); the active set must
+    contain the parents of its joints."""
     J = parents.shape[0]
     A = axes.shape[1]
     G = np.empty((3, 3))
@@ -63,6 +66,8 @@ def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_pa
         p = params[n]
         quaternion_matrix(p[3], p[4], p[5], p[6], G)
         for j in range(J):
+            if not active[j]:
+                continue
             par = parents[j]
             if par < 0:
                 for r in range(3):
@@ -100,6 +105,10 @@ def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_pa
                     R[j, r, i0] = co * a0 + si * a1
                     R[j, r, i1] = co * a1 - si * a0
         for j in range(J):
+            if not active[j]:
+                for c in range(3):
+                    out[n, j, c] = np.nan
+                continue
             lx = mirror * pos[j, 0]
             ly = pos[j, 1]
             lz = pos[j, 2]
@@ -122,8 +131,32 @@ class TreeHandModel(HandModel):
     def parents(self) -> np.ndarray:
         return self._tree.parents
 
-    def _forward(self, params: np.ndarray) -> np.ndarray:
+    @cached_property
+    def _all_active(self) -> np.ndarray:
+        return np.ones(len(self._tree.parents), dtype=np.bool_)
+
+    @cached_property
+    def _active_cache(self) -> dict[bytes, np.ndarray]:
+        return {}
+
+    def active_joints(self, joints) -> np.ndarray:
+        """(J,) bool: the given joints and all their ancestors (cached per joint set)."""
+        joints = np.asarray(joints, dtype=np.int64)
+        key = joints.tobytes()
+        active = self._active_cache.get(key)
+        if active is None:
+            parents = self._tree.parents
+            active = np.zeros(len(parents), dtype=np.bool_)
+            for j in joints:
+                while j >= 0 and not active[j]:
+                    active[j] = True
+                    j = parents[j]
+            self._active_cache[key] = active
+        return active
+
+    def _forward(self, params: np.ndarray, joints=None) -> np.ndarray:
         t = self._tree
+        active = self._all_active if joints is None else self.active_joints(joints)
         out = np.empty((params.shape[0], len(t.parents), 3))
         return tree_forward(params, t.parents, t.offsets, t.rest, t.rest_is_identity, t.axes, t.axis_params,
-                            float(t.mirror), out)
+                            float(t.mirror), active, out)

@@ -77,8 +77,11 @@ class HandModel(Plugin, abc.ABC):
         """The parameter groups for stepwise optimisation, root (global pose) first."""
 
     @abc.abstractmethod
-    def _forward(self, params: np.ndarray) -> np.ndarray:
-        """(N, P) float64 C-contiguous -> (N, J, 3) joints in mm."""
+    def _forward(self, params: np.ndarray, joints: np.ndarray | None = None) -> np.ndarray:
+        """(N, P) float64 C-contiguous -> (N, J, 3) joints in mm.
+
+        joints: if given, only these joints are needed (a model may leave the others NaN
+        to save time; computing all is always correct)."""
 
     # ----------------------------------------------------------------- derived API
     @property
@@ -89,8 +92,10 @@ class HandModel(Plugin, abc.ABC):
     def n_joints(self) -> int:
         return len(self.joint_names)
 
-    def forward(self, params: np.ndarray) -> np.ndarray:
-        """Batched forward kinematics: params (N, P) or (P,) -> joints (N, J, 3) or (J, 3), mm."""
+    def forward(self, params: np.ndarray, joints: np.ndarray | None = None) -> np.ndarray:
+        """Batched forward kinematics: params (N, P) or (P,) -> joints (N, J, 3) or (J, 3), mm.
+
+        joints: optional indices of the joints needed; the others may come back NaN."""
         params = np.asarray(params, dtype=np.float64)
         single = params.ndim == 1
         batch = np.ascontiguousarray(params[None] if single else params)
@@ -99,8 +104,8 @@ class HandModel(Plugin, abc.ABC):
                 f"{self.name or type(self).__name__}: parameters must have shape (N, {self.n_params}), "
                 f"got {params.shape}"
             )
-        joints = self._forward(batch)
-        return joints[0] if single else joints
+        out = self._forward(batch) if joints is None else self._forward(batch, joints)
+        return out[0] if single else out
 
     @property
     def point_names(self) -> tuple[str, ...]:

@@ -97,7 +97,7 @@ class Task:
             task.used += n
             task = task.parent
         if n:
-            i = int(np.argmin(losses))
+            i = losses.argmin()
             if losses[i] < self.best_loss:
                 self.best_loss = float(losses[i])
                 self.best_x = X[i].copy()

@@ -45,6 +45,7 @@ class Problem:
             self.point_matrix = model.point_matrix(self.point_names)
         self.loss = objective.bind(self.proposals, self.weights)
         self.all_points = np.arange(len(self.point_names), dtype=np.int64)
+        self._needed: dict[bytes, np.ndarray | None] = {}
         self.x0 = initial_guess(self)
         lower, upper = model.bounds()
         lower, upper = lower.astype(float).copy(), upper.astype(float).copy()
@@ -54,16 +55,34 @@ class Problem:
         upper[ORIENTATION] = np.minimum(upper[ORIENTATION], 1.0)
         self.lower, self.upper = lower, upper
 
-    def points(self, params: np.ndarray) -> np.ndarray:
-        """(N, P) -> (N, Q, 3) model points matching the proposals' points, mm."""
-        joints = self.model.forward(params)
+    def points(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
+        """(N, P) -> (N, Q, 3) model points matching the proposals' points, mm.
+
+        With a ``subset`` of point indices only those points are guaranteed (the model may
+        skip joints that no point of the subset depends on)."""
+        joints = self.model.forward(params, None if subset is None else self._joints_for(subset))
         if self.point_matrix is None:
             return joints
-        return np.einsum("qj,njc->nqc", self.point_matrix, joints)
+        M = self.point_matrix if subset is None else self.point_matrix[subset]
+        pts = np.zeros((len(params), len(self.point_names), 3))
+        pts[:, self.all_points if subset is None else subset] = np.einsum(
+            "qj,njc->nqc", M, np.nan_to_num(joints, nan=0.0))
+        return pts
+
+    def _joints_for(self, subset: np.ndarray) -> np.ndarray | None:
+        """The joints the points in ``subset`` depend on (cached per subset)."""
+        key = np.asarray(subset, dtype=np.int64).tobytes()
+        if key not in self._needed:
+            if self.point_matrix is None:
+                self._needed[key] = np.asarray(subset, dtype=np.int64)
+            else:
+                self._needed[key] = np.flatnonzero(np.abs(self.point_matrix[subset]).sum(axis=0) > 0)
+        return self._needed[key]
 
     def evaluate(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
         """(N, P) -> (N,) loss over the points in ``subset`` (all by default)."""
-        return self.loss(self.points(params), self.all_points if subset is None else subset)
+        subset = self.all_points if subset is None else subset
+        return self.loss(self.points(params, subset), subset)
 
     def stage_points(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """The model's stages as (name, parameter indices, point indices).
