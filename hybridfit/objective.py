@@ -38,6 +38,15 @@ class Objective(Plugin, abc.ABC):
         return -np.inf
 
 
+def kernel_loss(kernel: Callable, *frame_data) -> Loss:
+    """A Loss calling a batched numba ``kernel(points (N, Q, 3), subset (m,), *frame_data) -> (N,)``."""
+
+    def loss(points: np.ndarray, subset: np.ndarray) -> np.ndarray:
+        return kernel(np.ascontiguousarray(points, dtype=np.float64), np.asarray(subset, dtype=np.int64), *frame_data)
+
+    return loss
+
+
 def normalise_confidences(confidences: np.ndarray) -> np.ndarray:
     """(..., K) non-negative confidences -> weights summing to 1 over K (0 stays all-0)."""
     c = np.asarray(confidences, dtype=np.float64)

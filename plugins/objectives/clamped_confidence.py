@@ -18,7 +18,7 @@ import numba as nb
 import numpy as np
 from pydantic import Field
 
-from hybridfit.objective import Objective
+from hybridfit.objective import Objective, kernel_loss
 from hybridfit.plugin import Settings
 
 
@@ -27,8 +27,8 @@ class ClampedConfidenceSettings(Settings):
 
 
 @nb.njit(cache=True, fastmath=True)
-def clamped_confidence_loss(points, proposals, weights, subset, inv_d_max_sq):
-    """points (N, Q, 3), proposals (Q, K, 3), weights (Q, K), subset (m,) -> (N,) -E."""
+def clamped_confidence_loss(points, subset, proposals, weights, inv_d_max_sq):
+    """points (N, Q, 3), subset (m,), proposals (Q, K, 3), weights (Q, K) -> (N,) -E."""
     N = points.shape[0]
     K = proposals.shape[1]
     out = np.empty(N)
@@ -63,15 +63,8 @@ class ClampedConfidence(Objective):
     Settings = ClampedConfidenceSettings
 
     def bind(self, proposals, weights):
-        proposals = np.ascontiguousarray(proposals, dtype=np.float64)
-        weights = np.ascontiguousarray(weights, dtype=np.float64)
-        inv = 1.0 / self.settings.d_max_mm**2
-
-        def loss(points, subset):
-            return clamped_confidence_loss(np.ascontiguousarray(points, dtype=np.float64), proposals, weights,
-                                           np.asarray(subset, dtype=np.int64), inv)
-
-        return loss
+        return kernel_loss(clamped_confidence_loss, np.ascontiguousarray(proposals, dtype=np.float64),
+                           np.ascontiguousarray(weights, dtype=np.float64), 1.0 / self.settings.d_max_mm**2)
 
     def lower_bound(self, weights):
         return -float(np.max(weights, axis=-1).sum())

@@ -20,7 +20,7 @@ import numba as nb
 import numpy as np
 from pydantic import Field
 
-from hybridfit.objective import Objective
+from hybridfit.objective import Objective, kernel_loss
 from hybridfit.plugin import Settings
 
 
@@ -29,8 +29,8 @@ class GaussianMixtureSettings(Settings):
 
 
 @nb.njit(cache=True, fastmath=False)
-def gaussian_mixture_loss(points, proposals, weights, subset, sigma):
-    """points (N, Q, 3), proposals (Q, K, 3), weights (Q, K), subset (m,) -> (N,) NLL."""
+def gaussian_mixture_loss(points, subset, proposals, weights, sigma):
+    """points (N, Q, 3), subset (m,), proposals (Q, K, 3), weights (Q, K) -> (N,) NLL."""
     N = points.shape[0]
     K = proposals.shape[1]
     inv_two_var = 0.5 / (sigma * sigma)
@@ -67,15 +67,8 @@ class GaussianMixture(Objective):
     Settings = GaussianMixtureSettings
 
     def bind(self, proposals, weights):
-        proposals = np.ascontiguousarray(proposals, dtype=np.float64)
-        weights = np.ascontiguousarray(weights, dtype=np.float64)
-        sigma = float(self.settings.sigma_mm)
-
-        def loss(points, subset):
-            return gaussian_mixture_loss(np.ascontiguousarray(points, dtype=np.float64), proposals, weights,
-                                         np.asarray(subset, dtype=np.int64), sigma)
-
-        return loss
+        return kernel_loss(gaussian_mixture_loss, np.ascontiguousarray(proposals, dtype=np.float64),
+                           np.ascontiguousarray(weights, dtype=np.float64), float(self.settings.sigma_mm))
 
     def lower_bound(self, weights):
         # a mixture's density never exceeds its components' peak density (2 pi sigma^2)^-1.5

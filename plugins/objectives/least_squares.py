@@ -11,12 +11,12 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from hybridfit.objective import Objective
+from hybridfit.objective import Objective, kernel_loss
 
 
 @nb.njit(cache=True, fastmath=True)
-def least_squares_loss(points, targets, active, subset):
-    """points (N, Q, 3), targets (Q, 3), active (Q,) bool, subset (m,) -> (N,) sum of d^2."""
+def least_squares_loss(points, subset, targets, active):
+    """points (N, Q, 3), subset (m,), targets (Q, 3), active (Q,) bool -> (N,) sum of d^2."""
     N = points.shape[0]
     out = np.empty(N)
     for n in range(N):
@@ -40,13 +40,7 @@ class LeastSquares(Objective):
         weights = np.asarray(weights, dtype=np.float64)
         top = weights.argmax(axis=-1)
         targets = np.ascontiguousarray(proposals[np.arange(len(top)), top])
-        active = np.ascontiguousarray(weights.max(axis=-1) > 0)
-
-        def loss(points, subset):
-            return least_squares_loss(np.ascontiguousarray(points, dtype=np.float64), targets, active,
-                                      np.asarray(subset, dtype=np.int64))
-
-        return loss
+        return kernel_loss(least_squares_loss, targets, np.ascontiguousarray(weights.max(axis=-1) > 0))
 
     def lower_bound(self, weights):
         return 0.0
