@@ -8,7 +8,8 @@ Prints (the machine is shared: medians, and CPU time next to wall time):
 1. with --train: training the forest (default ForestConfig: the paper's 3 trees, depth 23)
    on all frames, wall and CPU time and peak resident memory;
 2. the load time of the forest file;
-3. proposals for one frame on one core at k = 3, |P~| = 200 (median over test frames);
+3. proposals for one frame on one core at k = 3 (default |P~| = 200, stride 2, bandwidth 10 mm;
+   --proposal-set, --stride, --bandwidth change them; median over test frames);
 4. on the test sequence: the plain regression (top proposal per joint), the Oracle (the
    proposal closest to the truth among the top k, k = 1..5) and the fitted pose
    (hybridfit.fit, stepwise PSO, k = 3): mean joint error, fingertip error and success
@@ -51,12 +52,18 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=2, help="training threads and fitting processes")
     ap.add_argument("--budget", type=int, default=3400, help="objective evaluations per fitted frame")
     ap.add_argument("--config", default="{}", help="ForestConfig overrides as JSON")
+    ap.add_argument("--stride", type=int, default=2, help="test-time pixel stride")
+    ap.add_argument("--bandwidth", type=float, default=10.0, help="test-time mean-shift bandwidth, mm")
+    ap.add_argument("--proposal-set", type=int, default=200, help="votes per joint into mean-shift (|P~|)")
     args = ap.parse_args()
 
     if args.train:
         import json
 
         ds = load_dataset(args.train)
+        grid = ds.meta.get("config", {})
+        print(f"training grid {args.train}: viewpoint jitter {grid.get('viewpoint_jitter_deg', 0)} deg, position jitter "
+              f"{grid.get('position_jitter_mm', 0)} mm, distance jitter {grid.get('distance_jitter_mm', 0)} mm")
         t0, c0 = time.perf_counter(), time.process_time()
         forest = train_forest_dataset(ds, ForestConfig(**json.loads(args.config)), jobs=args.jobs, progress=True)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -71,6 +78,11 @@ def main() -> int:
     print(f"load {args.forest} ({Path(args.forest).stat().st_size / 2**20:.0f} MiB): {time.perf_counter() - t0:.3f} s")
 
     test = load_dataset(args.test)
+    seq = test.meta.get("config", {})
+    if "max_tilt_deg" in seq:
+        print(f"test sequence {args.test}: tilt <= {seq['max_tilt_deg']} deg, roll <= {seq['max_roll_deg']} deg, "
+              f"position +-{seq['position_spread_mm']} mm, distance +-{seq['depth_spread_mm']} mm")
+    opts = {"proposal_set": args.proposal_set, "stride": args.stride, "bandwidth_mm": args.bandwidth}
     idx = np.arange(len(test) if args.frames is None else min(args.frames, len(test)))
     depths = test.depths(idx)
     masks = dataset_masks(test, idx, depths)
@@ -82,20 +94,22 @@ def main() -> int:
     times = []
     for f in range(len(idx)):
         t = time.perf_counter()
-        forest.propose(depths[f:f + 1], K, masks[f:f + 1], k=3, proposal_set=200)
+        forest.propose(depths[f:f + 1], K, masks[f:f + 1], k=3, **opts)
         times.append(time.perf_counter() - t)
-    print(f"proposals per {K.width}x{K.height} frame (k=3, |P~|=200, stride 2, one core): median "
+    print(f"proposals per {K.width}x{K.height} frame (k=3, |P~|={args.proposal_set}, stride {args.stride}, "
+          f"bandwidth {args.bandwidth:g} mm, one core): median "
           f"{1000 * np.median(times):.2f} ms, 90th percentile {1000 * np.percentile(times, 90):.2f} ms; "
           f"foreground pixels per frame {masks.sum((1, 2)).mean():.0f}")
 
-    p5 = forest.propose(depths, K, masks, k=5, proposal_set=200)
+    p5 = forest.propose(depths, K, masks, k=5, **opts)
     tips = np.array([n.endswith("_tip") for n in forest.joint_names])
     rows = [row("regression (top proposal)", p5.proposals[:, :, 0], truth, tips)]
     for k in range(1, 6):
         best = np.argmin(np.linalg.norm(p5.proposals[:, :, :k] - truth[:, :, None], axis=-1), axis=-1)
         rows.append(row(f"oracle k={k}", np.take_along_axis(p5.proposals, best[..., None, None], 2)[:, :, 0], truth, tips))
     t0 = time.perf_counter()
-    est = hybridfit.HybridEstimator(forest, k=3, proposal_set=200, budget=args.budget, jobs=args.jobs)
+    est = hybridfit.HybridEstimator(forest, k=3, proposal_set=args.proposal_set, stride=args.stride,
+                                    bandwidth_mm=args.bandwidth, budget=args.budget, jobs=args.jobs)
     fitted = est.fit_proposals(hybridfit.forest.Proposals(p5.proposals[:, :, :3], p5.confidences[:, :, :3],
                                                           p5.empty, p5.joint_names), progress=True)
     rows.append(row(f"fitted (stepwise PSO, k=3, {args.budget} evals)", fitted.joints, truth, tips))

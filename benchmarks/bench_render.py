@@ -4,7 +4,7 @@
 
 Prints medians (the machine is shared):
 1. rendering 320x240 depth + part labels on one core, frames per second, for training-grid
-   poses (frontal viewpoint and all 7), test-sequence poses and random poses, and with the
+   poses (the first viewpoint, jittered, and all 7), test-sequence poses and random poses, and with the
    default sensor noise;
 2. with --grid DIR: generating the whole default training grid (7168 frames) into DIR
    (poses, rendering, writing), then loading all its frames back: from the packed cache
@@ -43,7 +43,7 @@ def main() -> None:
     grid = grid_poses()
     rng = np.random.default_rng(0)
     sets = {
-        "training grid, frontal": grid[::7][rng.permutation(1024)[:n]],
+        "training grid, first viewpoint": grid[::7][rng.permutation(1024)[:n]],
         "training grid, 7 viewpoints": grid[rng.permutation(len(grid))[:n]],
         "test sequence": sequence_poses({"frames": n}),
         "random poses (synthetic.py)": random_poses(model, n, rng),

@@ -26,7 +26,25 @@ def test_training_grid_has_7168_distinct_valid_poses(model, grid):
     assert (shapes == shapes[:, :1]).all()  # the 7 viewpoints of a shape share its angles
     assert len(np.unique(shapes[:, 0].round(9), axis=0)) == 1024
     assert len(np.unique(grid[:7, 3:7].round(9), axis=0)) == 7
-    np.testing.assert_allclose(grid[:, 2], 400.0)
+    assert len(np.unique(grid[:, 3:7].round(9), axis=0)) == 7168  # every frame has its own jittered orientation
+    assert (np.abs(grid[:, 2] - 400.0) <= 40.0).all() and grid[:, 2].std() > 10.0
+    assert (np.abs(grid[:, :2]) <= 30.0).all() and grid[:, :2].std() > 10.0
+
+
+def _angle_deg(q1, q2):
+    return np.degrees(2 * np.arccos(np.clip(np.abs((q1 * q2).sum(-1)), 0, 1)))
+
+
+def test_grid_jitter_is_deterministic_and_bounded(model, grid):
+    exact = grid_poses({"viewpoint_jitter_deg": 0, "position_jitter_mm": 0, "distance_jitter_mm": 0})
+    np.testing.assert_array_equal(exact[:, 7:], grid[:, 7:])  # the jitter leaves the articulations alone
+    np.testing.assert_allclose(exact[:, :3], np.tile([0.0, 0.0, 400.0], (len(exact), 1)))
+    assert len(np.unique(exact[:, 3:7].round(9), axis=0)) == 7
+    np.testing.assert_array_equal(exact[:7, 3:7], exact[7:14, 3:7])
+    angle = _angle_deg(grid[:, 3:7], exact[:, 3:7])
+    assert angle.max() <= 3 * 17.5 + 1e-6 and angle.mean() > 8.0  # one rotation per axis, each within 17.5
+    np.testing.assert_array_equal(grid, grid_poses())
+    assert not np.allclose(grid_poses({"seed": 1})[:, :7], grid[:, :7])
 
 
 def test_training_grid_palm_faces_the_camera(model, grid):
@@ -40,10 +58,10 @@ def test_training_grid_palm_faces_the_camera(model, grid):
 
 def test_grid_is_configurable(model):
     config = GridConfig(articulations_deg={f: [(5, 0, 5, 5)] * 2 for f in ("index", "middle")},
-                        viewpoints_deg=[(0, 0, 0), (10, 0, 0), (0, 0, 20)], distance_mm=350)
+                        viewpoints_deg=[(0, 0, 0), (10, 0, 0), (0, 0, 20)], distance_mm=350, distance_jitter_mm=5)
     poses = grid_poses(config)
     assert poses.shape == (4 * 3, model.n_params)
-    np.testing.assert_allclose(poses[:, 2], 350.0)
+    assert (np.abs(poses[:, 2] - 350.0) <= 5.0).all()
 
 
 @pytest.mark.parametrize("config, match", [
@@ -52,6 +70,8 @@ def test_grid_is_configurable(model):
     ({"articulations_deg": {"pinky": [(5, 0, 5, 5)]}}, "unknown fingers"),
     ({"distance_mm": -400}, "distance_mm"),
     ({"viewpoints_deg": []}, "viewpoints_deg"),
+    ({"viewpoint_jitter_deg": -1}, "viewpoint_jitter_deg"),
+    ({"distance_mm": 30}, "distance_jitter_mm must be smaller"),
     ({"surface": {"palm_radius_mm": -3}}, "palm_radius_mm"),
     ({"intrinsics": {"fx": -5}}, "fx"),
 ])
@@ -63,7 +83,7 @@ def test_bad_grid_configs_are_refused(config, match):
 def test_hand_outside_the_image_is_refused(grid):
     with pytest.raises(HybridfitError, match="leaves the .* image in frame 0"):
         render_poses(grid[:2], GridConfig(intrinsics=Intrinsics(fx=900, fy=900)))
-    near = GridConfig(distance_mm=20)
+    near = GridConfig(distance_mm=20, distance_jitter_mm=0)
     with pytest.raises(HybridfitError, match="leaves the"):
         render_poses(grid_poses(near)[:2], near)
     bad = grid[:2].copy()

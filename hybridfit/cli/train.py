@@ -17,7 +17,7 @@ def register(sub) -> None:
     p.add_argument("--config", metavar="TOML", help="forest settings file (keys of hybridfit.forest.ForestConfig)")
     p.add_argument("--trees", type=positive_int, help="number of trees (default 3)")
     p.add_argument("--max-depth", type=positive_int, help="maximum tree depth (default 23)")
-    p.add_argument("--pixels-per-frame", type=positive_int, help="training pixels per frame (default 200)")
+    p.add_argument("--pixels-per-frame", type=positive_int, help="training pixels per frame (default 400)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--frames", type=positive_int, help="train on the first N frames only")
     p.add_argument("--jobs", type=positive_int, help="trees grown in parallel (default: the available cores)")

@@ -29,7 +29,7 @@ def test_synth_train_with_a_settings_file(tmp_path):
     assert main(["synth", "train", "--out", str(out), "--config", str(config), "--distance", "450", "--noise"]) == 0
     ds = load_dataset(out)
     assert ds.frames == 2 * 2 * 2
-    np.testing.assert_allclose(ds.params[:, 2], 450.0)
+    assert (np.abs(ds.params[:, 2] - 450.0) <= 40.0).all()  # the default distance jitter: +-40 mm
     assert ds.meta["config"]["noise"] is not None and ds.meta["config"]["distance_mm"] == 450
 
 
