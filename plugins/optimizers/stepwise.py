@@ -26,10 +26,10 @@ from functools import cached_property
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from hybridfit import registry
-from hybridfit.errors import HybridfitError
+from hybridfit.errors import HybridfitError, UnknownPluginError
 from hybridfit.optimizer import Optimizer, Task
 from hybridfit.plugin import Settings
 
@@ -43,6 +43,16 @@ class StepwiseSettings(Settings):
     refine_share: float = Field(
         0.0, ge=0, lt=1, description="share of the budget for a final joint refinement of all parameters (0 = the paper)"
     )
+
+    @field_validator("optimizer")
+    @classmethod
+    def _registered(cls, name: str) -> str:
+        if name not in registry.names("optimizer"):
+            try:
+                registry.get("optimizer", name)
+            except UnknownPluginError as err:  # names the registered ones and the closest match
+                raise ValueError(str(err)) from None
+        return name
 
 
 def split_budget(budget: int, weights) -> list[int]:

@@ -1,0 +1,41 @@
+"""``hybridfit study``: run a declarative study file (a sweep over settings and seeds)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import HybridfitError
+from ._common import positive_int
+
+
+def register(sub) -> None:
+    p = sub.add_parser("study", help="run a study: a sweep of settings x seeds, results in SQLite, a report")
+    p.add_argument("file", metavar="FILE", help="study file (TOML; see studies/)")
+    p.add_argument("--out", help="output folder (default: study_out/<study file name>)")
+    p.add_argument("--jobs", type=positive_int, default=1, help="parallel trials (workers)")
+    p.add_argument("--executor", choices=("serial", "processes", "dask"),
+                   help="where trials run (default: a local process pool, or serial for --jobs 1)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler address (default: a LocalCluster)")
+    p.add_argument("--cache", metavar="DIR", help="cache folder for shared steps (default: OUT/cache)")
+    p.add_argument("--quick", action="store_true", help="apply the study's [quick] overrides")
+    p.add_argument("--report-only", action="store_true", help="rewrite the report from the database only")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..study import load_spec, run_study, write_report
+
+    if args.scheduler and args.executor != "dask":
+        raise HybridfitError("--scheduler needs --executor dask")
+    study = load_spec(args.file, quick=args.quick)
+    out = Path(args.out or Path("study_out") / (Path(args.file).stem + ("_quick" if args.quick else "")))
+    if args.report_only:
+        if not (out / "study.db").is_file():
+            raise HybridfitError(f"{out}: no study.db to report from")
+        print(f"report -> {write_report(out, study)}")
+        return 0
+    executor = args.executor or ("processes" if args.jobs > 1 else "serial")
+    s = run_study(study, out, jobs=args.jobs, executor=executor, scheduler=args.scheduler, cache_dir=args.cache,
+                  progress=True)
+    print(f"{s.total} trials: {s.skipped} already complete, {s.ran} run, {s.failed} failed -> {out}/report.md")
+    return 1 if s.failed and s.failed == s.ran else 0

@@ -1,0 +1,257 @@
+"""A study's data as cached shared steps: generated data, the forest, proposals per (k, |P~|),
+the model calibration, and the proposal baselines (Oracle, top-1) computed from proposals.
+
+Every step is cached (``Cache``) by a hash of what determines it: the synthetic data by its
+generator config, the forest by its training data and config, the proposals by the forest,
+the test data, k and |P~|. Files named in a study are hashed by content.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import HybridfitError
+from ..metrics import joint_errors
+from .cache import Cache
+from .spec import DatasetData, ProposalsData, SyntheticDepthData, SyntheticProposalsData, TrialSettings
+
+#: the arrays a trial needs: proposals (F, J, k, 3), confidences (F, J, k), joint_names (J,),
+#: ground_truth (F, J, 3) mm, empty (F,) frames without proposals
+ProposalSet = dict[str, np.ndarray]
+
+
+def file_hash(path: Path) -> str:
+    """sha256 of a file, or of a data-set folder's meta.json and labels.npz."""
+    path = Path(path)
+    h = hashlib.sha256()
+    for f in ([path / "meta.json", path / "labels.npz"] if path.is_dir() else [path]):
+        with open(f, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()[:20]
+
+
+def _save(path: Path, **arrays) -> None:
+    np.savez(path, **arrays)
+
+
+def _load(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+class StudyData:
+    """The data of a study: ``key`` (its identity) and ``proposals(k, proposal_set)``."""
+
+    def __init__(self, data, cache: Cache, jobs: int = 1, log: Callable[[str], None] = print):
+        self.data, self.cache, self.jobs, self.log = data, cache, jobs, log
+        self._sets: dict[tuple[int, int], ProposalSet] = {}
+        self._calibrated: dict[str, Any] | None = None
+        self.key = self._key()
+
+    # ------------------------------------------------------------------ identity
+
+    def _key(self) -> str:
+        d = self.data
+        payload = d.model_dump(mode="json")
+        for name in ("test", "train", "forest_file", "file", "ground_truth"):
+            value = getattr(d, name, None)
+            if isinstance(value, Path):
+                payload[name] = file_hash(value)
+            elif isinstance(value, list):
+                payload[name] = [file_hash(v) for v in value]
+        return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:20]
+
+    def uses_proposal_set(self) -> bool:
+        """Whether |P~| changes the proposals (forest data only)."""
+        return isinstance(self.data, (SyntheticDepthData, DatasetData))
+
+    # ------------------------------------------------------------------ proposals
+
+    def proposals(self, k: int, proposal_set: int) -> ProposalSet:
+        """The proposal set for (k, |P~|), from the cache or computed once."""
+        ck = (k, proposal_set if self.uses_proposal_set() else 0)
+        if ck not in self._sets:
+            d = self.data
+            if isinstance(d, SyntheticProposalsData):
+                self._sets[ck] = _top_k(self._synthetic(), k)
+            elif isinstance(d, ProposalsData):
+                self._sets[ck] = _top_k(self._file_proposals(), k)
+            else:
+                self._sets[ck] = self._forest_proposals(k, proposal_set)
+        return self._sets[ck]
+
+    def _synthetic(self) -> ProposalSet:
+        from ..synthetic import synthetic_proposals
+
+        d = self.data
+        cfg = d.model_dump(exclude={"kind"})
+
+        def make(tmp: Path) -> None:
+            self.log(f"generating {d.frames} synthetic proposal frames")
+            out = synthetic_proposals(cfg.pop("frames"), **cfg)
+            _save(tmp, **{k: out[k] for k in ("proposals", "confidences", "joint_names", "ground_truth")})
+
+        _, path = self.cache.get("synthetic-proposals", d.model_dump(mode="json"), make, ".npz")
+        z = _load(path)
+        z["empty"] = np.zeros(len(z["proposals"]), bool)
+        return z
+
+    def _file_proposals(self) -> ProposalSet:
+        from ..cli.calibrate import frame_slice
+        from ..datasets.results import read_xyz
+        from ..datasets.skeletons import skeleton
+        from ..io import load_proposals
+
+        d = self.data
+        files = d.file if isinstance(d.file, list) else [d.file]
+        if len(files) == 1 and files[0].suffix == ".npz":
+            z = load_proposals(files[0])
+            props, conf = z["proposals"], z["confidences"]
+            names = z.get("joint_names")
+            truth = z.get("ground_truth")
+        else:
+            props = np.stack([read_xyz(f, d.dataset) for f in files], axis=2)
+            conf = np.ones(props.shape[:3])
+            names, truth = None, None
+        if names is None:
+            if d.dataset is None:
+                raise HybridfitError(f"{files[0]}: no joint_names; set data.dataset to name its skeleton")
+            names = np.asarray(skeleton(d.dataset).model_names)
+        if d.ground_truth is not None:
+            truth = read_xyz(d.ground_truth, d.dataset)
+        if truth is None:
+            raise HybridfitError(f"{files[0]}: no ground_truth in the file; set data.ground_truth")
+        if truth.shape != props.shape[:2] + (3,):
+            raise HybridfitError(f"data.ground_truth: shape {truth.shape} does not match the proposals' "
+                                 f"{props.shape[:2] + (3,)}")
+        sel = frame_slice(d.frames, len(props))
+        order = np.argsort(-conf, axis=-1, kind="stable")  # most confident first
+        props = np.take_along_axis(props, order[..., None], axis=2)
+        conf = np.take_along_axis(conf, order, axis=2)
+        return {"proposals": props[sel], "confidences": conf[sel], "joint_names": np.asarray(names),
+                "ground_truth": np.asarray(truth, float)[sel], "empty": np.zeros(len(props[sel]), bool)}
+
+    def _datasets(self) -> tuple[Path, Path | None]:
+        """(test folder, training folder or None), generated for synthetic depth data."""
+        from ..synthdata import make_test, make_train
+
+        d = self.data
+        if isinstance(d, DatasetData):
+            return d.test, d.train
+        _, train = self.cache.get("train-data", d.train.model_dump(mode="json"),
+                                  lambda tmp: (self.log("rendering the training grid"), make_train(tmp, d.train)))
+        _, test = self.cache.get("test-data", d.test.model_dump(mode="json"),
+                                 lambda tmp: (self.log("rendering the test sequence"), make_test(tmp, d.test)))
+        return test, train
+
+    def forest_path(self) -> Path:
+        """The trained forest (cached by its training data and config)."""
+        from ..dataset import load_dataset
+        from ..forest import train_forest_dataset
+
+        d = self.data
+        if isinstance(d, DatasetData) and d.forest_file is not None:
+            return d.forest_file
+        _, train = self._datasets()
+        payload = {"train": file_hash(train), "forest": d.forest.model_dump(mode="json"), "subset": d.train_subset}
+
+        def make(tmp: Path) -> None:
+            ds = load_dataset(train)
+            idx = None
+            if d.train_subset is not None and d.train_subset < len(ds):
+                rng = np.random.default_rng(d.forest.seed)
+                idx = np.sort(rng.choice(len(ds), d.train_subset, replace=False))
+            self.log(f"training the forest on {len(ds) if idx is None else len(idx)} frames "
+                     f"({d.forest.n_trees} trees, depth {d.forest.max_depth})")
+            train_forest_dataset(ds, d.forest, idx, jobs=self.jobs).save(tmp)
+
+        return self.cache.get("forest", payload, make, ".npz")[1]
+
+    def _forest_proposals(self, k: int, proposal_set: int) -> ProposalSet:
+        from ..dataset import load_dataset
+        from ..estimator import HybridEstimator
+
+        d = self.data
+        forest = self.forest_path()
+        test, _ = self._datasets()
+        frames = getattr(d, "frames", None)
+        payload = {"forest": file_hash(forest), "test": file_hash(test), "k": k, "proposal_set": proposal_set,
+                   "stride": d.stride, "bandwidth_mm": d.bandwidth_mm, "frames": frames}
+
+        def make(tmp: Path) -> None:
+            ds = load_dataset(test)
+            idx = np.arange(len(ds) if frames is None else min(frames, len(ds)))
+            self.log(f"proposals for {len(idx)} test frames, k = {k}, |P~| = {proposal_set}")
+            est = HybridEstimator(forest, k=k, proposal_set=proposal_set, stride=d.stride, bandwidth_mm=d.bandwidth_mm)
+            p = est.propose_dataset(ds, idx)
+            _save(tmp, proposals=p.proposals, confidences=p.confidences, empty=p.empty,
+                  joint_names=np.asarray(p.joint_names), ground_truth=np.asarray(ds.joints_xyz, float)[idx])
+
+        return _load(self.cache.get("proposals", payload, make, ".npz")[1])
+
+    # ------------------------------------------------------------------ model
+
+    def model_config(self, settings: TrialSettings) -> dict[str, Any]:
+        """The model config a trial runs with: the dataset's derived points and the calibration
+        (for hand26 on real-data skeletons) under the trial's own model_config."""
+        from ..datasets.skeletons import with_derived_points
+
+        cfg = dict(settings.model_settings)
+        d = self.data
+        if settings.model != "hand26" or not isinstance(d, ProposalsData) or d.dataset is None:
+            return cfg
+        if d.calibrate is not None:
+            cfg = {**self.calibration(), **cfg}
+        return with_derived_points(cfg, d.dataset)
+
+    def calibration(self) -> dict[str, Any]:
+        """hand26 settings calibrated on the ground truth's frames (cached)."""
+        if self._calibrated is None:
+            from ..calibrate import calibrate
+            from ..cli.calibrate import frame_slice
+            from ..datasets.results import read_xyz
+            from ..datasets.skeletons import skeleton, with_derived_points
+
+            d, c = self.data, self.data.calibrate
+            payload = {"ground_truth": file_hash(d.ground_truth), "dataset": d.dataset, **c.model_dump(mode="json")}
+
+            def make(tmp: Path) -> None:
+                sk = skeleton(d.dataset)
+                truth = read_xyz(d.ground_truth, d.dataset)
+                truth = truth[frame_slice(c.frames, len(truth))]
+                self.log(f"calibrating hand26 on {len(truth)} frames of {d.ground_truth.name}")
+                r = calibrate(truth, sk.model_names, model_config=with_derived_points({}, d.dataset),
+                              mirror={"auto": None, "right": False, "left": True}[c.hand], rounds=c.rounds,
+                              budget=c.budget, seed=c.seed, jobs=self.jobs)
+                tmp.write_text(json.dumps({"settings": r.settings, "error_before_mm": r.error_before,
+                                           "error_after_mm": r.error_after}, indent=1))
+
+            _, path = self.cache.get("calibration", payload, make, ".json")
+            self._calibrated = json.loads(path.read_text())["settings"]
+        return self._calibrated
+
+
+def _top_k(z: ProposalSet, k: int) -> ProposalSet:
+    K = z["proposals"].shape[2]
+    if k > K:
+        raise HybridfitError(f"k = {k} but the data has only {K} proposals per joint")
+    return {**z, "proposals": np.ascontiguousarray(z["proposals"][:, :, :k]),
+            "confidences": np.ascontiguousarray(z["confidences"][:, :, :k])}
+
+
+def baseline_errors(z: ProposalSet, method: str) -> np.ndarray:
+    """(F, J) errors of a baseline taken from the proposals directly: ``oracle`` (the
+    proposal closest to the truth) or ``top1`` (the most confident one: plain regression)."""
+    truth = z["ground_truth"]
+    if method == "top1":
+        e = joint_errors(z["proposals"][:, :, 0], truth)
+    else:
+        e = np.linalg.norm(z["proposals"] - truth[:, :, None], axis=-1).min(axis=-1)
+    e[z["empty"]] = np.nan
+    return e

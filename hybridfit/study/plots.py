@@ -1,0 +1,168 @@
+"""The study's figures (matplotlib, PNG) from the aggregated rows of ``report.aggregate``.
+
+success: success-rate curves per variant; k: error vs k, Oracle / top-1 / Optimised (the
+paper's Fig. 3b); proposal_set: error vs |P~| (Fig. 3a); budget: error and time per frame vs
+budget; variants: mean error per variant (e.g. stepwise vs joint at equal budget);
+per_joint: mean error per joint. Error bars: standard deviation over seeds.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .report import THRESHOLDS  # noqa: E402
+
+SWEEP_AXES = {"k": "proposals per joint k", "proposal_set": "|P~|: votes per joint into mean-shift",
+              "budget": "budget (objective evaluations per frame)"}
+
+
+def _flat(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict) and v:
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = json.dumps(v) if isinstance(v, (list, dict)) else v
+    return out
+
+
+def _varying(rows: list[dict], skip: str | None = None) -> list[str]:
+    """Setting paths that differ between the fitted variants (except ``skip``)."""
+    flats = [_flat(r["settings"]) for r in rows]
+    keys = sorted({k for f in flats for k in f})
+    return [k for k in keys if k != skip and len({str(f.get(k)) for f in flats}) > 1]
+
+
+def _series(rows: list[dict], x: str) -> dict[str, list[dict]]:
+    """Fitted variants grouped by their settings other than ``x``; label from what differs."""
+    vary = _varying(rows, x)
+    groups: dict[str, list[dict]] = {}
+    for r in rows:
+        f = _flat(r["settings"])
+        label = ", ".join(f"{k.split('.')[-1]}={f.get(k, '-')}" for k in vary) or "Optimised"
+        groups.setdefault(label, []).append(r)
+    return groups
+
+
+def _save(fig, out: Path, name: str) -> str:
+    fig.tight_layout()
+    fig.savefig(out / name, dpi=110)
+    plt.close(fig)
+    return name
+
+
+def plot_success(out: Path, rows: list[dict]) -> str:
+    fig, ax = plt.subplots(figsize=(10, 5))
+    colors = plt.get_cmap("tab20" if len(rows) > 10 else "tab10").colors
+    for i, r in enumerate(rows):
+        style = {"oracle": "--", "top1": ":"}.get(r["method"], "-")
+        ax.plot(THRESHOLDS, r["curve"], style, color=colors[i % len(colors)], lw=1.8, label=r["variant"])
+    ax.set(xlabel="distance threshold (mm)", ylabel="share of frames with all joints within threshold",
+           title="Success rate (worst joint within threshold; dashed: Oracle, dotted: top-1)", xlim=(0, 80),
+           ylim=(0, 1.01))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return _save(fig, out, "success_rate.png")
+
+
+def plot_sweep(out: Path, rows: list[dict], x: str, metric: str = "mean_error_mm") -> str:
+    """Error (and for budgets time) against a swept setting; baselines as their own lines."""
+    fits = [r for r in rows if r["method"] == "fit"]
+    panels = 2 if x == "budget" else 1
+    fig, axes = plt.subplots(1, panels, figsize=(6.5 * panels, 4.8), squeeze=False)
+    ax = axes[0, 0]
+    for method, label, style in (("oracle", "Oracle (closest proposal)", "s--"),
+                                 ("top1", "top-1 proposal (plain regression)", "^:")):
+        b = sorted((r for r in rows if r["method"] == method), key=lambda r: r["settings"].get(x, 0))
+        if not b:
+            continue
+        if x == "k" and method == "top1" or x == "budget":  # flat across x: a reference line
+            ax.axhline(b[0][f"{metric}_mean"], color="grey" if method == "top1" else "black", ls=style[1:],
+                       label=f"{label}: {b[0][f'{metric}_mean']:.1f} mm")
+        elif x in b[0]["settings"]:
+            ax.plot([r["settings"][x] for r in b], [r[f"{metric}_mean"] for r in b], style, label=label)
+    for label, rs in _series(fits, x).items():
+        rs = sorted(rs, key=lambda r: r["settings"][x])
+        xs = [r["settings"][x] for r in rs]
+        ax.errorbar(xs, [r[f"{metric}_mean"] for r in rs], yerr=[r[f"{metric}_std"] for r in rs], fmt="o-",
+                    capsize=4, label=label)
+    ax.set(xlabel=SWEEP_AXES[x], ylabel="mean joint error (mm)", title=f"Mean joint error vs {SWEEP_AXES[x]}")
+    ticks = sorted({r["settings"][x] for r in fits})
+    for a in axes[0]:
+        if x in ("budget", "proposal_set"):
+            a.set_xscale("log")
+            a.minorticks_off()
+        a.set_xticks(ticks, [str(t) for t in ticks], rotation=45 if len(ticks) > 6 else 0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if panels == 2:
+        ax2 = axes[0, 1]
+        for label, rs in _series(fits, x).items():
+            rs = sorted(rs, key=lambda r: r["settings"][x])
+            ax2.errorbar([r["settings"][x] for r in rs], [1000 * r["time_per_frame_s_mean"] for r in rs],
+                         yerr=[1000 * r["time_per_frame_s_std"] for r in rs], fmt="o-", capsize=4, label=label)
+        ax2.set(xlabel=SWEEP_AXES[x], ylabel="time per frame (ms, one core)", title="Fitting time vs budget")
+        ax2.grid(alpha=0.3)
+        ax2.legend(fontsize=8)
+    return _save(fig, out, f"error_vs_{x}.png")
+
+
+def plot_variants(out: Path, rows: list[dict]) -> str:
+    """Horizontal bars: mean error per variant, success @40 mm written beside each bar."""
+    fig, ax = plt.subplots(figsize=(8, 0.45 * len(rows) + 1.6))
+    y = np.arange(len(rows))[::-1]
+    colors = ["tab:blue" if r["method"] == "fit" else "tab:grey" for r in rows]
+    means = [r["mean_error_mm_mean"] for r in rows]
+    ax.barh(y, means, xerr=[r["mean_error_mm_std"] for r in rows], color=colors, capsize=3)
+    for yi, r, m in zip(y, rows, means):
+        ax.text(m + max(means) * 0.02 + r["mean_error_mm_std"], yi, f"{m:.1f} mm, success@40 "
+                f"{r['success_40mm_mean']:.2f}", va="center", fontsize=7)
+    ax.set_yticks(y, [r["variant"] for r in rows], fontsize=7)
+    ax.set(xlabel="mean joint error (mm)", title="Mean joint error per variant (bars: std over seeds)",
+           xlim=(0, max(means) * 1.45))
+    ax.grid(axis="x", alpha=0.3)
+    return _save(fig, out, "variants.png")
+
+
+def plot_per_joint(out: Path, rows: list[dict], limit: int) -> str:
+    shown = [r for r in rows if r["method"] != "oracle"][:limit]
+    names = shown[0]["joint_names"]
+    fig, ax = plt.subplots(figsize=(max(8, 0.45 * len(names) + 2), 4.8))
+    width = 0.8 / len(shown)
+    for i, r in enumerate(shown):
+        ax.bar(np.arange(len(names)) + (i - (len(shown) - 1) / 2) * width, r["per_joint"], width, label=r["variant"])
+    ax.set_xticks(np.arange(len(names)), names, rotation=60, ha="right", fontsize=8)
+    ax.set(ylabel="mean error (mm)", title="Mean error per joint")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=7)
+    return _save(fig, out, "per_joint.png")
+
+
+def make_plots(out: Path, rows: list[dict], spec=None) -> list[tuple[str, str]]:
+    """Write the requested (or applicable) plots; returns (title, file name) pairs."""
+    fits = [r for r in rows if r["method"] == "fit"]
+    if not fits:
+        return []
+    wanted = "auto" if spec is None else spec.plots
+    limit = 6 if spec is None else spec.per_joint_variants
+    distinct = {x: len({r["settings"].get(x) for r in fits}) for x in SWEEP_AXES}
+    if wanted == "auto":
+        wanted = ["success", *[x for x in SWEEP_AXES if distinct[x] > 1], "variants", "per_joint"]
+    figures = []
+    for p in wanted:
+        if p == "success":
+            figures.append(("Success rate", plot_success(Path(out), rows)))
+        elif p in SWEEP_AXES and distinct[p] > 1:
+            figures.append((f"Error vs {SWEEP_AXES[p]}", plot_sweep(Path(out), rows, p)))
+        elif p == "variants":
+            figures.append(("Mean error per variant", plot_variants(Path(out), rows)))
+        elif p == "per_joint":
+            figures.append(("Error per joint", plot_per_joint(Path(out), rows, limit)))
+    return figures

@@ -1,0 +1,226 @@
+"""Run a study: prepare the shared data once, run the unfinished trials in parallel, store
+each result as it arrives, then write the report.
+
+The output folder holds ``study.db`` (``store``), ``cache/`` (``cache``, unless elsewhere),
+the report files and, while a run is on, ``study.lock`` with the run's PID: a second run
+on the same folder is refused unless the lock's process is gone (a stale lock is replaced).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import socket
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from ..errors import HybridfitError
+from ..fitting import fit
+from ..metrics import joint_errors
+from .cache import Cache
+from .data import StudyData, baseline_errors
+from .executors import make_executor
+from .spec import Study, Trial, digest, expand, trials
+from .store import Store
+
+DB_NAME = "study.db"
+LOCK_NAME = "study.lock"
+
+
+@contextlib.contextmanager
+def study_lock(out: Path):
+    """Hold ``out/study.lock`` (PID and host) for the duration; refuse if a live run holds it."""
+    path = Path(out) / LOCK_NAME
+    path.parent.mkdir(parents=True, exist_ok=True)
+    me = f"{os.getpid()} {socket.gethostname()}\n"
+    for _ in range(2):
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            if _lock_alive(path):
+                raise HybridfitError(f"{path}: another study run (PID {path.read_text().split()[0]}) is writing "
+                                     f"to {out}; wait for it or use another --out") from None
+            path.unlink(missing_ok=True)  # stale: its process is gone
+            continue
+        with os.fdopen(fd, "w") as fh:
+            fh.write(me)
+        break
+    else:
+        raise HybridfitError(f"{path}: could not take the lock")
+    try:
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            if path.read_text() == me:
+                path.unlink()
+
+
+def _lock_alive(path: Path) -> bool:
+    try:
+        pid_text, host = path.read_text().split()[:2]
+        pid = int(pid_text)
+    except (OSError, ValueError):
+        return False  # unreadable or half-written: treat as stale
+    if host != socket.gethostname():
+        return True  # another machine's run: cannot check, so respect it
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+_WARM: set[str] = set()
+
+
+def run_trial(settings: dict, model_config: dict, seed: int, data: dict) -> dict:
+    """Fit every frame of a proposal set with one trial's settings (runs in a worker).
+
+    Returns per-frame errors (F, J) mm against the ground truth (NaN for failed frames),
+    objective, evaluations, failed, messages and the trial's wall time per frame (after
+    one untimed warm-up frame per worker and settings, so JIT compilation is not timed)."""
+    keep = np.flatnonzero(~data["empty"])
+    F, J = data["proposals"].shape[:2]
+
+    def run(frames):
+        return fit(data["proposals"][frames], data["confidences"][frames], model=settings["model"],
+                   model_config=model_config, objective=settings["objective"],
+                   objective_config=settings["objective_config"], optimizer=settings["optimizer"],
+                   optimizer_config=settings["optimizer_config"], budget=settings["budget"], seed=seed,
+                   joint_names=[str(n) for n in data["joint_names"]],
+                   search_radius_mm=settings["search_radius_mm"], jobs=1)
+
+    warm = digest([settings, model_config])
+    if warm not in _WARM and len(keep):
+        run(keep[:1])
+        _WARM.add(warm)
+    t = time.perf_counter()
+    res = run(keep)
+    if res.interrupted:
+        raise KeyboardInterrupt
+    elapsed = time.perf_counter() - t
+    errors = np.full((F, J), np.nan)
+    errors[keep] = joint_errors(res.joints, data["ground_truth"][keep])
+    objective, evaluations, failed = np.full(F, np.nan), np.zeros(F, np.int64), np.ones(F, bool)
+    objective[keep], evaluations[keep], failed[keep] = res.objective, res.evaluations, res.failed
+    errors[failed] = np.nan
+    messages = {int(keep[f]): m for f, m in res.errors.items()}
+    messages.update({int(f): "no foreground pixels" for f in np.flatnonzero(data["empty"])})
+    return {"errors": errors, "objective": objective, "evaluations": evaluations, "failed": failed,
+            "messages": messages, "time_per_frame": elapsed / max(len(keep), 1),
+            "joint_names": [str(n) for n in data["joint_names"]]}
+
+
+@dataclass
+class RunSummary:
+    """What a run did: trials in the study, skipped (already complete), run, failed."""
+
+    total: int
+    skipped: int
+    ran: int
+    failed: int
+    out: Path
+
+
+def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: str = "processes",
+              scheduler: str | None = None, cache_dir: str | os.PathLike | None = None, progress: bool = True,
+              report: bool = True, dask_processes: bool = True, log=None) -> RunSummary:
+    """Run the study's unfinished trials into ``out`` and write the report (see the module doc)."""
+    out = Path(out)
+    log = log or (lambda m: print(m, file=sys.stderr, flush=True))
+    with study_lock(out):
+        store = Store(out / DB_NAME)
+        try:
+            cache = Cache(Path(cache_dir) if cache_dir else out / "cache")
+            data = StudyData(study.data, cache, jobs=jobs, log=log)
+            variants = expand(study)
+            todo = trials(study, variants, data.key)
+            store.set_meta("study", {"name": study.name, "description": study.description,
+                                     "spec": study.model_dump(mode="json", by_alias=True)})
+            store.set_meta("variant_order", [v.name for v in variants])
+            stale = store.mark_interrupted()
+            if stale:
+                log(f"{stale} trial(s) of an interrupted run will run again")
+            keys = _baselines(study, data, variants, store) + [t.key for t in todo]
+            store.set_meta("trial_keys", keys)  # the report shows this study's trials only
+            states = store.states()
+            pending = [t for t in todo if states.get(t.key) != "complete"]
+            summary = RunSummary(len(todo), len(todo) - len(pending), 0, 0, out)
+            if pending:
+                _run_trials(pending, data, store, executor, jobs, scheduler, progress, dask_processes, summary)
+        finally:
+            store.close()
+        if report:
+            from .report import write_report
+
+            write_report(out, study)
+    return summary
+
+
+def _baselines(study: Study, data: StudyData, variants, store: Store) -> list[str]:
+    """Oracle / top-1 rows per distinct (k, |P~|), straight from the proposals (seed 0); their keys."""
+    states = store.states()
+    seen: dict[str, None] = {}
+    for v in variants:
+        s = v.settings
+        pset = s.proposal_set if data.uses_proposal_set() else 0
+        for method in study.baselines:
+            k = 1 if method == "top1" else s.k
+            cfg = {"method": method, "k": k, "proposal_set": pset}
+            key = digest({"data": data.key, "baseline": cfg})
+            if key in seen:
+                continue
+            seen[key] = None
+            if states.get(key) == "complete":
+                continue
+            z = data.proposals(s.k, s.proposal_set)
+            errors = baseline_errors(z, method)
+            F = len(errors)
+            label = "Oracle" if method == "oracle" else "top-1 proposal"
+            name = f"{label} (k={k}" + (f", |P~|={pset})" if pset else ")")
+            store.start(key, name, -1, method, cfg, 0)
+            store.complete(key, {"errors": errors, "objective": np.full(F, np.nan), "evaluations": np.zeros(F),
+                                 "failed": np.isnan(errors).any(axis=1), "messages": {}, "time_per_frame": np.nan,
+                                 "joint_names": [str(n) for n in z["joint_names"]]})
+    return list(seen)
+
+
+def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: str, jobs: int,
+                scheduler: str | None, progress: bool, dask_processes: bool, summary: RunSummary) -> None:
+    sets = {}
+    for t in pending:  # shared steps first, once each, in this process
+        s = t.variant.settings
+        sets.setdefault((s.k, s.proposal_set), data.proposals(s.k, s.proposal_set))
+    kwargs = {"processes": dask_processes} if executor == "dask" else {}
+    ex = make_executor(executor, jobs, scheduler, **kwargs)
+    try:
+        shared = {key: ex.share(z) for key, z in sets.items()}
+        tasks = []
+        for t in pending:
+            s = t.variant.settings
+            tasks.append((s.as_dict(), data.model_config(s), t.seed, shared[(s.k, s.proposal_set)]))
+            store.start(t.key, t.variant.name, t.variant.index, "fit", s.as_dict(), t.seed)
+        bar = tqdm(total=summary.total, initial=summary.skipped, unit="trial", desc="study", disable=not progress)
+        try:
+            for i, result, error in ex.run(run_trial, tasks):
+                t = pending[i]
+                if error is None:
+                    store.complete(t.key, result)
+                else:
+                    store.fail(t.key, error)
+                    summary.failed += 1
+                    bar.write(f"trial {t.variant.name}, seed {t.seed} failed: {error}")
+                summary.ran += 1
+                bar.update(1)
+                bar.set_postfix(failed=summary.failed)
+        finally:
+            bar.close()
+    finally:
+        ex.close()

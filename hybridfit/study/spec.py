@@ -1,0 +1,369 @@
+"""Study files: TOML validated by pydantic models, and their deterministic expansion into trials.
+
+A study names its data (``[data]``, one of four kinds), the base settings of every trial
+(``[base]``: plugins and their configs, k, |P~|, budget), the sweep (``[sweep]``: a ``grid``
+of dotted setting paths to value lists, and/or a list of ``variants``, each a table of
+overrides deep-merged into the base), the seeds, the baselines and the report. A
+``[quick]`` table holds overrides deep-merged into the whole file for ``--quick`` runs.
+Paths are relative to the study file. Every error names the file and the field path.
+
+Expansion: variants (in file order, default one empty variant) x grid (keys in file order,
+values in list order) gives the variants; each runs with every seed. ``seeds = n`` derives n
+seeds from the study ``seed`` (numpy SeedSequence), the same for every variant, so variants
+are compared on common random numbers. The trial key hashes the data, settings and seed.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from .. import registry
+from ..errors import HybridfitError
+from ..forest import ForestConfig
+from ..synthdata import GridConfig, SequenceConfig
+
+PLOTS = ("success", "k", "proposal_set", "budget", "variants", "per_joint")
+BASELINES = ("oracle", "top1")
+METRICS = ("mean_error_mm", "median_error_mm", "fingertip_error_mm", "success_20mm", "success_40mm",
+           "success_80mm", "objective", "evaluations", "time_per_frame_s", "failed_frames")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", protected_namespaces=(), populate_by_name=True)
+
+
+class TrialSettings(_Strict):
+    """What one trial runs: plugins with their settings, proposals per joint k, |P~|, budget."""
+
+    model: str = "hand26"
+    model_settings: dict[str, Any] = Field(default_factory=dict, alias="model_config")
+    objective: str = "clamped-confidence"
+    objective_settings: dict[str, Any] = Field(default_factory=dict, alias="objective_config")
+    optimizer: str = "stepwise-pso"
+    optimizer_settings: dict[str, Any] = Field(default_factory=dict, alias="optimizer_config")
+    k: int = Field(3, ge=1, description="proposals per joint (top k)")
+    proposal_set: int = Field(200, ge=1, description="|P~|: votes per joint into mean-shift (forest data only)")
+    budget: int = Field(3400, ge=1, description="objective evaluations per frame")
+    search_radius_mm: float = Field(60.0, gt=0)
+
+    @field_validator("model", "objective", "optimizer")
+    @classmethod
+    def _registered(cls, name: str, info):
+        names = registry.names(info.field_name)
+        if name not in names:
+            raise ValueError(f"unknown {info.field_name} {name!r}; registered: {', '.join(names)}")
+        return name
+
+    @model_validator(mode="after")
+    def _configs(self):
+        for kind in ("model", "objective", "optimizer"):
+            try:
+                plugin = registry.create(kind, getattr(self, kind), getattr(self, f"{kind}_settings"))
+                getattr(plugin, "inner", None)  # a wrapper's inner optimiser (stepwise) is checked too
+            except HybridfitError as err:
+                raise ValueError(f"{kind}_config: {err}") from None
+        return self
+
+    def as_dict(self) -> dict[str, Any]:
+        """The settings as written in study files (``*_config`` keys)."""
+        return self.model_dump(mode="json", by_alias=True)
+
+
+class SyntheticProposalsData(_Strict):
+    """Proposals generated from the model (``hybridfit.synthetic_proposals``); trials use the top k."""
+
+    kind: Literal["synthetic-proposals"]
+    frames: int = Field(200, ge=1)
+    k: int = Field(5, ge=1, description="proposals generated per joint; a trial's k must not exceed it")
+    noise_mm: float = Field(5.0, ge=0)
+    p_missing: float = Field(0.05, ge=0, le=1)
+    p_true_top: float = Field(0.8, ge=0, le=1)
+    distance_mm: float = Field(400.0, gt=0)
+    seed: int = 2015
+
+
+class SyntheticDepthData(_Strict):
+    """The synthetic depth data: training grid + TrackSeq-like test sequence, a forest trained on it."""
+
+    kind: Literal["synthetic-depth"]
+    train: GridConfig = Field(default_factory=GridConfig)
+    test: SequenceConfig = Field(default_factory=SequenceConfig)
+    forest: ForestConfig = Field(default_factory=ForestConfig)
+    train_subset: int | None = Field(None, ge=1, description="train on this many grid frames drawn at random")
+    stride: int = Field(2, ge=1, description="pixel step of the dense sampling at test time")
+    bandwidth_mm: float = Field(10.0, gt=0, description="test-time mean-shift bandwidth")
+
+
+class DatasetData(_Strict):
+    """Data-set folders (``hybridfit.dataset``): a test set and a training set or a trained forest."""
+
+    kind: Literal["dataset"]
+    test: Path
+    train: Path | None = None
+    forest: ForestConfig = Field(default_factory=ForestConfig)
+    forest_file: Path | None = Field(None, description="a trained forest (.npz) instead of training one")
+    train_subset: int | None = Field(None, ge=1)
+    frames: int | None = Field(None, ge=1, description="first n test frames (default: all)")
+    stride: int = Field(2, ge=1)
+    bandwidth_mm: float = Field(10.0, gt=0)
+
+    @model_validator(mode="after")
+    def _source(self):
+        if (self.train is None) == (self.forest_file is None):
+            raise ValueError("give exactly one of train (a data-set folder to train on) and forest_file")
+        return self
+
+
+class Calibration(_Strict):
+    """Calibrate hand26 on ground-truth frames (``hybridfit.calibrate``), a cached shared step."""
+
+    frames: str = Field("0:100", description="START:STOP of the ground truth to calibrate on")
+    rounds: int = Field(3, ge=0)
+    budget: int = Field(3400, ge=1)
+    seed: int = 0
+    hand: Literal["auto", "right", "left"] = "auto"
+
+
+class ProposalsData(_Strict):
+    """A proposals file: an .npz (proposals, confidences, joint_names?, ground_truth?) or
+    results files (common format, one proposal per joint per file) with a dataset skeleton."""
+
+    kind: Literal["proposals"]
+    file: Path | list[Path]
+    dataset: Literal["icvl", "nyu", "msra"] | None = None
+    ground_truth: Path | None = Field(None, description="ground truth in the results format (else from the npz)")
+    frames: str | None = Field(None, description="START:STOP of the frames to fit (default: all)")
+    calibrate: Calibration | None = Field(None, description="calibrate the model on the ground truth first")
+
+    @model_validator(mode="after")
+    def _needs(self):
+        files = self.file if isinstance(self.file, list) else [self.file]
+        if any(f.suffix != ".npz" for f in files) and self.dataset is None:
+            raise ValueError("results files need dataset (icvl, nyu or msra)")
+        if self.calibrate is not None and (self.ground_truth is None or self.dataset is None):
+            raise ValueError("calibrate needs ground_truth and dataset")
+        return self
+
+
+Data = Annotated[Union[SyntheticProposalsData, SyntheticDepthData, DatasetData, ProposalsData],
+                 Field(discriminator="kind")]
+
+
+class Sweep(_Strict):
+    grid: dict[str, list[Any]] = Field(default_factory=dict, description="dotted setting path -> values")
+    variants: list[dict[str, Any]] = Field(default_factory=list, description="override tables (optional 'name')")
+
+
+class Report(_Strict):
+    plots: list[Literal[PLOTS]] | Literal["auto"] = "auto"  # type: ignore[valid-type]
+    metrics: list[Literal[METRICS]] = Field(  # type: ignore[valid-type]
+        default_factory=lambda: ["mean_error_mm", "fingertip_error_mm", "success_20mm", "success_40mm",
+                                 "success_80mm", "time_per_frame_s"], description="columns of the report's table")
+    per_joint_variants: int = Field(6, ge=1, description="at most this many variants in the per-joint plot")
+
+
+class Study(_Strict):
+    name: str
+    description: str = ""
+    seed: int = Field(0, ge=0, description="study seed: derives the trial seeds when seeds is a count")
+    seeds: int | list[int] = Field(1, description="a count of derived seeds, or the seeds themselves")
+    data: Data
+    base: TrialSettings = Field(default_factory=TrialSettings)
+    sweep: Sweep = Field(default_factory=Sweep)
+    baselines: list[Literal[BASELINES]] = Field(default_factory=lambda: list(BASELINES))  # type: ignore[valid-type]
+    report: Report = Field(default_factory=Report)
+    quick: dict[str, Any] = Field(default_factory=dict, description="overrides for --quick")
+
+    @field_validator("seeds")
+    @classmethod
+    def _seeds(cls, v):
+        if isinstance(v, int) and v < 1 or isinstance(v, list) and (not v or len(set(v)) != len(v)):
+            raise ValueError("need a count >= 1 or a non-empty list of distinct seeds")
+        return v
+
+    def seed_list(self) -> list[int]:
+        """The trial seeds (derived from ``seed`` when ``seeds`` is a count)."""
+        if isinstance(self.seeds, list):
+            return list(self.seeds)
+        return [int(s) for s in np.random.SeedSequence(self.seed).generate_state(self.seeds)]
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One point of the sweep: its name, the overrides it makes and the resolved settings."""
+
+    index: int
+    name: str
+    overrides: dict[str, Any]
+    settings: TrialSettings
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One variant x one seed; ``key`` is unique for (data, settings, seed)."""
+
+    key: str
+    variant: Variant
+    seed: int
+
+
+def digest(payload: Any) -> str:
+    """A short content hash of JSON-able data (sorted keys)."""
+    text = json.dumps(payload, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+def deep_merge(base: dict, over: dict) -> dict:
+    """base with over merged in (tables merge recursively, other values replace)."""
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        out[k] = deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else copy.deepcopy(v)
+    return out
+
+
+def _nest(path: str, value: Any) -> dict:
+    out: Any = value
+    for part in reversed(path.split(".")):
+        out = {part: out}
+    return out
+
+
+def _errors(where: str, err: ValidationError, prefix: str = "") -> HybridfitError:
+    parts = []
+    for e in err.errors():
+        path = [str(p) for p in (prefix, *e["loc"]) if p != ""]
+        path = [p for i, p in enumerate(path) if not (i and path[i - 1] == "data" and p in _KINDS.split(", "))]
+        loc = ".".join(path) or "(study)"
+        msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"].removeprefix("Value error, ")
+        if e["type"] in ("union_tag_invalid", "union_tag_not_found"):
+            msg = f"kind must be one of {_KINDS}"
+        parts.append(f"{loc}: {msg}")
+    return HybridfitError(f"{where}: " + "; ".join(parts))
+
+
+_KINDS = "synthetic-proposals, synthetic-depth, dataset, proposals"
+_SETTING_KEYS = {f.alias or n for n, f in TrialSettings.model_fields.items()}
+
+
+def _resolve_paths(data: BaseModel, root: Path) -> None:
+    for name in ("test", "train", "forest_file", "file", "ground_truth"):
+        value = getattr(data, name, None)
+        if isinstance(value, list):
+            object.__setattr__(data, name, [root / v for v in value])
+        elif isinstance(value, Path):
+            object.__setattr__(data, name, root / value)
+
+
+def _check_exists(data: BaseModel, where: str) -> None:
+    for name in ("test", "train", "forest_file", "file", "ground_truth"):
+        value = getattr(data, name, None)
+        for p in value if isinstance(value, list) else [value]:
+            if isinstance(p, Path) and not p.exists():
+                raise HybridfitError(f"{where}: data.{name}: no such file or folder {p}")
+
+
+def load_spec(path: str | Path, quick: bool = False) -> Study:
+    """Read and validate a study file (with its ``[quick]`` overrides when ``quick``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise HybridfitError(f"{path}: no such study file")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise HybridfitError(f"{path}: invalid TOML: {err}") from None
+    where = str(path)
+    if quick:
+        over = raw.get("quick", {})
+        if not isinstance(over, dict) or not over:
+            raise HybridfitError(f"{path}: --quick needs a [quick] table of overrides")
+        raw = deep_merge(raw, over)
+        where = f"{path} (with its [quick] overrides)"
+    return parse_spec(raw, where, path.parent)
+
+
+def parse_spec(raw: dict, where: str = "study", root: Path | None = None) -> Study:
+    """Validate a study dict; paths resolve against ``root``; data files must exist."""
+    try:
+        study = Study.model_validate(raw)
+    except ValidationError as err:
+        raise _errors(where, err) from None
+    _resolve_paths(study.data, Path(root or "."))
+    _check_exists(study.data, where)
+    expand(study, where)  # sweep errors now, not when the run reaches them
+    return study
+
+
+def _variant_name(overrides: dict[str, Any]) -> str:
+    def flat(d, prefix=""):
+        for k, v in d.items():
+            if isinstance(v, dict) and v:
+                yield from flat(v, f"{prefix}{k}.")
+            else:
+                yield f"{prefix}{k}", v
+
+    return ", ".join(f"{k}={json.dumps(v) if not isinstance(v, str) else v}" for k, v in flat(overrides)) or "base"
+
+
+def expand(study: Study, where: str = "study") -> list[Variant]:
+    """The study's variants in a deterministic order (see the module docstring)."""
+    for key in study.sweep.grid:
+        if key.split(".")[0] not in _SETTING_KEYS:
+            raise HybridfitError(f"{where}: sweep.grid.{key}: unknown setting; allowed: "
+                                 f"{', '.join(sorted(_SETTING_KEYS))}")
+        if not study.sweep.grid[key]:
+            raise HybridfitError(f"{where}: sweep.grid.{key}: needs at least one value")
+    listed = study.sweep.variants or [{}]
+    keys = list(study.sweep.grid)
+    base = study.base.as_dict()
+    out: list[Variant] = []
+    names: set[str] = set()
+    for i, entry in enumerate(listed):
+        entry = dict(entry)
+        name = entry.pop("name", None)
+        over: dict[str, Any] = {}
+        for k, v in entry.items():  # dotted keys in variant tables too
+            over = deep_merge(over, _nest(k, v))
+        for combo in itertools.product(*(study.sweep.grid[k] for k in keys)):
+            o = over
+            for k, v in zip(keys, combo):
+                o = deep_merge(o, _nest(k, v))
+            loc = f"sweep.variants.{i}" if study.sweep.variants else "sweep.grid"
+            if keys:
+                loc += f" ({_variant_name(dict(zip(keys, combo)))})"
+            unknown = [k for k in o if k not in _SETTING_KEYS]
+            if unknown:
+                raise HybridfitError(f"{where}: {loc}.{unknown[0]}: unknown setting; allowed: "
+                                     f"{', '.join(sorted(_SETTING_KEYS))}")
+            try:
+                settings = TrialSettings.model_validate(deep_merge(base, o))
+            except ValidationError as err:
+                raise _errors(where, err, loc) from None
+            grid_label = _variant_name(dict(zip(keys, combo))) if keys else ""
+            label = ", ".join(p for p in (name or (_variant_name(over) if over else ""), grid_label) if p) or "base"
+            if label in names:
+                raise HybridfitError(f"{where}: {loc}: duplicate variant name {label!r}")
+            names.add(label)
+            _check_k(study, settings, where, loc)
+            out.append(Variant(len(out), label, o, settings))
+    return out
+
+
+def _check_k(study: Study, settings: TrialSettings, where: str, loc: str) -> None:
+    if isinstance(study.data, SyntheticProposalsData) and settings.k > study.data.k:
+        raise HybridfitError(f"{where}: {loc}.k: {settings.k} exceeds data.k = {study.data.k} (proposals generated)")
+
+
+def trials(study: Study, variants: list[Variant], data_key: str) -> list[Trial]:
+    """Every variant x seed, variant-major, with its unique key."""
+    return [Trial(digest({"data": data_key, "settings": v.settings.as_dict(), "seed": s}), v, s)
+            for v in variants for s in study.seed_list()]

@@ -1,0 +1,165 @@
+"""The study database: SQLite in WAL mode with a versioned schema (Optuna-like).
+
+``trials``: one row per trial (unique ``key`` = hash of data, settings and seed), its
+variant, settings JSON, seed and state (running, complete, failed) with the error of a
+failed trial. ``frames``: one row per trial and frame (errors per joint as a JSON list,
+mean and worst joint error, objective, evaluations, time, the frame's own error).
+Only the study's main process writes; each finished trial is one transaction, so a run
+killed at any moment keeps every finished trial and never a half-written one.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import HybridfitError
+
+SCHEMA_VERSION = 1
+STATES = ("running", "complete", "failed")
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS trials (
+    id INTEGER PRIMARY KEY,
+    key TEXT NOT NULL UNIQUE,
+    variant TEXT NOT NULL,
+    variant_index INTEGER NOT NULL,
+    method TEXT NOT NULL,
+    settings TEXT NOT NULL,
+    seed INTEGER NOT NULL,
+    joint_names TEXT,
+    state TEXT NOT NULL CHECK (state IN ('running', 'complete', 'failed')),
+    error TEXT,
+    started REAL,
+    finished REAL
+);
+CREATE TABLE IF NOT EXISTS frames (
+    trial_id INTEGER NOT NULL REFERENCES trials(id) ON DELETE CASCADE,
+    frame INTEGER NOT NULL,
+    joint_errors TEXT NOT NULL,
+    mean_error REAL,
+    max_error REAL,
+    objective REAL,
+    evaluations INTEGER,
+    time_s REAL,
+    failed INTEGER NOT NULL,
+    error TEXT,
+    PRIMARY KEY (trial_id, frame)
+);
+"""
+
+
+class Store:
+    """The SQLite study database at ``path`` (created with the current schema if new)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.db = sqlite3.connect(self.path, timeout=30, isolation_level=None)
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("PRAGMA synchronous=NORMAL")
+        self.db.execute("PRAGMA foreign_keys=ON")
+        for stmt in filter(str.strip, _SCHEMA.split(";")):
+            self.db.execute(stmt)
+        found = self.get_meta("schema_version")
+        if found is None:
+            self.set_meta("schema_version", SCHEMA_VERSION)
+        elif int(found) != SCHEMA_VERSION:
+            raise HybridfitError(f"{self.path}: study database schema version {found}, this hybridfit "
+                                 f"reads version {SCHEMA_VERSION}; use another --out folder")
+
+    def close(self) -> None:
+        self.db.close()
+
+    # ------------------------------------------------------------------ meta
+
+    def get_meta(self, key: str) -> Any:
+        row = self.db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        return None if row is None else json.loads(row[0])
+
+    def set_meta(self, key: str, value: Any) -> None:
+        self.db.execute("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", (key, json.dumps(value)))
+
+    # ------------------------------------------------------------------ trials
+
+    def states(self) -> dict[str, str]:
+        """{trial key: state} of every trial in the database."""
+        return dict(self.db.execute("SELECT key, state FROM trials"))
+
+    def start(self, key: str, variant: str, variant_index: int, method: str, settings: dict, seed: int) -> None:
+        """Record a trial as running (a re-run of an unfinished trial replaces its row's state)."""
+        self.db.execute(
+            "INSERT INTO trials (key, variant, variant_index, method, settings, seed, state, started) "
+            "VALUES (?, ?, ?, ?, ?, ?, 'running', ?) ON CONFLICT(key) DO UPDATE SET state = 'running', "
+            "error = NULL, started = excluded.started, finished = NULL, variant = excluded.variant, "
+            "variant_index = excluded.variant_index",
+            (key, variant, variant_index, method, json.dumps(settings, sort_keys=True), seed, time.time()))
+
+    def complete(self, key: str, result: dict) -> None:
+        """Store a finished trial's frames and mark it complete, in one transaction.
+
+        result: ``errors`` (F, J) mm, ``objective`` (F,), ``evaluations`` (F,), ``failed`` (F,),
+        ``messages`` {frame: error}, ``time_per_frame`` s, ``joint_names`` (J,)."""
+        errors = np.asarray(result["errors"], float)
+        rows = []
+        for f in range(len(errors)):
+            e = errors[f]
+            ok = np.isfinite(e).all()
+            rows.append((f, json.dumps([None if not np.isfinite(x) else round(float(x), 4) for x in e]),
+                         float(e.mean()) if ok else None, float(e.max()) if ok else None,
+                         _num(result["objective"][f]), int(result["evaluations"][f]), _num(result["time_per_frame"]),
+                         int(bool(result["failed"][f])), result["messages"].get(f)))
+        with self.db:
+            self.db.execute("BEGIN IMMEDIATE")
+            (tid,) = self.db.execute("SELECT id FROM trials WHERE key = ?", (key,)).fetchone()
+            self.db.execute("DELETE FROM frames WHERE trial_id = ?", (tid,))
+            self.db.executemany("INSERT INTO frames VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", [(tid, *r) for r in rows])
+            self.db.execute("UPDATE trials SET state = 'complete', error = NULL, finished = ?, joint_names = ? "
+                            "WHERE id = ?", (time.time(), json.dumps(list(result["joint_names"])), tid))
+
+    def fail(self, key: str, error: str) -> None:
+        """Mark a trial failed with its error."""
+        self.db.execute("UPDATE trials SET state = 'failed', error = ?, finished = ? WHERE key = ?",
+                        (error, time.time(), key))
+
+    def mark_interrupted(self) -> int:
+        """Trials left 'running' by a run that died: failed ("interrupted"); returns how many."""
+        cur = self.db.execute("UPDATE trials SET state = 'failed', error = 'interrupted' WHERE state = 'running'")
+        return cur.rowcount
+
+    # ------------------------------------------------------------------ reading
+
+    def trials(self, state: str | None = None) -> list[dict]:
+        """Trial rows as dicts (settings and joint_names decoded), by variant and seed."""
+        sql = "SELECT * FROM trials" + (" WHERE state = ?" if state else "") + " ORDER BY variant_index, seed, id"
+        cur = self.db.execute(sql, (state,) if state else ())
+        cols = [c[0] for c in cur.description]
+        out = []
+        for row in cur:
+            d = dict(zip(cols, row))
+            d["settings"] = json.loads(d["settings"])
+            d["joint_names"] = json.loads(d["joint_names"]) if d["joint_names"] else None
+            out.append(d)
+        return out
+
+    def frames(self, trial_id: int) -> dict[str, np.ndarray]:
+        """A trial's frames as arrays: errors (F, J) mm (NaN where failed), objective, evaluations, time_s, failed."""
+        rows = self.db.execute("SELECT joint_errors, objective, evaluations, time_s, failed FROM frames "
+                               "WHERE trial_id = ? ORDER BY frame", (trial_id,)).fetchall()
+        errors = np.array([[np.nan if x is None else x for x in json.loads(r[0])] for r in rows], float)
+        return {"errors": errors.reshape(len(rows), -1),
+                "objective": np.array([np.nan if r[1] is None else r[1] for r in rows], float),
+                "evaluations": np.array([r[2] for r in rows], float),
+                "time_s": np.array([r[3] for r in rows], float),
+                "failed": np.array([bool(r[4]) for r in rows])}
+
+
+def _num(x) -> float | None:
+    x = float(x)
+    return x if np.isfinite(x) else None
