@@ -37,3 +37,21 @@ def random_params(model, n, rng):
     lower[:3], upper[:3] = -200.0, 200.0
     upper[:3] += [0, 0, 600]
     return rng.uniform(lower, upper, size=(n, model.n_params))
+
+
+@pytest.fixture
+def interrupt_at(monkeypatch):
+    """interrupt_at(frame): make hybridfit.fit raise KeyboardInterrupt when it reaches that frame."""
+    from hybridfit import fitting
+
+    real = fitting._fit_chunk
+
+    def arm(frame: int) -> None:
+        def chunk(spec, frames, proposals, confidences):
+            if frames[0] == frame:
+                raise KeyboardInterrupt
+            return real(spec, frames, proposals, confidences)
+
+        monkeypatch.setattr(fitting, "_fit_chunk", chunk)
+
+    return arm

@@ -75,17 +75,8 @@ def test_synthetic_proposals_layout():
         hybridfit.synthetic_proposals(3, k=0)
 
 
-def test_an_interrupt_keeps_the_finished_frames(frames, monkeypatch):
-    from hybridfit import fitting
-
-    real = fitting._fit_chunk
-
-    def interrupted_at_frame_2(spec, chunk, proposals, confidences):
-        if chunk[0] == 2:
-            raise KeyboardInterrupt
-        return real(spec, chunk, proposals, confidences)
-
-    monkeypatch.setattr(fitting, "_fit_chunk", interrupted_at_frame_2)
+def test_an_interrupt_keeps_the_finished_frames(frames, interrupt_at):
+    interrupt_at(2)
     result = hybridfit.fit(frames["proposals"][:4], frames["confidences"][:4], budget=300)
     assert result.interrupted
     assert list(result.failed) == [False, False, True, True]

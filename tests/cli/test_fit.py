@@ -80,17 +80,8 @@ def test_user_errors_are_one_line_with_exit_code_2(proposals_file, tmp_path, cap
     assert not (tmp_path / "x.npz").exists()
 
 
-def test_an_interrupted_fit_saves_finished_frames_and_exits_130(proposals_file, tmp_path, monkeypatch):
-    from hybridfit import fitting
-
-    real = fitting._fit_chunk
-
-    def interrupted_at_frame_1(spec, chunk, proposals, confidences):
-        if chunk[0] == 1:
-            raise KeyboardInterrupt
-        return real(spec, chunk, proposals, confidences)
-
-    monkeypatch.setattr(fitting, "_fit_chunk", interrupted_at_frame_1)
+def test_an_interrupted_fit_saves_finished_frames_and_exits_130(proposals_file, tmp_path, interrupt_at):
+    interrupt_at(1)
     out = tmp_path / "partial.npz"
     assert main(["fit", str(proposals_file), "--out", str(out), "--budget", "300"]) == 130
     with np.load(out) as fits:
