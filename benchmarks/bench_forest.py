@@ -32,7 +32,7 @@ from _util import table  # noqa: E402
 import hybridfit  # noqa: E402
 from hybridfit.dataset import load_dataset  # noqa: E402
 from hybridfit.forest import Forest, ForestConfig, dataset_masks, train_forest_dataset  # noqa: E402
-from hybridfit.metrics import joint_errors, success_rate  # noqa: E402
+from hybridfit.metrics import fingertips, joint_errors, oracle, success_rate  # noqa: E402
 
 THRESHOLDS = (20, 30, 40, 50, 80)
 
@@ -102,11 +102,10 @@ def main() -> int:
           f"foreground pixels per frame {masks.sum((1, 2)).mean():.0f}")
 
     p5 = forest.propose(depths, K, masks, k=5, **opts)
-    tips = np.array([n.endswith("_tip") for n in forest.joint_names])
+    tips = fingertips(forest.joint_names)
     rows = [row("regression (top proposal)", p5.proposals[:, :, 0], truth, tips)]
     for k in range(1, 6):
-        best = np.argmin(np.linalg.norm(p5.proposals[:, :, :k] - truth[:, :, None], axis=-1), axis=-1)
-        rows.append(row(f"oracle k={k}", np.take_along_axis(p5.proposals, best[..., None, None], 2)[:, :, 0], truth, tips))
+        rows.append(row(f"oracle k={k}", oracle(p5.proposals[:, :, :k], truth), truth, tips))
     t0 = time.perf_counter()
     est = hybridfit.HybridEstimator(forest, k=3, proposal_set=args.proposal_set, stride=args.stride,
                                     bandwidth_mm=args.bandwidth, budget=args.budget, jobs=args.jobs)

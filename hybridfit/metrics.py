@@ -10,6 +10,22 @@ def joint_errors(predicted: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.asarray(predicted, float) - np.asarray(truth, float), axis=-1)
 
 
+def oracle(proposals: np.ndarray, truth: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """The Oracle: per frame and joint, the proposal closest to the truth.
+
+    proposals (F, J, K, 3), truth (F, J, 3) mm -> (F, J, 3); with weights (F, J, K) only
+    proposals of positive weight are chosen from."""
+    d = np.linalg.norm(np.asarray(proposals, float) - np.asarray(truth, float)[:, :, None], axis=-1)
+    if weights is not None:
+        d = np.where(np.asarray(weights) > 0, d, np.inf)
+    return np.take_along_axis(np.asarray(proposals), d.argmin(axis=-1)[..., None, None], axis=2)[:, :, 0]
+
+
+def fingertips(names) -> list[int]:
+    """Indices of the fingertip points among joint or point names (those ending in ``_tip``)."""
+    return [j for j, n in enumerate(names) if str(n).endswith("_tip")]
+
+
 def success_rate(errors: np.ndarray, thresholds_mm) -> np.ndarray:
     """Share of frames whose worst joint error is within each threshold.
 

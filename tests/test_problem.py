@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import hybridfit
 from hybridfit.errors import HybridfitError
 from hybridfit.metrics import joint_errors
 from hybridfit.problem import Problem

@@ -7,7 +7,6 @@ import warnings
 
 import pytest
 
-import hybridfit
 from hybridfit import registry
 from hybridfit.errors import HybridfitError, UnknownPluginError
 

@@ -34,6 +34,15 @@ def add_plugin_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--optimizer-config", metavar="TOML", help="optimizer settings file")
 
 
+def add_fit_options(parser: argparse.ArgumentParser) -> None:
+    """--budget/--seed/--jobs/--search-radius: how every frame is fitted."""
+    parser.add_argument("--budget", type=positive_int, default=3400, help="objective evaluations per frame (default 3400)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--jobs", type=positive_int, default=1, help="parallel fitting processes (results do not depend on it)")
+    parser.add_argument("--search-radius", type=float, default=60.0,
+                        help="position search radius around the initial guess, mm")
+
+
 def plugin_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     """Keyword arguments for hybridfit.fit from the plugin options."""
     return {

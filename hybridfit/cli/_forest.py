@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import HybridfitError
-
 
 class CameraFrame:
     """A data set seen in the forest's frame: camera coordinates, x right, y down, z forward (mm).
@@ -34,13 +32,10 @@ class CameraFrame:
         return np.asarray(xyz) * self.signs
 
     def model_config(self, model: str, config: dict) -> dict:
-        """The fitting model's settings with the dataset's derived points (hand26 only)."""
-        name = getattr(self.source, "dataset", "")
-        if model != "hand26" or not name:
-            return config
-        from ..datasets.skeletons import with_derived_points
+        """The fitting model's settings with the dataset's derived points."""
+        from ..datasets.skeletons import dataset_model_config
 
-        return with_derived_points(config, name)
+        return dataset_model_config(model, config, getattr(self.source, "dataset", ""))
 
 
 def open_dataset(path: str) -> CameraFrame:

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import sys
 
-import numpy as np
-
 from ..estimator import HybridEstimator
 from ..io import save_npz
 from ..metrics import summary
-from ._common import add_plugin_options, plugin_kwargs, positive_int
+from ._common import add_fit_options, add_plugin_options, plugin_kwargs
 from ._forest import frame_indices, ground_truth, open_dataset, report_empty
 from .propose import add_proposal_options
 
@@ -21,10 +19,7 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="output npz: the `hybridfit fit` keys plus proposals, confidences, empty")
     add_proposal_options(p)
     add_plugin_options(p)
-    p.add_argument("--budget", type=positive_int, default=3400, help="objective evaluations per frame (default 3400)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--jobs", type=positive_int, default=1, help="parallel fitting processes (results do not depend on it)")
-    p.add_argument("--search-radius", type=float, default=60.0, help="position search radius around the initial guess, mm")
+    add_fit_options(p)
     p.set_defaults(func=run)
 
 

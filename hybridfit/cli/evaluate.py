@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import HybridfitError
 from ..io import load_npz
-from ..metrics import joint_errors, success_rate
+from ..metrics import fingertips, joint_errors, oracle, success_rate
 
 THRESHOLDS = np.arange(0, 81)
 REPORTED = (20, 40, 80)
@@ -38,9 +38,7 @@ def load_points(path: str, dataset: str | None) -> list[tuple[str, np.ndarray, l
             top = np.take_along_axis(p, w.argmax(axis=-1)[..., None, None], axis=2)[:, :, 0]
             out = [(f"{label} top-1", top, names)]
             if "ground_truth" in data:
-                d = np.linalg.norm(p - np.asarray(data["ground_truth"], float)[:, :, None], axis=-1)
-                d = np.where(w > 0, d, np.inf)
-                out.append((f"{label} Oracle", np.take_along_axis(p, d.argmin(-1)[..., None, None], 2)[:, :, 0], names))
+                out.append((f"{label} Oracle", oracle(p, data["ground_truth"], w), names))
             if "optimized" in data:
                 out.append((f"{label} optimized", np.asarray(data["optimized"], float), names))
             return out
@@ -124,7 +122,7 @@ def run(args) -> int:
             methods.append((label, aligned(pts, names, truth[sel], truth_names, path)))
     truth = truth[sel]
     names = truth_names or [f"joint {j}" for j in range(truth.shape[1])]
-    tips = [j for j, n in enumerate(names) if n.endswith("_tip")]
+    tips = fingertips(names)
     if args.dataset and names == list(_skeleton(args.dataset).model_names):
         names = list(_skeleton(args.dataset).names)  # show the dataset's own point names
     rows, per_joint, curves = [], [], []

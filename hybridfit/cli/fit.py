@@ -7,11 +7,11 @@ import sys
 import numpy as np
 
 from .. import fit as fit_frames
-from ..datasets.skeletons import skeleton, with_derived_points
+from ..datasets.skeletons import dataset_model_config, skeleton
 from ..errors import HybridfitError
 from ..io import load_proposals, save_npz
 from ..metrics import summary
-from ._common import add_plugin_options, plugin_kwargs, positive_int
+from ._common import add_fit_options, add_plugin_options, plugin_kwargs
 
 
 def register(sub) -> None:
@@ -19,12 +19,9 @@ def register(sub) -> None:
     p.add_argument("proposals", help="npz with proposals (F,J,K,3) mm, confidences (F,J,K), optional joint_names, ground_truth")
     p.add_argument("--out", required=True, help="output npz: params, joints, objective, evaluations, joint_names")
     add_plugin_options(p)
-    p.add_argument("--budget", type=positive_int, default=3400, help="objective evaluations per frame (default 3400)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--jobs", type=positive_int, default=1, help="parallel processes (results do not depend on it)")
+    add_fit_options(p)
     p.add_argument("--dataset", help="icvl, nyu or msra: the proposals' skeleton when the npz has no joint_names "
                    "(and the dataset's derived points for hand26)")
-    p.add_argument("--search-radius", type=float, default=60.0, help="position search radius around the initial guess, mm")
     p.set_defaults(func=run)
 
 
@@ -40,8 +37,7 @@ def run(args) -> int:
                 raise HybridfitError(f"{args.proposals}: {data['proposals'].shape[1]} points, "
                                      f"but the {sk.dataset} skeleton has {len(sk)}")
             names = sk.model_names
-        if plugins["model"] == "hand26":
-            plugins["model_config"] = with_derived_points(plugins["model_config"], sk.dataset)
+        plugins["model_config"] = dataset_model_config(plugins["model"], plugins["model_config"], sk.dataset)
         extra["dataset"] = np.asarray(sk.dataset)
     result = fit_frames(
         data["proposals"], data["confidences"],

@@ -103,3 +103,11 @@ def with_derived_points(model_config: dict, dataset: str) -> dict:
     for name, weights in skeleton(dataset).derived.items():
         derived.setdefault(name, weights)
     return {**model_config, "derived_points": derived}
+
+
+def dataset_model_config(model: str, model_config: dict, dataset: str | None) -> dict:
+    """The fitting model's settings for a dataset's skeleton: hand26 gets the skeleton's
+    derived points (it has a setting for them); other models and no dataset: unchanged."""
+    if model != "hand26" or not dataset:
+        return dict(model_config)
+    return with_derived_points(model_config, dataset)

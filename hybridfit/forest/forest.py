@@ -16,7 +16,6 @@ concatenated node arrays and the leaf modes (see ``Forest``).
 
 from __future__ import annotations
 
-import json
 import os
 import zipfile
 from dataclasses import dataclass

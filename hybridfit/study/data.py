@@ -16,7 +16,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import HybridfitError
-from ..metrics import joint_errors
+from ..metrics import joint_errors, oracle
 from .cache import Cache
 from .spec import DatasetData, ProposalsData, SyntheticDepthData, SyntheticProposalsData, TrialSettings
 
@@ -200,7 +200,7 @@ class StudyData:
     def model_config(self, settings: TrialSettings) -> dict[str, Any]:
         """The model config a trial runs with: the dataset's derived points and the calibration
         (for hand26 on real-data skeletons) under the trial's own model_config."""
-        from ..datasets.skeletons import with_derived_points
+        from ..datasets.skeletons import dataset_model_config
 
         cfg = dict(settings.model_settings)
         d = self.data
@@ -208,7 +208,7 @@ class StudyData:
             return cfg
         if d.calibrate is not None:
             cfg = {**self.calibration(), **cfg}
-        return with_derived_points(cfg, d.dataset)
+        return dataset_model_config(settings.model, cfg, d.dataset)
 
     def calibration(self) -> dict[str, Any]:
         """hand26 settings calibrated on the ground truth's frames (cached)."""
@@ -252,6 +252,6 @@ def baseline_errors(z: ProposalSet, method: str) -> np.ndarray:
     if method == "top1":
         e = joint_errors(z["proposals"][:, :, 0], truth)
     else:
-        e = np.linalg.norm(z["proposals"] - truth[:, :, None], axis=-1).min(axis=-1)
+        e = joint_errors(oracle(z["proposals"], truth), truth)
     e[z["empty"]] = np.nan
     return e

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..metrics import success_rate
+from ..metrics import fingertips, success_rate
 from .spec import METRICS, Study
 from .store import Store
 
@@ -32,7 +32,7 @@ LABELS = {"mean_error_mm": "mean error (mm)", "median_error_mm": "median frame e
 def trial_metrics(frames: dict[str, np.ndarray], joint_names) -> dict[str, float]:
     """The metrics of one trial from its frames (see the module docstring)."""
     e = frames["errors"]
-    tips = [j for j, n in enumerate(joint_names) if str(n).endswith("tip")]
+    tips = fingertips(joint_names)
     ok = np.isfinite(e).all(axis=1)
     s = success_rate(e, (20, 40, 80))
     nan = float("nan")
