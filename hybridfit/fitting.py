@@ -117,13 +117,7 @@ def fit(
     spec = _Spec(model, objective, optimizer, int(budget), int(seed), names, float(search_radius_mm))
     if F:  # user errors that would fail every frame are raised at once
         problem = Problem(model, objective, proposals[0], confidences[0], names, search_radius_mm)
-        need = optimizer.min_budget(Task(problem, budget))
-        if budget < need:
-            from .errors import HybridfitError
-
-            raise HybridfitError(
-                f"budget {budget} is too small for optimizer {optimizer.name}: it needs at least {need} evaluations"
-            )
+        optimizer.check_budget(Task(problem, budget))
 
     P, Q, J = model.n_params, len(names), model.n_joints
     result = FitResult(

@@ -153,15 +153,19 @@ class Optimizer(Plugin, abc.ABC):
         The task keeps the best hypothesis; all randomness comes from ``rng``.
         """
 
+    def check_budget(self, task: Task) -> None:
+        """Raise a HybridfitError naming the minimum when the task's budget is below it."""
+        need = self.min_budget(task)
+        if task.budget < need:
+            raise HybridfitError(
+                f"budget {task.budget} is too small for optimizer {self.name or type(self).__name__}: "
+                f"it needs at least {need} evaluations"
+            )
+
     def run(self, problem: Problem, budget: int, seed: int | np.random.Generator = 0) -> OptimizeResult:
         """Optimise one problem with an exact evaluation budget and a seed."""
         task = Task(problem, budget)
-        need = self.min_budget(task)
-        if budget < need:
-            raise HybridfitError(
-                f"budget {budget} is too small for optimizer {self.name or type(self).__name__}: "
-                f"it needs at least {need} evaluations"
-            )
+        self.check_budget(task)
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         self.minimize(task, rng)
         if task.used == 0:
