@@ -50,7 +50,7 @@ from .geometry import axis_angle_matrix, matrix_to_quaternion
 from .noise import SensorNoise, apply_noise
 from .plugin import format_validation_error
 from .render import HandSurface, Renderer
-from .synthetic import _PALM_TO_CAMERA
+from .synthetic import PALM_TO_CAMERA, palm_orientation
 
 # per-finger angles in degrees in the model's parameter order: thumb (CMC flexion, CMC
 # abduction, MCP, IP), fingers (MCP flexion, MCP abduction, PIP, DIP)
@@ -200,7 +200,7 @@ def _orientation(about_xyz_deg) -> np.ndarray:
     """(4,) quaternion of a palm facing the camera rotated about the camera's x, y, z axes."""
     ax, ay, az = np.radians(about_xyz_deg)
     R = axis_angle_matrix([0, 0, 1], az) @ axis_angle_matrix([0, 1, 0], ay) @ axis_angle_matrix([1, 0, 0], ax)
-    return matrix_to_quaternion(R @ _PALM_TO_CAMERA)
+    return matrix_to_quaternion(R @ PALM_TO_CAMERA)
 
 
 def grid_poses(config: GridConfig | Mapping | None = None, model=None) -> np.ndarray:
@@ -291,9 +291,8 @@ def sequence_poses(config: SequenceConfig | Mapping | None = None, model=None) -
     glob_t, glob_q, glob_p, t = [], [], [], 0
     while not glob_t or glob_t[-1] <= end:
         phi = rng_global.uniform(0, 2 * np.pi)
-        tilt = axis_angle_matrix([np.cos(phi), np.sin(phi), 0], np.radians(rng_global.uniform(0, config.max_tilt_deg)))
-        roll = axis_angle_matrix([0, 0, 1], np.radians(rng_global.uniform(-config.max_roll_deg, config.max_roll_deg)))
-        glob_q.append(matrix_to_quaternion(tilt @ roll @ _PALM_TO_CAMERA))
+        tilt = rng_global.uniform(0, config.max_tilt_deg)
+        glob_q.append(palm_orientation(phi, tilt, rng_global.uniform(-config.max_roll_deg, config.max_roll_deg)))
         s = config.position_spread_mm
         glob_p.append([rng_global.uniform(-s, s), rng_global.uniform(-s, s),
                        config.distance_mm + rng_global.uniform(-config.depth_spread_mm, config.depth_spread_mm)])

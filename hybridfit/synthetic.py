@@ -20,7 +20,15 @@ from .errors import HybridfitError
 from .geometry import axis_angle_matrix, matrix_to_quaternion
 
 #: camera looking along +z, x right, y down: a palm facing the camera, fingers up
-_PALM_TO_CAMERA = np.diag([1.0, -1.0, -1.0])
+PALM_TO_CAMERA = np.diag([1.0, -1.0, -1.0])
+
+
+def palm_orientation(tilt_axis_rad: float, tilt_deg: float, roll_deg: float) -> np.ndarray:
+    """(4,) quaternion of a palm facing the camera, rolled by ``roll_deg`` in the image plane,
+    then tilted by ``tilt_deg`` about the in-plane axis at angle ``tilt_axis_rad``."""
+    roll = axis_angle_matrix([0, 0, 1], np.radians(roll_deg))
+    tilt = axis_angle_matrix([np.cos(tilt_axis_rad), np.sin(tilt_axis_rad), 0], np.radians(tilt_deg))
+    return matrix_to_quaternion(tilt @ roll @ PALM_TO_CAMERA)
 
 
 def random_poses(model, frames: int, rng: np.random.Generator, *, distance_mm: float = 400.0,
@@ -34,10 +42,9 @@ def random_poses(model, frames: int, rng: np.random.Generator, *, distance_mm: f
     span = upper[7:] - lower[7:]
     X[:, 7:] = lower[7:] + span * rng.beta(1.2, 1.6, size=(frames, P - 7))
     for i in range(frames):
-        roll = axis_angle_matrix([0, 0, 1], np.radians(rng.uniform(-max_roll_deg, max_roll_deg)))
+        roll = rng.uniform(-max_roll_deg, max_roll_deg)
         phi = rng.uniform(0, 2 * np.pi)
-        tilt = axis_angle_matrix([np.cos(phi), np.sin(phi), 0], np.radians(rng.uniform(0, max_tilt_deg)))
-        X[i, 3:7] = matrix_to_quaternion(tilt @ roll @ _PALM_TO_CAMERA)
+        X[i, 3:7] = palm_orientation(phi, rng.uniform(0, max_tilt_deg), roll)
         X[i, 0:3] = rng.uniform(-spread_mm, spread_mm, 3) + [0.0, 0.0, distance_mm]
     return X
 

@@ -8,7 +8,7 @@ from hybridfit.camera import Intrinsics, uvd_to_xyz, xyz_to_uvd
 from hybridfit.errors import HybridfitError
 from hybridfit.geometry import matrix_to_quaternion
 from hybridfit.render import HandSurface, Renderer, _hit
-from hybridfit.synthetic import _PALM_TO_CAMERA, random_poses
+from hybridfit.synthetic import PALM_TO_CAMERA, random_poses
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +24,7 @@ def renderer(model):
 def frontal(model, z=400.0, x=0.0, y=0.0):
     p = model.default_params()
     p[0:3] = (x, y, z)
-    p[3:7] = matrix_to_quaternion(_PALM_TO_CAMERA)
+    p[3:7] = matrix_to_quaternion(PALM_TO_CAMERA)
     return p
 
 
