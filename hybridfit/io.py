@@ -40,16 +40,17 @@ def validate_proposals(proposals, confidences, joint_names=None, where: str = "p
     return p.astype(np.float64), c.astype(np.float64)
 
 
-def load_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """All arrays of an .npz file (no pickles), with readable errors."""
+def load_npz(path: str | os.PathLike, kind: str = "") -> dict[str, np.ndarray]:
+    """All arrays of an .npz file (no pickles), with readable errors naming the file (and
+    what it should be, e.g. kind="forest")."""
     path = Path(path)
-    if not path.exists():
-        raise HybridfitError(f"{path}: no such file")
+    if not path.is_file():
+        raise HybridfitError(f"{path}: no such {kind + ' ' if kind else ''}file")
     try:
         with np.load(path, allow_pickle=False) as data:
             return {k: data[k] for k in data.files}
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
-        raise HybridfitError(f"{path}: not a readable .npz file ({type(err).__name__}: {err})") from None
+        raise HybridfitError(f"{path}: not a readable {kind or '.npz'} file ({type(err).__name__}: {err})") from None
 
 
 def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:

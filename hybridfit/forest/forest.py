@@ -17,7 +17,6 @@ concatenated node arrays and the leaf modes (see ``Forest``).
 from __future__ import annotations
 
 import os
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -28,6 +27,7 @@ from tqdm.auto import tqdm
 
 from ..camera import Intrinsics
 from ..errors import HybridfitError
+from ..io import load_npz, save_npz
 from .features import pack_crops, traverse
 from .meanshift import mean_shift
 from .train import ForestConfig, TrainingSet, grow_forest
@@ -91,25 +91,15 @@ class Forest:
 
     def save(self, path: str | os.PathLike) -> None:
         """Write the forest as one .npz (atomically)."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(tmp, format=np.asarray(FORMAT), version=np.asarray(VERSION),
+        save_npz(path, format=np.asarray(FORMAT), version=np.asarray(VERSION),
                  config=np.asarray(self.config.model_dump_json()), intrinsics=np.asarray(self.intrinsics.model_dump_json()),
                  joint_names=np.asarray(self.joint_names), **{k: getattr(self, k) for k in _ARRAYS})
-        os.replace(tmp, path)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Forest":
         """Read a forest file; a corrupt file or another format version raises HybridfitError naming it."""
         path = Path(path)
-        if not path.is_file():
-            raise HybridfitError(f"{path}: no such forest file")
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                d = {k: data[k] for k in data.files}
-        except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
-            raise HybridfitError(f"{path}: not a readable forest file ({type(err).__name__}: {err})") from None
+        d = load_npz(path, "forest")
         if "format" not in d or str(d["format"]) != FORMAT:
             raise HybridfitError(f"{path}: not a hybridfit forest file")
         if int(d.get("version", -1)) != VERSION:

@@ -16,6 +16,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import HybridfitError
+from ..io import load_npz
 from ..metrics import joint_errors, oracle
 from .cache import Cache
 from .spec import DatasetData, ProposalsData, SyntheticDepthData, SyntheticProposalsData, TrialSettings
@@ -34,15 +35,6 @@ def file_hash(path: Path) -> str:
             for block in iter(lambda: fh.read(1 << 20), b""):
                 h.update(block)
     return h.hexdigest()[:20]
-
-
-def _save(path: Path, **arrays) -> None:
-    np.savez(path, **arrays)
-
-
-def _load(path: Path) -> dict[str, np.ndarray]:
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
 
 
 class StudyData:
@@ -95,10 +87,10 @@ class StudyData:
         def make(tmp: Path) -> None:
             self.log(f"generating {d.frames} synthetic proposal frames")
             out = synthetic_proposals(cfg.pop("frames"), **cfg)
-            _save(tmp, **{k: out[k] for k in ("proposals", "confidences", "joint_names", "ground_truth")})
+            np.savez(tmp, **{k: out[k] for k in ("proposals", "confidences", "joint_names", "ground_truth")})
 
         _, path = self.cache.get("synthetic-proposals", d.model_dump(mode="json"), make, ".npz")
-        z = _load(path)
+        z = load_npz(path)
         z["empty"] = np.zeros(len(z["proposals"]), bool)
         return z
 
@@ -190,10 +182,10 @@ class StudyData:
             self.log(f"proposals for {len(idx)} test frames, k = {k}, |P~| = {proposal_set}")
             est = HybridEstimator(forest, k=k, proposal_set=proposal_set, stride=d.stride, bandwidth_mm=d.bandwidth_mm)
             p = est.propose_dataset(ds, idx)
-            _save(tmp, proposals=p.proposals, confidences=p.confidences, empty=p.empty,
+            np.savez(tmp, proposals=p.proposals, confidences=p.confidences, empty=p.empty,
                   joint_names=np.asarray(p.joint_names), ground_truth=np.asarray(ds.joints_xyz, float)[idx])
 
-        return _load(self.cache.get("proposals", payload, make, ".npz")[1])
+        return load_npz(self.cache.get("proposals", payload, make, ".npz")[1])
 
     # ------------------------------------------------------------------ model
 
