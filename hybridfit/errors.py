@@ -1,8 +1,16 @@
-"""Errors that hybridfit reports to users.
+"""Errors that hybridfit reports to users, and the command line's exit codes.
 
 A :class:`HybridfitError` is a user error (bad input, unknown plugin, a budget too small):
 the CLI prints its message as one line and exits with code 2, without a traceback.
+A :class:`PluginError` is a bug in a plugin (an optimiser overshooting its budget, a wrong
+shape): it propagates, naming the plugin, and is never recorded as a frame's failure.
 """
+
+#: exit codes of the ``hybridfit`` command
+EXIT_OK = 0
+EXIT_USER_ERROR = 2  # bad input or options: one line on stderr, nothing written or overwritten
+EXIT_INCOMPLETE = 3  # the work ran, but some frames (fit/estimate/propose) or trials (study) failed; the rest is written
+EXIT_INTERRUPTED = 130  # Ctrl-C: the finished work is written
 
 
 class HybridfitError(Exception):
@@ -21,3 +29,7 @@ class BudgetExceeded(RuntimeError):
 
     This is a bug in the optimiser plugin, not a user error.
     """
+
+
+class PluginError(RuntimeError):
+    """A plugin failed in a way no input explains (a bug); the message names the plugin."""

@@ -8,12 +8,17 @@ problem is reported as one line naming the file, the key and, where it applies, 
 from __future__ import annotations
 
 import os
+import tempfile
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from .errors import HybridfitError
+
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
 
 
 def validate_proposals(proposals, confidences, joint_names=None, where: str = "proposals"):
@@ -29,10 +34,10 @@ def validate_proposals(proposals, confidences, joint_names=None, where: str = "p
     for name, arr in (("proposals", p), ("confidences", c)):
         if not np.issubdtype(arr.dtype, np.number):
             raise HybridfitError(f"{where}: '{name}' must be numeric, got dtype {arr.dtype}")
-        bad = ~np.isfinite(arr.reshape(len(arr), -1)).all(axis=1)
+        bad = ~np.isfinite(arr).all(axis=tuple(range(1, arr.ndim)))
         if bad.any():
             raise HybridfitError(f"{where}: '{name}' has NaN or inf values (first in frame {int(np.argmax(bad))})")
-    neg = (c < 0).reshape(len(c), -1).any(axis=1)
+    neg = (c < 0).any(axis=(1, 2))
     if neg.any():
         raise HybridfitError(f"{where}: 'confidences' has negative values (first in frame {int(np.argmax(neg))})")
     if joint_names is not None and len(joint_names) != p.shape[1]:
@@ -41,16 +46,31 @@ def validate_proposals(proposals, confidences, joint_names=None, where: str = "p
 
 
 def load_npz(path: str | os.PathLike, kind: str = "") -> dict[str, np.ndarray]:
-    """All arrays of an .npz file (no pickles), with readable errors naming the file (and
-    what it should be, e.g. kind="forest")."""
+    """All arrays of an .npz file (no pickles), with readable errors naming the file and what
+    it should be (e.g. kind="forest"). Never suggests unpickling."""
     path = Path(path)
+    what = f"{kind} file" if kind else ".npz file"
     if not path.is_file():
         raise HybridfitError(f"{path}: no such {kind + ' ' if kind else ''}file")
+    expected = f"expected {'a hybridfit ' + kind if kind else 'an'} .npz file (a zip archive of arrays written by numpy.savez)"
+    with open(path, "rb") as fh:
+        magic = fh.read(4)
+    if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
+        raise HybridfitError(f"{path}: not an .npz file; {expected}")
+    key = None
     try:
         with np.load(path, allow_pickle=False) as data:
-            return {k: data[k] for k in data.files}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
-        raise HybridfitError(f"{path}: not a readable {kind or '.npz'} file ({type(err).__name__}: {err})") from None
+            out = {}
+            for key in data.files:
+                out[key] = data[key]
+            return out
+    except ValueError as err:
+        if "pickle" in str(err):  # numpy suggests allow_pickle here: never pass that on
+            raise HybridfitError(f"{path}: {'key ' + repr(key) + ' ' if key else ''}holds Python objects, "
+                                 f"which hybridfit never loads; {expected} of numbers and strings") from None
+        raise HybridfitError(f"{path}: not a readable {what} ({err}); {expected}") from None
+    except (zipfile.BadZipFile, OSError, EOFError, KeyError, zlib.error) as err:
+        raise HybridfitError(f"{path}: not a readable {what} (corrupt or truncated: {type(err).__name__}: {err})") from None
 
 
 def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -60,6 +80,10 @@ def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:
         if key not in data:
             raise HybridfitError(f"{path}: missing key '{key}' (keys present: {', '.join(sorted(data)) or 'none'})")
     names = data.get("joint_names")
+    if data["proposals"].ndim == 4 and len(data["proposals"]) == 0:
+        raise HybridfitError(f"{path}: 'proposals' has no frames (shape {data['proposals'].shape})")
+    if names is not None and (names.ndim != 1 or names.dtype.kind not in "US"):
+        raise HybridfitError(f"{path}: 'joint_names' must be a list of strings, got {names.dtype} {names.shape}")
     data["proposals"], data["confidences"] = validate_proposals(
         data["proposals"], data["confidences"], names, where=str(path)
     )
@@ -71,10 +95,34 @@ def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:
     return data
 
 
-def save_npz(path: str | os.PathLike, **arrays) -> None:
-    """Write an .npz atomically (a temporary file renamed into place)."""
+def check_output(path: str | os.PathLike, option: str = "--out") -> Path:
+    """Fail early (before any work) when ``path`` cannot be written as a file: it is a
+    folder, its parent is a file, or the folder is not writable. Creates no file."""
     path = Path(path)
+    if path.is_dir():
+        raise HybridfitError(f"{option} {path}: is a folder; give a file name")
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise HybridfitError(f"{option} {path}: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise HybridfitError(f"{option} {path}: not writable")
+    return path
+
+
+def save_npz(path: str | os.PathLike, **arrays) -> None:
+    """Write an .npz atomically: a hidden temporary file in the same folder, renamed into
+    place, so an existing file is replaced only by a complete one (and the temporary file is
+    removed on failure)."""
+    path = check_output(path, "output")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, **arrays)
-    os.replace(tmp, path)
+    fd, tmp = tempfile.mkstemp(prefix=".hybridfit-", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, **arrays)
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes it private; give it the usual permissions
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
