@@ -2,8 +2,9 @@
 
 The whole method of Poier et al. (BMVC 2015): a random regression forest gives k proposals
 per joint with confidences (``hybridfit.forest``) and ``hybridfit.fit`` fits the hand model
-to them. Frames without foreground pixels are not fitted: they come back failed, with the
-error "no foreground pixels", and the other frames go on.
+to them. Frames without foreground pixels cannot be fitted: they come back failed, with the
+error "no foreground pixels", and the other frames go on (each with the random stream of its
+own index, ``[seed, index]``, whichever frames are empty).
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from . import registry
 from .camera import Intrinsics
 from .fitting import FitResult, fit
 from .forest import Forest, Proposals, dataset_masks
@@ -68,32 +68,18 @@ class HybridEstimator:
                                          stride=self.stride, bandwidth_mm=self.bandwidth_mm, progress=progress)
 
     def fit_proposals(self, proposals: Proposals, progress: bool = False) -> FitResult:
-        """Fit every non-empty frame; empty frames come back failed (``EMPTY_FRAME``)."""
-        keep = np.flatnonzero(~proposals.empty)
-        F, Q = len(proposals.empty), len(proposals.joint_names)
-        if len(keep):
-            res = fit(proposals.proposals[keep], proposals.confidences[keep], model=self.model,
-                      objective=self.objective, optimizer=self.optimizer, budget=self.budget, seed=self.seed,
-                      joint_names=proposals.joint_names, model_config=self.model_config,
-                      objective_config=self.objective_config, optimizer_config=self.optimizer_config,
-                      search_radius_mm=self.search_radius_mm, jobs=self.jobs, progress=progress)
-            if len(keep) == F:
-                return res
-        else:  # nothing to fit: an all-failed result of the model's shape
-            model = registry.create("model", self.model, self.model_config)
-            P, J = model.n_params, model.n_joints
-            res = FitResult(np.zeros((0, P)), np.zeros((0, Q, 3)), np.zeros((0, J, 3)), np.zeros(0),
-                            np.zeros(0, np.int64), tuple(proposals.joint_names), np.zeros(0, bool))
-        full = FitResult(
-            params=_scatter(res.params, keep, F, np.nan), joints=_scatter(res.joints, keep, F, np.nan),
-            model_joints=_scatter(res.model_joints, keep, F, np.nan),
-            objective=_scatter(res.objective, keep, F, np.nan), evaluations=_scatter(res.evaluations, keep, F, 0),
-            joint_names=res.joint_names, failed=_scatter(res.failed, keep, F, True), interrupted=res.interrupted,
-            errors={int(keep[f]): msg for f, msg in res.errors.items()},
-        )
+        """Fit every frame; empty frames (all confidences 0) come back failed (``EMPTY_FRAME``).
+
+        Every frame keeps its index in the input, so its random stream (``[seed, index]``)
+        does not depend on which other frames are empty."""
+        res = fit(proposals.proposals, proposals.confidences, model=self.model,
+                  objective=self.objective, optimizer=self.optimizer, budget=self.budget, seed=self.seed,
+                  joint_names=proposals.joint_names, model_config=self.model_config,
+                  objective_config=self.objective_config, optimizer_config=self.optimizer_config,
+                  search_radius_mm=self.search_radius_mm, jobs=self.jobs, progress=progress)
         for f in np.flatnonzero(proposals.empty):
-            full.errors[int(f)] = EMPTY_FRAME
-        return full
+            res.errors[int(f)] = EMPTY_FRAME
+        return res
 
     def estimate(self, depths: np.ndarray, intrinsics: Intrinsics, masks: np.ndarray | None = None,
                  progress: bool = False) -> Estimate:
@@ -126,9 +112,3 @@ class HybridEstimator:
         props = self.propose_dataset(ds, indices, foreground, progress)
         return Estimate(props, self.fit_proposals(props, progress))
 
-
-def _scatter(values: np.ndarray, keep: np.ndarray, F: int, fill) -> np.ndarray:
-    """(n, ...) values of frames ``keep`` -> (F, ...) with ``fill`` elsewhere."""
-    out = np.full((F, *values.shape[1:]), fill, dtype=values.dtype)
-    out[keep] = values
-    return out

@@ -2,13 +2,17 @@
 
 Frames are independent: frame i is optimised with the random stream
 ``numpy.random.default_rng([seed, i])``, so results are identical for any number of
-``jobs``. A frame that fails is recorded (``failed``, ``errors``) and the others go on;
-an interrupt (Ctrl-C) stops the run and keeps every finished frame.
+``jobs``. A frame whose input cannot be fitted (a ``HybridfitError``: all confidences 0,
+say) is recorded (``failed``, ``errors``) and the others go on; options and errors that would
+fail every frame (a bad seed, a budget too small, an unknown point name) are raised before
+any work; a plugin's bug (``BudgetExceeded``, a wrong shape) raises ``PluginError`` naming
+the plugins. An interrupt (Ctrl-C) stops the run and keeps every finished frame.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
@@ -17,16 +21,24 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import registry
+from .errors import HybridfitError, PluginError
 from .io import validate_proposals
+from .metrics import inliers
 from .optimizer import Task
 from .problem import Problem
+
+
+#: the inlier distance of objectives without a ``d_max_mm`` setting
+INLIER_DISTANCE_MM = 40.0
 
 
 @dataclass
 class FitResult:
     """Per-frame fits. params (F, P); joints (F, Q, 3) mm in the input's point order
     (``joint_names``); model_joints (F, J, 3) mm; objective (F,) the minimised loss;
-    evaluations (F,); failed (F,) bool with ``errors`` {frame: message}."""
+    evaluations (F,); failed (F,) bool with ``errors`` {frame: message}; inliers (F,) the
+    number of points within ``inlier_distance_mm`` of one of their proposals (the
+    objective's ``d_max_mm`` when it has one, else 40 mm; 0 for failed frames)."""
 
     params: np.ndarray
     joints: np.ndarray
@@ -37,6 +49,8 @@ class FitResult:
     failed: np.ndarray
     errors: dict[int, str] = field(default_factory=dict)
     interrupted: bool = False
+    inliers: np.ndarray | None = None  # (F,) points within inlier_distance_mm of one of their proposals
+    inlier_distance_mm: float = INLIER_DISTANCE_MM
 
     def to_npz(self) -> dict[str, np.ndarray]:
         """The arrays written by ``hybridfit fit --out``."""
@@ -51,6 +65,8 @@ class FitResult:
             "failed": self.failed,
             "error_frames": np.asarray(frames, dtype=np.int64),
             "error_messages": np.asarray([self.errors[f] for f in frames], dtype=str),
+            **({} if self.inliers is None else {"inliers": self.inliers,
+                                                 "inlier_distance_mm": np.asarray(self.inlier_distance_mm)}),
         }
 
 
@@ -79,9 +95,53 @@ def _fit_chunk(spec: _Spec, frames: Sequence[int], proposals, confidences):
     for i, f in enumerate(frames):
         try:
             out.append((f, _fit_one(spec, f, proposals[i], confidences[i]), None))
-        except Exception as err:  # recorded per frame; the other frames go on
-            out.append((f, None, f"{type(err).__name__}: {err}"))
+        except HybridfitError as err:  # a user error in this frame's input: recorded, the others go on
+            out.append((f, None, str(err)))
+        except Exception as err:  # a plugin's bug: propagates, naming the plugins
+            raise PluginError(f"frame {f}: {type(err).__name__} while fitting with model {_name(spec.model)}, "
+                              f"objective {_name(spec.objective)}, optimizer {_name(spec.optimizer)}: {err}") from err
     return out
+
+
+def _name(plugin) -> str:
+    return getattr(plugin, "name", None) or type(plugin).__name__
+
+
+def _first_problem(model, objective, proposals, confidences, names, search_radius_mm) -> Problem | None:
+    """The problem of the first frame that can be built (None if none can): frames that
+    cannot are recorded per frame later, they do not abort the run."""
+    for f in range(len(proposals)):
+        try:
+            return Problem(model, objective, proposals[f], confidences[f], names, search_radius_mm)
+        except HybridfitError:
+            continue
+    return None
+
+
+def check_fit_options(budget: int, seed: int, search_radius_mm: float, jobs: int) -> None:
+    """Raise a HybridfitError naming the first invalid option (before any work)."""
+    for name, value, ok in (("budget", budget, int(budget) == budget and budget >= 1),
+                            ("seed", seed, int(seed) == seed and seed >= 0),
+                            ("search_radius_mm", search_radius_mm, np.isfinite(search_radius_mm) and search_radius_mm > 0),
+                            ("jobs", jobs, int(jobs) == jobs and jobs >= 1)):
+        if not ok:
+            raise HybridfitError(f"{name} must be {'positive' if name != 'seed' else 'a non-negative integer'}, got {value!r}")
+
+
+def check_scale(model, proposals: np.ndarray, confidences: np.ndarray, names: Sequence[str]) -> None:
+    """Warn when the proposals' spread (median distance of the top proposals from their
+    centre, frames with proposals only) is more than 8x off the model's: proposals in
+    metres or centimetres, say, not millimetres."""
+    used = (confidences > 0).any(axis=(1, 2))
+    if not used.any():
+        return
+    top = np.take_along_axis(proposals[used], confidences[used].argmax(-1)[..., None, None], axis=2)[:, :, 0]
+    spread = np.median(np.linalg.norm(top - np.median(top, axis=1, keepdims=True), axis=-1))
+    joints = model.forward(model.default_params()[None])[0]
+    hand = np.median(np.linalg.norm(joints - np.median(joints, axis=0), axis=-1))
+    if not hand / 8 <= spread <= hand * 8:
+        warnings.warn(f"the proposals spread over {spread:.3g} (median distance from their centre), the model's "
+                      f"{len(names)} points over {hand:.3g} mm: are the proposals in millimetres?", stacklevel=3)
 
 
 def fit(
@@ -108,16 +168,20 @@ def fit(
     model's joints in order). Plugins are registered names (with ``*_config`` settings) or
     plugin instances. budget: objective evaluations per frame, honoured exactly.
     """
+    check_fit_options(budget, seed, search_radius_mm, jobs)
     model = registry.create("model", model, model_config)
     objective = registry.create("objective", objective, objective_config)
     optimizer = registry.create("optimizer", optimizer, optimizer_config)
-    names = tuple(joint_names) if joint_names is not None else tuple(model.joint_names)
+    names = tuple(str(n) for n in joint_names) if joint_names is not None else tuple(model.joint_names)
     proposals, confidences = validate_proposals(proposals, confidences, names)
+    if names != tuple(model.joint_names):
+        model.point_matrix(names)  # an unknown point name fails every frame: raised at once
     F = len(proposals)
     spec = _Spec(model, objective, optimizer, int(budget), int(seed), names, float(search_radius_mm))
-    if F:  # user errors that would fail every frame are raised at once
-        problem = Problem(model, objective, proposals[0], confidences[0], names, search_radius_mm)
+    problem = _first_problem(model, objective, proposals, confidences, names, search_radius_mm)
+    if problem is not None:  # a budget too small fails every frame: raised at once
         optimizer.check_budget(Task(problem, budget))
+        check_scale(model, proposals, confidences, names)
 
     P, Q, J = model.n_params, len(names), model.n_joints
     result = FitResult(
@@ -167,4 +231,6 @@ def fit(
             result.errors[int(f)] = "interrupted"
     finally:
         bar.close()
+    result.inlier_distance_mm = float(objective.get_params().get("d_max_mm", INLIER_DISTANCE_MM))
+    result.inliers = inliers(result.joints, proposals, confidences, result.inlier_distance_mm)
     return result

@@ -21,6 +21,16 @@ def oracle(proposals: np.ndarray, truth: np.ndarray, weights: np.ndarray | None 
     return np.take_along_axis(np.asarray(proposals), d.argmin(axis=-1)[..., None, None], axis=2)[:, :, 0]
 
 
+def inliers(points: np.ndarray, proposals: np.ndarray, confidences: np.ndarray, distance_mm: float) -> np.ndarray:
+    """(F,) how many of each frame's points lie within ``distance_mm`` of one of their
+    proposals of positive confidence; points (F, Q, 3) mm (NaN: counts as no inlier),
+    proposals (F, Q, K, 3) mm, confidences (F, Q, K)."""
+    d = np.linalg.norm(np.asarray(points, float)[:, :, None] - np.asarray(proposals, float), axis=-1)
+    d = np.where(np.asarray(confidences) > 0, d, np.inf)
+    near = np.nan_to_num(d.min(axis=-1, initial=np.inf), nan=np.inf) <= distance_mm
+    return near.sum(axis=1).astype(np.int64)
+
+
 def fingertips(names) -> list[int]:
     """Indices of the fingertip points among joint or point names (those ending in ``_tip``)."""
     return [j for j, n in enumerate(names) if str(n).endswith("_tip")]
