@@ -22,6 +22,9 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from .camera import Intrinsics
 from .errors import HybridfitError
 
+#: fast-math flags that keep inf and NaN semantics (the z-buffer uses inf for "no surface")
+_FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
+
 #: sum of hand26's default bone lengths (mm): the hand the default radii are given for
 REFERENCE_BONE_LENGTH_MM = 439.0
 
@@ -177,45 +180,14 @@ def _sphere_box(x, y, z, r, fx, fy, cx, cy):
 
 
 @nb.njit(cache=True, nogil=True)
-def render_kernel(A, B, ra, rb, joints, fx, fy, cx, cy, depth, parts, zbuf):
+def render_kernel(A, B, ra, rb, joints, fx, fy, cx, cy, rays, depth, parts, zbuf):
     """Rounded cones A, B (N, M, 3) mm with radii ra, rb (M,) and joints (N, J, 3) ->
-    depth (N, H, W) uint16 mm and parts (N, H, W) uint8, both zero-initialised; zbuf
-    (H, W) float64 all inf (left all inf)."""
-    N, H, W = depth.shape
-    M = A.shape[1]
+    depth (N, H, W) uint16 mm and parts (N, H, W) uint8, both zero-initialised; rays
+    (H, W, 3) from :func:`pixel_rays`; zbuf (H, W) float64 all inf (left all inf)."""
+    N = depth.shape[0]
     J = joints.shape[1]
     for n in range(N):
-        fu0, fu1, fv0, fv1 = W, -1, H, -1
-        for m in range(M):
-            px, py, pz = A[n, m, 0], A[n, m, 1], A[n, m, 2]
-            qx, qy, qz = B[n, m, 0], B[n, m, 1], B[n, m, 2]
-            r1, r2 = ra[m], rb[m]
-            a0, a1, b0, b1 = _sphere_box(px, py, pz, r1, fx, fy, cx, cy)
-            c0, c1, d0, d1 = _sphere_box(qx, qy, qz, r2, fx, fy, cx, cy)
-            u0 = max(int(np.ceil(min(a0, c0))), 0)
-            u1 = min(int(np.floor(max(a1, c1))), W - 1)
-            v0 = max(int(np.ceil(min(b0, d0))), 0)
-            v1 = min(int(np.floor(max(b1, d1))), H - 1)
-            if u0 > u1 or v0 > v1:
-                continue
-            fu0, fu1, fv0, fv1 = min(fu0, u0), max(fu1, u1), min(fv0, v0), max(fv1, v1)
-            ba_x, ba_y, ba_z = qx - px, qy - py, qz - pz
-            rr = r1 - r2
-            m0 = ba_x * ba_x + ba_y * ba_y + ba_z * ba_z
-            m1 = -(ba_x * px + ba_y * py + ba_z * pz)
-            m5 = px * px + py * py + pz * pz
-            m7 = qx * qx + qy * qy + qz * qz
-            d2 = m0 - rr * rr
-            for v in range(v0, v1 + 1):
-                ry = (v - cy) / fy
-                for u in range(u0, u1 + 1):
-                    rx = (u - cx) / fx
-                    inv = 1.0 / np.sqrt(rx * rx + ry * ry + 1.0)
-                    t = _hit(px, py, pz, ba_x, ba_y, ba_z, m0, m1, m5, m7, -qx, -qy, -qz,
-                             r1, r2, rr, d2, rx * inv, ry * inv, inv)
-                    z = t * inv
-                    if z < zbuf[v, u]:
-                        zbuf[v, u] = z
+        fu0, fu1, fv0, fv1 = _zbuffer(A, B, ra, rb, n, fx, fy, cx, cy, rays, zbuf)
         for v in range(fv0, fv1 + 1):
             ry = (v - cy) / fy
             for u in range(fu0, fu1 + 1):
@@ -236,6 +208,103 @@ def render_kernel(A, B, ra, rb, joints, fx, fy, cx, cy, depth, parts, zbuf):
                         best, arg = d, j
                 parts[n, v, u] = arg + 1
     return depth, parts
+
+
+@nb.njit(cache=True, inline="always")
+def _zbuffer(A, B, ra, rb, n, fx, fy, cx, cy, rays, zbuf):
+    """Ray-cast hypothesis n's rounded cones A, B (N, M, 3) mm, radii ra, rb (M,) into zbuf
+    (H, W) float64 (inf = no surface; z mm along the optical axis); rays (H, W, 3) are the
+    pixels' unit ray directions (:func:`pixel_rays`). A primitive reaching to within 1 mm of
+    the camera plane is skipped. Returns the pixel box touched (u0, u1, v0, v1), empty
+    (u0 > u1) when none."""
+    H, W = zbuf.shape
+    fu0, fu1, fv0, fv1 = W, -1, H, -1
+    for m in range(A.shape[1]):
+        px, py, pz = A[n, m, 0], A[n, m, 1], A[n, m, 2]
+        qx, qy, qz = B[n, m, 0], B[n, m, 1], B[n, m, 2]
+        r1, r2 = ra[m], rb[m]
+        if pz - r1 <= 1.0 or qz - r2 <= 1.0:
+            continue
+        a0, a1, b0, b1 = _sphere_box(px, py, pz, r1, fx, fy, cx, cy)
+        c0, c1, d0, d1 = _sphere_box(qx, qy, qz, r2, fx, fy, cx, cy)
+        u0 = max(int(np.ceil(min(a0, c0))), 0)
+        u1 = min(int(np.floor(max(a1, c1))), W - 1)
+        v0 = max(int(np.ceil(min(b0, d0))), 0)
+        v1 = min(int(np.floor(max(b1, d1))), H - 1)
+        if u0 > u1 or v0 > v1:
+            continue
+        fu0, fu1, fv0, fv1 = min(fu0, u0), max(fu1, u1), min(fv0, v0), max(fv1, v1)
+        ba_x, ba_y, ba_z = qx - px, qy - py, qz - pz
+        rr = r1 - r2
+        m0 = ba_x * ba_x + ba_y * ba_y + ba_z * ba_z
+        m1 = -(ba_x * px + ba_y * py + ba_z * pz)
+        m5 = px * px + py * py + pz * pz
+        m7 = qx * qx + qy * qy + qz * qz
+        d2 = m0 - rr * rr
+        for v in range(v0, v1 + 1):
+            for u in range(u0, u1 + 1):
+                dz = rays[v, u, 2]
+                t = _hit(px, py, pz, ba_x, ba_y, ba_z, m0, m1, m5, m7, -qx, -qy, -qz,
+                         r1, r2, rr, d2, rays[v, u, 0], rays[v, u, 1], dz)
+                z = t * dz
+                if z < zbuf[v, u]:
+                    zbuf[v, u] = z
+    return fu0, fu1, fv0, fv1
+
+
+def pixel_rays(fx: float, fy: float, cx: float, cy: float, height: int, width: int) -> np.ndarray:
+    """(H, W, 3) unit ray directions through the pixel centres (u, v) of a pinhole camera."""
+    rx = (np.arange(width) - cx) / fx
+    ry = (np.arange(height) - cy) / fy
+    rx, ry = np.broadcast_to(rx[None, :], (height, width)), np.broadcast_to(ry[:, None], (height, width))
+    inv = 1.0 / np.sqrt(rx * rx + ry * ry + 1.0)
+    return np.ascontiguousarray(np.stack([rx * inv, ry * inv, inv], axis=-1))
+
+
+@nb.njit(cache=True, fastmath=_FAST, nogil=True)
+def depth_discrepancy_kernel(A, B, ra, rb, fx, fy, cx, cy, rays, observed, d_max, silhouette_weight, zbuf):
+    """FORTH's discrepancy of N rendered hypotheses from an observed depth image.
+
+    A, B (N, M, 3) mm, ra, rb (M,) mm: rounded cones; fx..cy: the intrinsics of the
+    (reduced) image, rays (H, W, 3) its :func:`pixel_rays`; observed (H, W) float64 mm, 0 = not hand; zbuf (H, W) all inf (left all
+    inf). Per hypothesis: D = sum over pixels where either image has the hand of
+    min(|o - r|, d_max) (d_max where only one has it), divided by the number of those
+    pixels, plus silhouette_weight * (1 - 2 |O and R| / (|O and R| + |O|)). -> (N,) in
+    [0, d_max + silhouette_weight] (mm-scaled)."""
+    N = A.shape[0]
+    H, W = zbuf.shape
+    n_obs = 0
+    for v in range(H):
+        for u in range(W):
+            if observed[v, u] > 0.0:
+                n_obs += 1
+    out = np.empty(N)
+    for n in range(N):
+        _zbuffer(A, B, ra, rb, n, fx, fy, cx, cy, rays, zbuf)
+        diff = 0.0
+        union = 0
+        inter = 0
+        for v in range(H):
+            for u in range(W):
+                r = zbuf[v, u]
+                o = observed[v, u]
+                if r == np.inf:
+                    if o > 0.0:
+                        union += 1
+                        diff += d_max
+                    continue
+                zbuf[v, u] = np.inf
+                union += 1
+                if o > 0.0:
+                    inter += 1
+                    e = abs(o - r)
+                    diff += e if e < d_max else d_max
+                else:
+                    diff += d_max
+        depth_term = diff / union if union > 0 else d_max
+        sil = 1.0 - 2.0 * inter / (inter + n_obs) if inter + n_obs > 0 else 1.0
+        out[n] = depth_term + silhouette_weight * sil
+    return out
 
 
 class Renderer:
@@ -274,7 +343,8 @@ class Renderer:
         depth = np.zeros((len(joints), k.height, k.width), np.uint16)
         parts = np.zeros((len(joints), k.height, k.width), np.uint8)
         zbuf = np.full((k.height, k.width), np.inf)
-        render_kernel(A, B, self.ra, self.rb, joints, k.fx, k.fy, k.cx, k.cy, depth, parts, zbuf)
+        rays = pixel_rays(k.fx, k.fy, k.cx, k.cy, k.height, k.width)
+        render_kernel(A, B, self.ra, self.rb, joints, k.fx, k.fy, k.cx, k.cy, rays, depth, parts, zbuf)
         return depth, parts
 
     def render(self, params: np.ndarray):
