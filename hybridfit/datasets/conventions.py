@@ -54,7 +54,12 @@ CONVENTIONS: dict[str, Convention] = {
 
 
 def convention(dataset: str) -> Convention:
-    """The convention of a dataset by name (icvl, nyu, msra)."""
+    """The convention of a dataset's skeleton (a built-in name or a skeleton file)."""
+    from ..errors import HybridfitError
     from .skeletons import skeleton
 
-    return CONVENTIONS[skeleton(dataset).dataset]
+    sk = skeleton(dataset)
+    if sk.convention is None:
+        raise HybridfitError(f"the {sk.dataset} skeleton names no camera convention, needed for results files "
+                             f"in pixels (u, v, d); a skeleton file sets one: convention = {' or '.join(map(repr, CONVENTIONS))}")
+    return CONVENTIONS[sk.convention]

@@ -1,104 +1,247 @@
-"""Skeleton mappings: each dataset's annotated points, and the model point each maps onto.
+"""Skeletons as data: each dataset's annotated points and the model point each maps onto.
 
-A dataset point is either a hand26 joint or a named derived point (a fixed weighted sum of
-joints; see ``DERIVED``). Fitting and evaluation use exactly these points. Derived points'
-default weights are guesses from the datasets' annotation conventions; ``hybridfit
-calibrate`` fits them to annotated frames and writes them into the model config.
+A skeleton is a small TOML file. The built-in ones (``icvl``, ``nyu``, ``nyu36``, ``msra``,
+``mediapipe``, ``mano``) ship in ``hybridfit/datasets/skeleton_files/``; a user's own file
+is accepted wherever a dataset name is: ``skeleton("path/to/my.toml")`` (a name ending in
+``.toml`` or containing a ``/`` is a path). The format::
 
-| dataset | points | mapped onto hand26 |
-| --- | --- | --- |
-| icvl (16) | palm; per finger (thumb, index, middle, ring, little) root, mid, tip | palm -> ``icvl_palm`` (derived); thumb root, mid, tip -> thumb_mcp, thumb_ip, thumb_tip; finger root, mid, tip -> mcp, pip, tip |
-| nyu (14 of 36) | per finger (little, ring, middle, index) tip (KNU3_A) and mid (KNU2_B); thumb tip (KNU3_A), mid (KNU3_B), root (KNU2_B); PALM_1, PALM_2, PALM_3 | tip -> tip, mid -> pip; thumb -> tip, ip, mcp; PALM_1/2 -> ``nyu_wrist_1``/``nyu_wrist_2`` (derived, the two sides of the wrist), PALM_3 -> ``nyu_palm`` (derived) |
-| msra (21) | wrist; per finger (index, middle, ring, little, thumb) mcp, pip, dip, tip | wrist -> wrist; fingers one to one; thumb mcp, pip, dip, tip -> thumb_cmc, thumb_mcp, thumb_ip, thumb_tip |
+    name = "mydata"          # optional; default: the file's name without .toml
+    model = "hand26"         # optional; the model whose points [points] names
+    convention = "icvl"      # optional; camera convention of its results files (conventions.py)
+    fingertips = ["thumb", "index"]      # names from [points]
+
+    [points]                 # the dataset's points, in file order -> a model point
+    palm = "my_palm"         # a derived point defined below
+    thumb = "thumb_tip"      # or a point of the model (hand26: a joint, or palm_centre)
+    index = "index_tip"
+
+    [derived.my_palm]        # a derived point: weights of model joints, summing to 1
+    wrist = 0.5
+    middle_mcp = 0.5
+
+Derived points' weights are defaults from the datasets' annotation conventions (each file
+says where they come from); ``hybridfit calibrate`` fits them to annotated frames and
+writes them into the model config. Errors in a file name the file and the key, with the
+closest valid key for a typo.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import difflib
+import functools
+import json
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 from ..errors import HybridfitError
 
-_PALM5 = ("wrist", "index_mcp", "middle_mcp", "ring_mcp", "little_mcp")
-
-#: default weights of the dataset-specific derived points (hand26 joints)
-DERIVED: dict[str, dict[str, float]] = {
-    # ICVL's palm point lies between the wrist and the palm centre
-    "icvl_palm": {"wrist": 0.4, **{j: 0.15 for j in _PALM5[1:]}},
-    "nyu_palm": {j: 0.2 for j in _PALM5},
-    # the two wrist points: the wrist moved towards the little and the index side
-    "nyu_wrist_1": {"wrist": 1.0, "little_mcp": 0.4, "index_mcp": -0.4},
-    "nyu_wrist_2": {"wrist": 1.0, "little_mcp": -0.4, "index_mcp": 0.4},
-}
-#: joints whose weights calibration may change for each derived point (its support)
-SUPPORT = ("wrist", "thumb_cmc", "index_mcp", "middle_mcp", "ring_mcp", "little_mcp")
+#: the folder of the built-in skeleton files
+BUILTIN_DIR = Path(__file__).with_name("skeleton_files")
+_KEYS = ("name", "model", "convention", "fingertips", "points", "derived")
+_DEFAULT_MODEL = "hand26"
 
 
 @dataclass(frozen=True)
 class Skeleton:
     """A dataset's points: ``names`` (J,) its own names in file order, ``model_names`` (J,)
-    the model point each maps onto, ``fingertips`` indices of the fingertips."""
+    the model point each maps onto, ``fingertips`` indices of the fingertips; ``model`` the
+    model plugin those points belong to, ``convention`` the camera convention name (or
+    None), ``source`` the file it was read from."""
 
     dataset: str
     names: tuple[str, ...]
     model_names: tuple[str, ...]
     fingertips: tuple[int, ...]
+    derived_weights: dict[str, dict[str, float]] = field(default_factory=dict, hash=False, repr=False)
+    convention: str | None = None
+    model: str = _DEFAULT_MODEL
+    source: str = ""
 
     @property
     def derived(self) -> dict[str, dict[str, float]]:
-        """The derived points this skeleton needs, with their default weights."""
-        return {n: dict(DERIVED[n]) for n in self.model_names if n in DERIVED}
+        """The derived points this skeleton needs, with their default joint weights (copies)."""
+        return {n: dict(w) for n, w in self.derived_weights.items()}
 
     def __len__(self) -> int:
         return len(self.names)
 
 
-def _icvl() -> Skeleton:
-    names, model = ["palm"], ["icvl_palm"]
-    for f in ("thumb", "index", "middle", "ring", "little"):
-        names += [f"{f}_root", f"{f}_mid", f"{f}_tip"]
-        model += ["thumb_mcp", "thumb_ip", "thumb_tip"] if f == "thumb" else [f"{f}_mcp", f"{f}_pip", f"{f}_tip"]
-    return Skeleton("icvl", tuple(names), tuple(model), (3, 6, 9, 12, 15))
+def _closest(word: str, choices) -> str:
+    close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
 
+
+def _parse(raw: dict[str, Any], where: str, default_name: str) -> Skeleton:
+    """A skeleton from a TOML dict; errors are HybridfitErrors naming ``where`` and the key.
+    Checks the file's own consistency; :func:`check_model` checks the model's point names."""
+
+    def fail(key: str, msg: str) -> HybridfitError:
+        return HybridfitError(f"{where}: {key}: {msg}")
+
+    for key in raw:
+        if key not in _KEYS:
+            raise fail(key, f"unknown key{_closest(key, _KEYS)}; keys: {', '.join(_KEYS)}")
+    for key in ("name", "model", "convention"):
+        if key in raw and (not isinstance(raw[key], str) or not raw[key].strip()):
+            raise fail(key, f"must be a non-empty string, got {raw[key]!r}")
+    if "convention" in raw:
+        from .conventions import CONVENTIONS
+
+        if raw["convention"] not in CONVENTIONS:
+            raise fail("convention", f"unknown convention {raw['convention']!r}{_closest(raw['convention'], CONVENTIONS)};"
+                       f" known: {', '.join(CONVENTIONS)}")
+
+    points = raw.get("points")
+    if not isinstance(points, dict) or not points:
+        raise fail("points", "missing or empty; a table of dataset point name = model point name")
+    used: dict[str, str] = {}
+    for name, target in points.items():
+        if not isinstance(target, str) or not target:
+            raise fail(f"points.{name}", f"must be a model point name (a string), got {target!r}")
+        if target in used:
+            raise fail(f"points.{name}", f"maps onto {target!r} like points.{used[target]}; "
+                       "each point needs its own model point (define a derived point)")
+        used[target] = name
+
+    derived_raw = raw.get("derived", {})
+    if not isinstance(derived_raw, dict):
+        raise fail("derived", f"must be a table of derived points, got {derived_raw!r}")
+    derived: dict[str, dict[str, float]] = {}
+    for dname, weights in derived_raw.items():
+        key = f"derived.{dname}"
+        if dname not in used:
+            raise fail(key, f"not used by any point{_closest(dname, list(used))}")
+        if not isinstance(weights, dict) or not weights:
+            raise fail(key, "must be a non-empty table of joint = weight")
+        for joint, w in weights.items():
+            if isinstance(w, bool) or not isinstance(w, (int, float)) or not math.isfinite(w):
+                raise fail(f"{key}.{joint}", f"must be a finite number, got {w!r}")
+        total = math.fsum(weights.values())
+        if abs(total - 1.0) > 1e-6:
+            raise fail(key, f"weights sum to {total:g}; they must sum to 1 (so the point moves rigidly with the hand)")
+        derived[dname] = {j: float(w) for j, w in weights.items()}
+
+    tips = raw.get("fingertips")
+    if not isinstance(tips, list) or not all(isinstance(t, str) for t in tips):
+        raise fail("fingertips", f"must be a list of point names from [points], got {tips!r}")
+    names = list(points)
+    for i, t in enumerate(tips):
+        if t not in points:
+            raise fail(f"fingertips[{i}]", f"{t!r} is not a point{_closest(t, names)}")
+    if len(set(tips)) != len(tips):
+        raise fail("fingertips", "lists a point twice")
+
+    return Skeleton(
+        dataset=raw.get("name", default_name),
+        names=tuple(names),
+        model_names=tuple(points.values()),
+        fingertips=tuple(names.index(t) for t in tips),
+        derived_weights=derived,
+        convention=raw.get("convention"),
+        model=raw.get("model", _DEFAULT_MODEL),
+        source=where,
+    )
+
+
+def check_model(sk: Skeleton) -> None:
+    """Check that every point names a point of ``sk.model`` (a joint or one of its derived
+    points) or a derived point of the file, and that derived points weigh its joints."""
+    from .. import registry
+
+    try:
+        model = registry.create("model", sk.model)
+    except HybridfitError as err:
+        raise HybridfitError(f"{sk.source}: model: {err}") from None
+    joints = tuple(model.joint_names)
+    known = (*joints, *model.derived_points, *sk.derived_weights)
+    for name, target in zip(sk.names, sk.model_names):
+        if target not in known:
+            raise HybridfitError(f"{sk.source}: points.{name}: unknown {sk.model} point {target!r}"
+                                 f"{_closest(target, known)}")
+    for dname, weights in sk.derived_weights.items():
+        if dname in joints:
+            raise HybridfitError(f"{sk.source}: derived.{dname}: has the name of a {sk.model} joint")
+        for joint in weights:
+            if joint not in joints:
+                raise HybridfitError(f"{sk.source}: derived.{dname}.{joint}: unknown {sk.model} joint{_closest(joint, joints)}")
+
+
+def load_skeleton(path: str | Path) -> Skeleton:
+    """A skeleton TOML file, fully checked (the file's consistency and its model's points)."""
+    p = Path(path)
+    if not p.is_file():
+        raise HybridfitError(f"{p}: no such skeleton file")
+    stat = p.stat()
+    return _load_checked(str(p), str(p.resolve()), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=32)
+def _load_checked(shown: str, resolved: str, mtime_ns: int, size: int) -> Skeleton:
+    sk = _read(Path(resolved), shown)
+    check_model(sk)
+    return sk
+
+
+def _read(path: Path, shown: str) -> Skeleton:
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise HybridfitError(f"{shown}: not a UTF-8 text file") from None
+    except tomllib.TOMLDecodeError as err:
+        raise HybridfitError(f"{shown}: invalid TOML: {err}") from None
+    return _parse(raw, shown, path.stem)
+
+
+#: the built-in skeletons by name (read at import; their model points are checked by the tests)
+SKELETONS: dict[str, Skeleton] = {p.stem: _read(p, str(p)) for p in sorted(BUILTIN_DIR.glob("*.toml"))}
 
 #: NYU's 36 annotated points (joint_data.mat order): 6 per finger F1 (little) .. F4 (index), thumb, palm
-NYU36 = tuple(
-    f"{f}_{k}" for f in ("F1", "F2", "F3", "F4", "TH")
-    for k in ("KNU3_A", "KNU3_B", "KNU2_A", "KNU2_B", "KNU1_A", "KNU1_B")
-) + tuple(f"PALM_{i}" for i in range(1, 7))
+NYU36: tuple[str, ...] = SKELETONS["nyu36"].names
 #: the common 14-point evaluation subset (Tompson et al. 2014), indices into NYU36
-NYU14 = (0, 3, 6, 9, 12, 15, 18, 21, 24, 25, 27, 30, 31, 32)
+NYU14: tuple[int, ...] = tuple(NYU36.index(n) for n in SKELETONS["nyu"].names)
 
 
-def _nyu() -> Skeleton:
-    model = []
-    for f in ("little", "ring", "middle", "index"):
-        model += [f"{f}_tip", f"{f}_pip"]
-    model += ["thumb_tip", "thumb_ip", "thumb_mcp", "nyu_wrist_1", "nyu_wrist_2", "nyu_palm"]
-    return Skeleton("nyu", tuple(NYU36[i] for i in NYU14), tuple(model), (0, 2, 4, 6, 8))
-
-
-def _msra() -> Skeleton:
-    names, model = ["wrist"], ["wrist"]
-    for f in ("index", "middle", "ring", "little", "thumb"):
-        names += [f"{f}_{j}" for j in ("mcp", "pip", "dip", "tip")]
-        model += ["thumb_cmc", "thumb_mcp", "thumb_ip", "thumb_tip"] if f == "thumb" else \
-            [f"{f}_mcp", f"{f}_pip", f"{f}_dip", f"{f}_tip"]
-    return Skeleton("msra", tuple(names), tuple(model), (4, 8, 12, 16, 20))
-
-
-SKELETONS: dict[str, Skeleton] = {s.dataset: s for s in (_icvl(), _nyu(), _msra())}
+def is_skeleton_file(dataset: str) -> bool:
+    """Whether a ``--dataset`` value names a skeleton file (ends in .toml or has a /)."""
+    return dataset.endswith(".toml") or "/" in dataset or "\\" in dataset
 
 
 def skeleton(dataset: str) -> Skeleton:
-    """The skeleton of a dataset by name (icvl, nyu, msra)."""
-    try:
+    """The skeleton of a dataset: a built-in name (icvl, nyu, nyu36, msra, mediapipe, mano)
+    or the path of a skeleton TOML file."""
+    dataset = str(dataset)
+    if dataset.lower() in SKELETONS:
         return SKELETONS[dataset.lower()]
-    except KeyError:
-        raise HybridfitError(f"unknown dataset {dataset!r} (known: {', '.join(SKELETONS)})") from None
+    if is_skeleton_file(dataset):
+        return load_skeleton(dataset)
+    raise HybridfitError(f"unknown dataset {dataset!r}{_closest(dataset.lower(), SKELETONS)} "
+                         f"(known: {', '.join(SKELETONS)}; or a skeleton .toml file)")
+
+
+def to_toml(sk: Skeleton) -> str:
+    """A skeleton as the text of a skeleton file (a start for one's own: ``load_skeleton``
+    reads it back equal, its ``name`` included)."""
+    q = json.dumps  # a JSON string is a TOML basic string
+
+    def key(s: str) -> str:
+        return s if re.fullmatch(r"[A-Za-z0-9_-]+", s) else q(s)
+
+    lines = [f"name = {q(sk.dataset)}", f"model = {q(sk.model)}"]
+    if sk.convention is not None:
+        lines.append(f"convention = {q(sk.convention)}")
+    lines += [f"fingertips = [{', '.join(q(sk.names[i]) for i in sk.fingertips)}]", "", "[points]"]
+    lines += [f"{key(n)} = {q(m)}" for n, m in zip(sk.names, sk.model_names)]
+    for dname, weights in sk.derived_weights.items():
+        lines += ["", f"[derived.{key(dname)}]"] + [f"{key(j)} = {w!r}" for j, w in weights.items()]
+    return "\n".join(lines) + "\n"
 
 
 def with_derived_points(model_config: dict, dataset: str) -> dict:
-    """hand26 settings with the skeleton's derived points added where the config lacks them."""
+    """Model settings with the skeleton's derived points added where the config lacks them."""
     derived = dict(model_config.get("derived_points", {}))
     for name, weights in skeleton(dataset).derived.items():
         derived.setdefault(name, weights)
@@ -106,8 +249,8 @@ def with_derived_points(model_config: dict, dataset: str) -> dict:
 
 
 def dataset_model_config(model: str, model_config: dict, dataset: str | None) -> dict:
-    """The fitting model's settings for a dataset's skeleton: hand26 gets the skeleton's
-    derived points (it has a setting for them); other models and no dataset: unchanged."""
-    if model != "hand26" or not dataset:
+    """The fitting model's settings for a dataset's skeleton: the skeleton's own model gets
+    its derived points; other models and no dataset: unchanged."""
+    if not dataset or model != skeleton(dataset).model:
         return dict(model_config)
     return with_derived_points(model_config, dataset)
