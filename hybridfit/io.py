@@ -56,7 +56,7 @@ def load_npz(path: str | os.PathLike, kind: str = "") -> dict[str, np.ndarray]:
     with open(path, "rb") as fh:
         magic = fh.read(4)
     if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
-        raise HybridfitError(f"{path}: not an .npz file; {expected}")
+        raise HybridfitError(f"{path}: not a readable {what} (not a zip archive); {expected}")
     key = None
     try:
         with np.load(path, allow_pickle=False) as data:

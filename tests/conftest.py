@@ -7,6 +7,11 @@ import pytest
 import hybridfit
 
 
+def pytest_addoption(parser):
+    parser.addoption("--fuzz-examples", type=int, default=None,
+                     help="generated bad inputs per fuzz test (tests/cli/test_fuzz.py; default: a few, for CI)")
+
+
 @pytest.fixture(scope="session")
 def hand26():
     return hybridfit.create("model", "hand26")
@@ -46,10 +51,10 @@ def interrupt_at(monkeypatch):
     real = fitting._fit_chunk
 
     def arm(frame: int) -> None:
-        def chunk(spec, frames, proposals, confidences):
+        def chunk(spec, frames, *rest):
             if frames[0] == frame:
                 raise KeyboardInterrupt
-            return real(spec, frames, proposals, confidences)
+            return real(spec, frames, *rest)
 
         monkeypatch.setattr(fitting, "_fit_chunk", chunk)
 

@@ -1,13 +1,20 @@
-"""Helpers shared by the CLI commands: TOML settings files and plugin options."""
+"""Helpers shared by the CLI commands: TOML settings files, plugin options, option types
+and results files, each validated before any work starts."""
 
 from __future__ import annotations
 
 import argparse
+import difflib
+import math
 import tomllib
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
+
+from .. import registry
 from ..errors import HybridfitError
+from ..plugin import format_validation_error
 
 
 def load_toml(path: str | None) -> dict[str, Any]:
@@ -21,6 +28,8 @@ def load_toml(path: str | None) -> dict[str, Any]:
         return tomllib.loads(p.read_text())
     except tomllib.TOMLDecodeError as err:
         raise HybridfitError(f"{p}: invalid TOML: {err}") from None
+    except UnicodeDecodeError:
+        raise HybridfitError(f"{p}: not a text file; expected TOML settings") from None
 
 
 def add_plugin_options(parser: argparse.ArgumentParser) -> None:
@@ -37,22 +46,76 @@ def add_plugin_options(parser: argparse.ArgumentParser) -> None:
 def add_fit_options(parser: argparse.ArgumentParser) -> None:
     """--budget/--seed/--jobs/--search-radius: how every frame is fitted."""
     parser.add_argument("--budget", type=positive_int, default=3400, help="objective evaluations per frame (default 3400)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=seed_int, default=0, help="random seed, >= 0 (default 0)")
     parser.add_argument("--jobs", type=positive_int, default=1, help="parallel fitting processes (results do not depend on it)")
-    parser.add_argument("--search-radius", type=float, default=60.0,
+    parser.add_argument("--search-radius", type=positive_float, default=60.0,
                         help="position search radius around the initial guess, mm")
 
 
 def plugin_kwargs(args: argparse.Namespace) -> dict[str, Any]:
-    """Keyword arguments for hybridfit.fit from the plugin options."""
-    return {
-        "model": args.model,
-        "model_config": load_toml(args.model_config),
-        "objective": args.objective,
-        "objective_config": load_toml(args.objective_config),
-        "optimizer": args.optimizer,
-        "optimizer_config": load_toml(args.optimizer_config),
-    }
+    """Keyword arguments for hybridfit.fit from the plugin options, each plugin created once
+    here so that a bad settings file fails before any work, naming the file and key."""
+    out = {}
+    for kind in ("model", "objective", "optimizer"):
+        path = getattr(args, f"{kind}_config")
+        out[kind], out[f"{kind}_config"] = getattr(args, kind), load_toml(path)
+        check_plugin(kind, out[kind], out[f"{kind}_config"], path)
+    return out
+
+
+def check_plugin(kind: str, name: str, config: dict[str, Any], path: str | None) -> None:
+    """Create the plugin; errors name the settings file, the key and the closest valid key."""
+    where = f"{path}: " if path else ""
+    try:
+        plugin = registry.create(kind, name, config)
+        getattr(plugin, "inner", None)  # a wrapper's inner optimiser (stepwise) is checked too
+    except ValidationError as err:
+        fields = registry.get(kind, name).Settings.model_fields
+        parts = []
+        for e in err.errors():
+            key = ".".join(str(p) for p in e["loc"]) or "(settings)"
+            if e["type"] == "extra_forbidden":
+                close = difflib.get_close_matches(key, list(fields), n=1)
+                hint = f"did you mean {close[0]!r}? " if close else ""
+                parts.append(f"unknown key {key!r} for {kind} {name} ({hint}valid keys: {', '.join(fields)})")
+            else:
+                parts.append(f"{key}: {e['msg']}")
+        raise HybridfitError(where + "; ".join(parts)) from None
+    except HybridfitError as err:
+        if path:
+            raise HybridfitError(f"{where}{err}") from None
+        raise
+
+
+def read_results(path: str, dataset: str):
+    """A results text file -> (F, J, 3) xyz mm; a binary file is named, not decoded."""
+    from ..datasets.results import read_xyz
+
+    try:
+        return read_xyz(path, dataset)
+    except UnicodeDecodeError:
+        raise HybridfitError(f"{path}: not a text file; expected a results file (one line per frame, "
+                             f"J x u v d)") from None
+
+
+def seed_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
+    return value
 
 
 def positive_int(text: str) -> int:

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import sys
 
-from ..estimator import HybridEstimator
-from ..io import save_npz
+from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK
+from ..estimator import EMPTY_FRAME, HybridEstimator
+from ..io import check_output, save_npz
 from ..metrics import summary
 from ._common import add_fit_options, add_plugin_options, plugin_kwargs
 from ._forest import frame_indices, ground_truth, open_dataset, report_empty
+from .fit import report_failures
 from .propose import add_proposal_options
 
 
@@ -24,8 +26,9 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    ds = open_dataset(args.data)
+    check_output(args.out)
     plugins = plugin_kwargs(args)
+    ds = open_dataset(args.data)
     plugins["model_config"] = ds.model_config(plugins["model"], plugins["model_config"])
     est = HybridEstimator(args.forest, k=args.k, proposal_set=args.proposal_set, stride=args.stride,
                           bandwidth_mm=args.bandwidth, budget=args.budget, seed=args.seed, jobs=args.jobs,
@@ -44,14 +47,12 @@ def run(args) -> int:
     F = len(idx)
     print(f"estimated {F - int(fit.failed.sum())}/{F} frames -> {args.out}")
     report_empty(result.proposals.empty, idx, sys.stderr)
-    for f, msg in sorted(fit.errors.items()):
-        if not result.proposals.empty[f]:
-            print(f"  frame {int(idx[f])}: {msg}", file=sys.stderr)
+    report_failures({int(idx[f]): m for f, m in fit.errors.items() if m != EMPTY_FRAME})
     if "ground_truth" in out and (~fit.failed).any():
         s = summary(fit.joints[~fit.failed], gt[~fit.failed])
         print("fitted: mean joint error {mean_error_mm:.2f} mm; success rate @20/40/80 mm: "
               "{success@20mm:.3f} / {success@40mm:.3f} / {success@80mm:.3f}".format(**s))
     if fit.interrupted:
         print(f"interrupted: finished frames saved to {args.out}", file=sys.stderr)
-        return 130
-    return 1 if F and fit.failed.all() else 0
+        return EXIT_INTERRUPTED
+    return EXIT_INCOMPLETE if fit.failed.any() else EXIT_OK

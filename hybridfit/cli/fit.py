@@ -8,8 +8,9 @@ import numpy as np
 
 from .. import fit as fit_frames
 from ..datasets.skeletons import dataset_model_config, skeleton
-from ..errors import HybridfitError
-from ..io import load_proposals, save_npz
+from .. import registry
+from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK, HybridfitError
+from ..io import check_output, load_proposals, save_npz
 from ..metrics import summary
 from ._common import add_fit_options, add_plugin_options, plugin_kwargs
 
@@ -17,7 +18,9 @@ from ._common import add_fit_options, add_plugin_options, plugin_kwargs
 def register(sub) -> None:
     p = sub.add_parser("fit", help="fit the hand model to joint proposals (.npz)")
     p.add_argument("proposals", help="npz with proposals (F,J,K,3) mm, confidences (F,J,K), optional joint_names, ground_truth")
-    p.add_argument("--out", required=True, help="output npz: params, joints, objective, evaluations, joint_names")
+    p.add_argument("--out", required=True, help="output npz: params, joints, objective (the loss), evaluations, "
+                   "joint_names, failed, inliers (points within inlier_distance_mm of a proposal), ground_truth "
+                   "(copied from the input)")
     add_plugin_options(p)
     add_fit_options(p)
     p.add_argument("--dataset", help="icvl, nyu or msra: the proposals' skeleton when the npz has no joint_names "
@@ -26,6 +29,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    check_output(args.out)
     data = load_proposals(args.proposals)
     names = data.get("joint_names")
     plugins = plugin_kwargs(args)
@@ -39,22 +43,45 @@ def run(args) -> int:
             names = sk.model_names
         plugins["model_config"] = dataset_model_config(plugins["model"], plugins["model_config"], sk.dataset)
         extra["dataset"] = np.asarray(sk.dataset)
+    names = None if names is None else [str(n) for n in names]
+    if names is not None:
+        check_point_names(plugins, names, args.proposals)
+    if "ground_truth" in data:
+        extra["ground_truth"] = data["ground_truth"]
     result = fit_frames(
-        data["proposals"], data["confidences"],
-        joint_names=None if names is None else list(names),
+        data["proposals"], data["confidences"], joint_names=names,
         budget=args.budget, seed=args.seed, jobs=args.jobs, search_radius_mm=args.search_radius,
         progress=sys.stderr.isatty(), **plugins,
     )
     save_npz(args.out, **result.to_npz(), **extra)
-    F = len(result.failed)
-    print(f"fitted {F - int(result.failed.sum())}/{F} frames -> {args.out}")
-    for f, msg in sorted(result.errors.items())[:10]:
-        print(f"  frame {f}: {msg}", file=sys.stderr)
-    if "ground_truth" in data and F:
-        s = summary(result.joints, data["ground_truth"])
+    F, done = len(result.failed), ~result.failed
+    print(f"fitted {int(done.sum())}/{F} frames -> {args.out}")
+    report_failures(result.errors)
+    if "ground_truth" in data and done.any():  # finished frames only (after Ctrl-C too)
+        s = summary(result.joints[done], data["ground_truth"][done])
         print("mean joint error {mean_error_mm:.2f} mm; success rate @20/40/80 mm: "
-              "{success@20mm:.3f} / {success@40mm:.3f} / {success@80mm:.3f}".format(**s))
+              "{success@20mm:.3f} / {success@40mm:.3f} / {success@80mm:.3f}".format(**s)
+              + f" ({int(done.sum())} fitted frames)")
     if result.interrupted:
         print(f"interrupted: finished frames saved to {args.out}", file=sys.stderr)
-        return 130
-    return 1 if result.failed.all() and F else 0
+        return EXIT_INTERRUPTED
+    return EXIT_OK if done.all() else EXIT_INCOMPLETE
+
+
+def check_point_names(plugins: dict, names, where: str) -> None:
+    """An unknown point name fails before any work, naming the input file."""
+    model = registry.create("model", plugins["model"], plugins["model_config"])
+    if list(names) != list(model.joint_names):
+        try:
+            model.point_matrix(names)
+        except HybridfitError as err:
+            raise HybridfitError(f"{where}: joint_names: {err}") from None
+
+
+def report_failures(errors: dict[int, str], limit: int = 10) -> None:
+    """The failed frames and why, at most ``limit`` lines, then a count, on stderr."""
+    items = sorted((f, m) for f, m in errors.items() if m != "interrupted")
+    for f, msg in items[:limit]:
+        print(f"  frame {f}: {msg}", file=sys.stderr)
+    if len(items) > limit:
+        print(f"  ... and {len(items) - limit} more failed frames", file=sys.stderr)

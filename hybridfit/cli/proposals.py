@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..datasets.results import read_xyz
 from ..datasets.skeletons import skeleton
 from ..errors import HybridfitError
-from ..io import save_npz
+from ..io import check_output, save_npz
+from ._common import read_results
 from .calibrate import frame_slice
 
 
@@ -26,14 +26,16 @@ def register(sub) -> None:
 
 
 def run_from_results(args) -> int:
+    check_output(args.out)
     sk = skeleton(args.dataset)
-    xyz = [read_xyz(f, sk.dataset) for f in args.results]
+    xyz = [read_results(f, sk.dataset) for f in args.results]
     for f, a in zip(args.results[1:], xyz[1:]):
         if len(a) != len(xyz[0]):
             raise HybridfitError(f"{f}: {len(a)} frames, but {args.results[0]} has {len(xyz[0])}")
     conf = [1.0] * len(xyz) if args.confidences is None else args.confidences
-    if len(conf) != len(xyz) or min(conf) < 0:
-        raise HybridfitError(f"--confidences: need {len(xyz)} non-negative values (one per file), got {conf}")
+    if len(conf) != len(xyz) or not all(0 <= c < float("inf") for c in conf) or not any(conf):
+        raise HybridfitError(f"--confidences: need {len(xyz)} finite non-negative values (one per file, "
+                             f"not all 0), got {conf}")
     sel = frame_slice(args.frames, len(xyz[0]))
     proposals = np.stack(xyz, axis=2)[sel]  # (F, J, k, 3)
     F, J, k, _ = proposals.shape
@@ -44,7 +46,7 @@ def run_from_results(args) -> int:
         "dataset": np.asarray(sk.dataset),
     }
     if args.ground_truth:
-        gt = read_xyz(args.ground_truth, sk.dataset)
+        gt = read_results(args.ground_truth, sk.dataset)
         if len(gt) != len(xyz[0]):
             raise HybridfitError(f"{args.ground_truth}: {len(gt)} frames, but the results have {len(xyz[0])}")
         out["ground_truth"] = gt[sel]

@@ -7,7 +7,8 @@ import sys
 import numpy as np
 
 from ..estimator import HybridEstimator
-from ..io import save_npz
+from ..errors import EXIT_INCOMPLETE, EXIT_OK
+from ..io import check_output, save_npz
 from ..metrics import joint_errors, oracle
 from ._common import positive_int
 from ._forest import frame_indices, ground_truth, open_dataset, report_empty
@@ -34,6 +35,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    check_output(args.out)
     est = HybridEstimator(args.forest, k=args.k, proposal_set=args.proposal_set, stride=args.stride,
                           bandwidth_mm=args.bandwidth)
     est.get_forest()  # a bad forest file fails before the data is read
@@ -54,4 +56,4 @@ def run(args) -> int:
         top = joint_errors(props.proposals[ok, :, 0], gt[ok]).mean()
         best = joint_errors(oracle(props.proposals[ok], gt[ok]), gt[ok]).mean()
         print(f"mean joint error: top proposal {top:.2f} mm, oracle (best of k) {best:.2f} mm")
-    return 1 if len(idx) and props.empty.all() else 0
+    return EXIT_INCOMPLETE if len(idx) and props.empty.all() else EXIT_OK  # some empty frames: listed, not a failure

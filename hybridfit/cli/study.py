@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import HybridfitError
+from ..errors import EXIT_INCOMPLETE, EXIT_OK, HybridfitError
 from ._common import positive_int
 
 
@@ -38,4 +38,4 @@ def run(args) -> int:
     s = run_study(study, out, jobs=args.jobs, executor=executor, scheduler=args.scheduler, cache_dir=args.cache,
                   progress=True)
     print(f"{s.total} trials: {s.skipped} already complete, {s.ran} run, {s.failed} failed -> {out}/report.md")
-    return 1 if s.failed and s.failed == s.ran else 0
+    return EXIT_INCOMPLETE if s.failed else EXIT_OK

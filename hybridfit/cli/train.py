@@ -6,7 +6,8 @@ import sys
 import time
 
 from ..forest import ForestConfig, train_forest_dataset
-from ._common import load_toml, positive_int
+from ..io import check_output
+from ._common import load_toml, positive_int, seed_int
 from ._forest import frame_indices, open_dataset
 
 
@@ -18,13 +19,14 @@ def register(sub) -> None:
     p.add_argument("--trees", type=positive_int, help="number of trees (default 3)")
     p.add_argument("--max-depth", type=positive_int, help="maximum tree depth (default 23)")
     p.add_argument("--pixels-per-frame", type=positive_int, help="training pixels per frame (default 400)")
-    p.add_argument("--seed", type=int, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed_int, help="random seed, >= 0 (default 0)")
     p.add_argument("--frames", type=positive_int, help="train on the first N frames only")
     p.add_argument("--jobs", type=positive_int, help="trees grown in parallel (default: the available cores)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    check_output(args.out)
     settings = load_toml(args.config)
     for key, value in (("n_trees", args.trees), ("max_depth", args.max_depth),
                        ("pixels_per_frame", args.pixels_per_frame), ("seed", args.seed)):

@@ -47,7 +47,10 @@ def test_propose_writes_a_valid_fit_input(forest_file, data, tmp_path, capsys):
     assert data_in["proposals"].shape == (12, 21, 2, 3) and data_in["ground_truth"].shape == (12, 21, 3)
     assert data_in["empty"].tolist() == [False] * 11 + [True]
     fits = tmp_path / "fits.npz"
-    assert main(["fit", str(out), "--out", str(fits), "--budget", "600"]) in (0,)
+    assert main(["fit", str(out), "--out", str(fits), "--budget", "600"]) == 3  # frame 11 has no proposals
+    assert "frame 11: the frame has no proposals with positive confidence" in capsys.readouterr().err
+    with np.load(fits) as f:
+        assert f["failed"].tolist() == [False] * 11 + [True] and f["inliers"][:11].min() > 0
 
 
 def test_estimate_end_to_end(forest_file, data, tmp_path, capsys):
