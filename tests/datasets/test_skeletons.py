@@ -1,21 +1,271 @@
-"""Skeleton mappings onto hand26."""
+"""Skeletons as data: the built-in files map onto hand26, users' files round-trip, bad files
+give one-line errors naming the file and key."""
 
+from __future__ import annotations
+
+import copy
+import string
+import tomllib
+
+import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import hybridfit
-from hybridfit.datasets import SKELETONS
-from hybridfit.datasets.skeletons import with_derived_points
+from hybridfit.cli import main
+from hybridfit.datasets import SKELETONS, convention, skeleton
+from hybridfit.datasets.results import read_xyz, write_xyz
+from hybridfit.datasets.skeletons import NYU14, NYU36, check_model, load_skeleton, to_toml, with_derived_points
+
+from .conftest import hand_points
+
+SIZES = {"icvl": 16, "nyu": 14, "nyu36": 36, "msra": 21, "mediapipe": 21, "mano": 21}
+JOINTS = hybridfit.create("model", "hand26").joint_names
+TIPS = {"thumb_tip", "index_tip", "middle_tip", "ring_tip", "little_tip"}
 
 
-@pytest.mark.parametrize("dataset,J", [("icvl", 16), ("nyu", 14), ("msra", 21)])
-def test_every_point_maps_onto_the_model(dataset, J):
-    sk = SKELETONS[dataset]
-    assert len(sk.names) == len(sk.model_names) == J
+def test_the_built_in_skeletons():
+    assert {n: len(s) for n, s in SKELETONS.items()} == SIZES
+
+
+@pytest.mark.parametrize("dataset", sorted(SIZES))
+def test_every_point_maps_onto_the_model(dataset):
+    sk = skeleton(dataset)
+    check_model(sk)
+    J = SIZES[dataset]
+    assert len(sk.names) == len(sk.model_names) == len(set(sk.model_names)) == J
     model = hybridfit.create("model", "hand26", with_derived_points({}, dataset))
     M = model.point_matrix(sk.model_names)
     assert M.shape == (J, 21)
     assert abs(M.sum(axis=1) - 1).max() < 1e-9  # affine combinations: rigid motions carry over
-    assert all(sk.model_names[t].endswith("_tip") for t in sk.fingertips) and len(sk.fingertips) == 5
+
+
+@pytest.mark.parametrize("dataset", sorted(SIZES))
+def test_fingertips_are_the_five_tips(dataset):
+    sk = skeleton(dataset)
+    assert {sk.model_names[t] for t in sk.fingertips} == TIPS and len(sk.fingertips) == 5
+
+
+def test_a_derived_point_means_the_same_in_every_skeleton():
+    seen: dict[str, dict[str, float]] = {}
+    for sk in SKELETONS.values():
+        for name, weights in sk.derived.items():
+            assert seen.setdefault(name, weights) == weights, name
+
+
+def test_nyu14_is_the_subset_of_nyu36():
+    nyu, nyu36 = skeleton("nyu"), skeleton("nyu36")
+    assert NYU36 == nyu36.names and NYU36[0] == "F1_KNU3_A" and NYU36[-1] == "PALM_6"
+    assert NYU14 == (0, 3, 6, 9, 12, 15, 18, 21, 24, 25, 27, 30, 31, 32)
+    assert nyu.model_names == tuple(nyu36.model_names[i] for i in NYU14)
+    assert all(nyu36.derived[n] == w for n, w in nyu.derived.items())
+
+
+def test_nyu36_finger_points_run_from_the_tip_to_the_base():
+    """On straight fingers, each finger's six points (KNU3_A .. KNU1_B) come ever closer to
+    its base, the A points strictly between their B points."""
+    sk = skeleton("nyu36")
+    model = hybridfit.create("model", "hand26", with_derived_points({}, "nyu36"))
+    params = model.default_params()[None].copy()
+    params[:, 7:] = 0.0
+    pts = model.points(params, sk.model_names)[0]
+    for f in range(5):
+        finger = pts[6 * f:6 * f + 6]
+        d = np.linalg.norm(finger - finger[-1], axis=-1)
+        assert (np.diff(d) < -1.0).all(), (sk.names[6 * f], d)
+
+
+def test_mano_is_manopths_order():
+    """manopth's ManoLayer: MANO's 16 joints + 5 tip vertices, reordered for display."""
+    raw = ["wrist"] + [f"{f}_{j}" for f in ("index", "middle", "little", "ring", "thumb")
+                       for j in (("cmc", "mcp", "ip") if f == "thumb" else ("mcp", "pip", "dip"))]
+    raw += [f"{f}_tip" for f in ("thumb", "index", "middle", "ring", "little")]
+    reorder = [0, 13, 14, 15, 16, 1, 2, 3, 17, 4, 5, 6, 18, 10, 11, 12, 19, 7, 8, 9, 20]
+    assert skeleton("mano").model_names == tuple(raw[i] for i in reorder) == skeleton("mediapipe").model_names
+
+
+def test_names_are_case_blind_and_unknown_names_suggest_the_closest():
+    assert skeleton("ICVL") is skeleton("icvl")
+    with pytest.raises(hybridfit.HybridfitError, match=r"unknown dataset 'nyu3' \(did you mean 'nyu36'\?\)"):
+        skeleton("nyu3")
+
+
+def test_conventions_come_from_the_skeleton(tmp_path):
+    assert convention("nyu36") is convention("nyu")
+    with pytest.raises(hybridfit.HybridfitError, match="mediapipe skeleton names no camera convention"):
+        convention("mediapipe")
+    mine = tmp_path / "mine.toml"
+    mine.write_text(to_toml(skeleton("msra")).replace('convention = "msra"', 'convention = "icvl"'))
+    assert convention(str(mine)) is convention("icvl")
+
+
+@pytest.mark.parametrize("dataset", sorted(SIZES))
+def test_a_written_skeleton_reads_back_equal(tmp_path, dataset):
+    path = tmp_path / "mine.toml"
+    path.write_text(to_toml(skeleton(dataset)))
+    got, want = skeleton(str(path)), skeleton(dataset)
+    assert (got.dataset, got.names, got.model_names, got.fingertips, got.derived, got.convention, got.model) == \
+        (want.dataset, want.names, want.model_names, want.fingertips, want.derived, want.convention, want.model)
+    assert got.source == str(path)
+
+
+_name = st.text(string.ascii_letters + string.digits + "_-. ", min_size=1, max_size=8)
+
+
+@st.composite
+def user_skeletons(draw):
+    """(toml text, the dict it holds): random point names onto distinct hand26 joints or
+    derived points with weights that sum to 1."""
+    names = draw(st.lists(_name, min_size=1, max_size=8, unique=True))
+    joints = draw(st.permutations(JOINTS))
+    points, derived = {}, {}
+    for i, n in enumerate(names):
+        if draw(st.booleans()):
+            support = draw(st.lists(st.sampled_from(JOINTS), min_size=1, max_size=4, unique=True))
+            w = draw(st.lists(st.integers(-4, 8), min_size=len(support), max_size=len(support)))
+            w[-1] = 8 - sum(w[:-1])
+            derived[f"d{i}"] = {j: v / 8 for j, v in zip(support, w)}
+            points[n] = f"d{i}"
+        else:
+            points[n] = joints[i]
+    tips = draw(st.lists(st.sampled_from(names), unique=True, max_size=5))
+    raw = {"name": "mine", "model": "hand26", "fingertips": tips, "points": points, "derived": derived}
+    return raw
+
+
+def _text(raw) -> str:
+    """A dict of a skeleton file's shape as TOML (string values, lists, tables)."""
+    import json
+
+    def val(v):
+        return json.dumps(v) if not isinstance(v, float) else repr(v)
+
+    lines, tables = [], []
+    for k, v in raw.items():
+        if isinstance(v, dict):
+            tables.append((k, v))
+        else:
+            lines.append(f"{json.dumps(k)} = {val(v)}")
+    for k, v in tables:
+        nested = {kk: vv for kk, vv in v.items() if isinstance(vv, dict)}
+        lines.append(f"[{json.dumps(k)}]")
+        lines += [f"{json.dumps(kk)} = {val(vv)}" for kk, vv in v.items() if not isinstance(vv, dict)]
+        for kk, vv in nested.items():
+            lines.append(f"[{json.dumps(k)}.{json.dumps(kk)}]")
+            lines += [f"{json.dumps(j)} = {val(w)}" for j, w in vv.items()]
+    return "\n".join(lines) + "\n"
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(raw=user_skeletons())
+def test_users_skeletons_round_trip(tmp_path, raw):
+    path = tmp_path / "user.toml"
+    path.write_text(_text(raw))
+    sk = load_skeleton(path)
+    assert sk.names == tuple(raw["points"]) and sk.model_names == tuple(raw["points"].values())
+    assert [sk.names[i] for i in sk.fingertips] == raw["fingertips"] and sk.derived == raw["derived"]
+    path.write_text(to_toml(sk))
+    again = load_skeleton(path)
+    assert (again.names, again.model_names, again.fingertips, again.derived) == \
+        (sk.names, sk.model_names, sk.fingertips, sk.derived)
+    model = hybridfit.create("model", "hand26", with_derived_points({}, str(path)))
+    assert abs(model.point_matrix(sk.model_names).sum(axis=1) - 1).max() < 1e-9
+
+
+VALID = tomllib.loads(to_toml(skeleton("icvl")))
+
+# (mutation of the valid icvl file, the key the error must name, a pattern it must contain)
+BREAKS = [
+    (lambda r: r.pop("points"), "points", "missing or empty"),
+    (lambda r: r.pop("fingertips"), "fingertips", "must be a list"),
+    (lambda r: r.__setitem__("fingertip", r.pop("fingertips")), "fingertip", "did you mean 'fingertips'"),
+    (lambda r: r.__setitem__("modle", "hand26"), "modle", "did you mean 'model'"),
+    (lambda r: r.__setitem__("model", "hand62"), "model", "did you mean 'hand26'"),
+    (lambda r: r.__setitem__("convention", "nyy"), "convention", "did you mean 'nyu'"),
+    (lambda r: r.__setitem__("name", 3), "name", "non-empty string"),
+    (lambda r: r["points"].__setitem__("thumb_tip", "thumb_tp"), "points.thumb_tip", "did you mean 'thumb_tip'"),
+    (lambda r: r["points"].__setitem__("index_tip", 7), "points.index_tip", "a string"),
+    (lambda r: r["points"].__setitem__("index_tip", "thumb_tip"), "points.index_tip", "like points.thumb_tip"),
+    (lambda r: r["points"].__setitem__("palm", "icvl_plam"), "derived.icvl_palm", "not used by any point"),
+    (lambda r: r["derived"]["icvl_palm"].__setitem__("wirst", r["derived"]["icvl_palm"].pop("wrist")),
+     "derived.icvl_palm.wirst", "did you mean 'wrist'"),
+    (lambda r: r["derived"]["icvl_palm"].__setitem__("wrist", 0.5), "derived.icvl_palm", "must sum to 1"),
+    (lambda r: r["derived"]["icvl_palm"].__setitem__("wrist", "0.4"), "derived.icvl_palm.wrist", "finite number"),
+    (lambda r: r["derived"].__setitem__("icvl_palm", {}), "derived.icvl_palm", "non-empty table"),
+    (lambda r: r.__setitem__("derived", {"wrist": {"wrist": 1.0}, **r["derived"]}), "derived.wrist",
+     "not used by any point"),
+    (lambda r: r["fingertips"].__setitem__(0, "thumb_tp"), "fingertips[0]", "did you mean 'thumb_tip'"),
+    (lambda r: r["fingertips"].append("index_tip"), "fingertips", "twice"),
+]
+
+
+@pytest.mark.parametrize("i", range(len(BREAKS)))
+def test_each_bad_key_is_named(tmp_path, i):
+    raw = copy.deepcopy(VALID)
+    mutate, key, pattern = BREAKS[i]
+    mutate(raw)
+    path = tmp_path / "bad.toml"
+    path.write_text(_text(raw))
+    with pytest.raises(hybridfit.HybridfitError) as err:
+        skeleton(str(path))
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: {key}: ") and pattern in msg and "\n" not in msg, msg
+
+
+def test_a_derived_point_with_a_joints_name_is_refused(tmp_path):
+    raw = copy.deepcopy(VALID)
+    raw["points"]["palm"], raw["derived"] = "wrist", {"wrist": {"index_mcp": 1.0}}
+    path = tmp_path / "bad.toml"
+    path.write_text(_text(raw))
+    with pytest.raises(hybridfit.HybridfitError, match=r"bad.toml: derived.wrist: has the name of a hand26 joint"):
+        skeleton(str(path))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(cut=st.integers(1, 2000), junk=st.binary(min_size=1, max_size=20))
+def test_corrupt_files_give_one_line(tmp_path, cut, junk):
+    """Truncated or garbled skeleton files: one line naming the file, never a traceback."""
+    text = to_toml(skeleton("nyu")).encode()
+    path = tmp_path / "bad.toml"
+    path.write_bytes(text[:cut % len(text)] + junk)
+    try:
+        skeleton(str(path))
+    except hybridfit.HybridfitError as err:
+        assert str(err).startswith(f"{path}: ") and "\n" not in str(err)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(hybridfit.HybridfitError, match=r"nope\.toml: no such skeleton file"):
+        skeleton(str(tmp_path / "nope.toml"))
+
+
+def test_a_users_file_is_read_again_when_it_changes(tmp_path):
+    path = tmp_path / "mine.toml"
+    path.write_text(to_toml(skeleton("msra")))
+    assert len(skeleton(str(path))) == 21
+    path.write_text(to_toml(skeleton("icvl")) + "\n# edited\n")
+    assert len(skeleton(str(path))) == 16
+
+
+def test_the_cli_takes_a_skeleton_file(tmp_path, capsys):
+    """from-results, fit, evaluate and export with --dataset my.toml: ICVL's points renamed."""
+    mine = tmp_path / "mine.toml"
+    mine.write_text(to_toml(skeleton("icvl")).replace("_root =", "_base =").replace('"thumb_root"', '"thumb_base"'))
+    truth = hand_points("icvl", 3)
+    write_xyz(tmp_path / "r.txt", truth, str(mine))
+    p, fits, out = tmp_path / "p.npz", tmp_path / "fits.npz", tmp_path / "out.txt"
+    assert main(["proposals", "from-results", "--dataset", str(mine), str(tmp_path / "r.txt"), "--out", str(p)]) == 0
+    assert main(["fit", str(p), "--dataset", str(mine), "--budget", "300", "--out", str(fits)]) == 0
+    assert main(["export-results", str(fits), "--dataset", str(mine), "--out", str(out)]) == 0
+    assert np.nanmean(np.linalg.norm(read_xyz(out, str(mine)) - truth, axis=-1)) < 30
+    capsys.readouterr()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(mine.read_text().replace('"index_mcp"', '"index_mpc"'))
+    assert main(["fit", str(p), "--dataset", str(bad), "--out", str(tmp_path / "f2.npz")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and f"{bad}: points.index_base: unknown hand26 point 'index_mpc'" in err
+    assert "did you mean 'index_mcp'" in err and not (tmp_path / "f2.npz").exists()
 
 
 def test_config_keeps_its_own_derived_points():
