@@ -28,6 +28,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .. import registry
+from ..datasets.skeletons import is_skeleton_file, skeleton
 from ..errors import HybridfitError
 from ..forest import ForestConfig
 from ..synthdata import GridConfig, SequenceConfig
@@ -140,7 +141,8 @@ class ProposalsData(_Strict):
 
     kind: Literal["proposals"]
     file: Path | list[Path]
-    dataset: Literal["icvl", "nyu", "msra"] | None = None
+    dataset: str | None = Field(None, description="skeleton: a built-in name (icvl, nyu, nyu36, msra, mediapipe, "
+                                "mano) or a skeleton .toml file, relative to the study file")
     ground_truth: Path | None = Field(None, description="ground truth in the results format (else from the npz)")
     frames: str | None = Field(None, description="START:STOP of the frames to fit (default: all)")
     calibrate: Calibration | None = Field(None, description="calibrate the model on the ground truth first")
@@ -149,7 +151,7 @@ class ProposalsData(_Strict):
     def _needs(self):
         files = self.file if isinstance(self.file, list) else [self.file]
         if any(f.suffix != ".npz" for f in files) and self.dataset is None:
-            raise ValueError("results files need dataset (icvl, nyu or msra)")
+            raise ValueError("results files need dataset (a skeleton name or .toml file)")
         if self.calibrate is not None and (self.ground_truth is None or self.dataset is None):
             raise ValueError("calibrate needs ground_truth and dataset")
         return self
@@ -262,6 +264,9 @@ def _resolve_paths(data: BaseModel, root: Path) -> None:
             object.__setattr__(data, name, [root / v for v in value])
         elif isinstance(value, Path):
             object.__setattr__(data, name, root / value)
+    dataset = getattr(data, "dataset", None)
+    if isinstance(dataset, str) and is_skeleton_file(dataset):
+        object.__setattr__(data, "dataset", str(root / dataset))
 
 
 def _check_exists(data: BaseModel, where: str) -> None:
@@ -270,6 +275,11 @@ def _check_exists(data: BaseModel, where: str) -> None:
         for p in value if isinstance(value, list) else [value]:
             if isinstance(p, Path) and not p.exists():
                 raise HybridfitError(f"{where}: data.{name}: no such file or folder {p}")
+    if isinstance(getattr(data, "dataset", None), str):
+        try:
+            skeleton(data.dataset)
+        except HybridfitError as err:
+            raise HybridfitError(f"{where}: data.dataset: {err}") from None
 
 
 def load_spec(path: str | Path, quick: bool = False) -> Study:
