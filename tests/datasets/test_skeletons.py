@@ -278,3 +278,21 @@ def test_hand26_refuses_bad_derived_points():
         hybridfit.create("model", "hand26", {"derived_points": {"p": {"elbow": 1.0}}})
     with pytest.raises(hybridfit.HybridfitError, match="has the name of a joint"):
         hybridfit.create("model", "hand26", {"derived_points": {"wrist": {"index_mcp": 1.0}}})
+
+
+def test_a_study_takes_a_skeleton_file_relative_to_it(tmp_path):
+    from hybridfit.study import load_spec
+
+    (tmp_path / "skel").mkdir()
+    (tmp_path / "skel" / "mine.toml").write_text(to_toml(skeleton("icvl")))
+    write_xyz(tmp_path / "r.txt", hand_points("icvl", 2), "icvl")
+    study = tmp_path / "s.toml"
+    text = 'name = "s"\n[data]\nkind = "proposals"\nfile = "r.txt"\ndataset = "skel/mine.toml"\n'
+    study.write_text(text)
+    assert load_spec(study).data.dataset == str(tmp_path / "skel" / "mine.toml")
+    study.write_text(text.replace("mine.toml", "mien.toml"))
+    with pytest.raises(hybridfit.HybridfitError, match=r"s.toml: data.dataset: .*mien.toml: no such skeleton file"):
+        load_spec(study)
+    study.write_text(text.replace("skel/mine.toml", "nyu37"))
+    with pytest.raises(hybridfit.HybridfitError, match=r"data.dataset: unknown dataset 'nyu37' \(did you mean"):
+        load_spec(study)
