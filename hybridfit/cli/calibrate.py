@@ -29,7 +29,8 @@ def frame_slice(text: str | None, n: int) -> slice:
 
 def register(sub) -> None:
     p = sub.add_parser("calibrate", help="estimate the hand model's bone lengths and geometry from annotated frames")
-    p.add_argument("--dataset", required=True, help="dataset skeleton of the ground truth: icvl, nyu or msra")
+    p.add_argument("--dataset", required=True, help="skeleton of the ground truth: icvl, nyu, nyu36, "
+                   "msra, mediapipe, mano or a skeleton .toml file")
     p.add_argument("--ground-truth", required=True, metavar="LABELS", help="ground truth in the common results format")
     p.add_argument("--frames", metavar="START:STOP", help="frames to calibrate on (default: all)")
     p.add_argument("--out", required=True, metavar="MODEL.toml", help="hand26 model config to write")

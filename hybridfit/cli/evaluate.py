@@ -100,7 +100,8 @@ def register(sub) -> None:
     p = sub.add_parser("evaluate", help="mean, fingertip and per-joint errors and success rates against ground truth")
     p.add_argument("predictions", metavar="FITS_OR_PROPOSALS", help="npz with joints or proposals, or a results file")
     p.add_argument("data", nargs="?", metavar="DATA", help="data set folder providing the ground truth")
-    p.add_argument("--dataset", help="icvl, nyu or msra: skeleton and camera of results files")
+    p.add_argument("--dataset", help="skeleton and camera convention of results files: icvl, "
+                   "nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file")
     p.add_argument("--ground-truth", metavar="LABELS", help="ground truth results file")
     p.add_argument("--compare", nargs="+", default=[], metavar="FILE", help="further results files or npz to compare")
     p.add_argument("--frames", metavar="START:STOP",

@@ -28,7 +28,8 @@ def in_skeleton_order(joints: np.ndarray, names, dataset: str, where: str) -> np
 def register(sub) -> None:
     p = sub.add_parser("export-results", help="write fitted joints in a dataset's common results format")
     p.add_argument("fits", help="npz from `hybridfit fit` (joints, joint_names)")
-    p.add_argument("--dataset", required=True, help="icvl, nyu or msra")
+    p.add_argument("--dataset", required=True, help="skeleton and camera convention: icvl, nyu, "
+                   "nyu36, msra, mediapipe, mano or a skeleton .toml file")
     p.add_argument("--out", required=True, help="results text file: one line per frame, J x (u, v, d)")
     p.set_defaults(func=run)
 

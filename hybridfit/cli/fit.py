@@ -23,8 +23,8 @@ def register(sub) -> None:
                    "(copied from the input)")
     add_plugin_options(p)
     add_fit_options(p)
-    p.add_argument("--dataset", help="icvl, nyu or msra: the proposals' skeleton when the npz has no joint_names "
-                   "(and the dataset's derived points for hand26)")
+    p.add_argument("--dataset", help="the proposals' skeleton when the npz has no joint_names (and its derived "
+                   "points for its model): icvl, nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file")
     p.set_defaults(func=run)
 
 

@@ -16,7 +16,8 @@ def register(sub) -> None:
     kinds = p.add_subparsers(dest="proposals_command", metavar="SOURCE", required=True)
     q = kinds.add_parser("from-results", help="results files (common format) -> one proposal per joint per file")
     q.add_argument("results", nargs="+", metavar="FILE", help="results files: one line per frame, J x (u, v, d)")
-    q.add_argument("--dataset", required=True, help="icvl, nyu or msra (skeleton and camera)")
+    q.add_argument("--dataset", required=True, help="skeleton and camera convention: icvl, nyu, "
+                   "nyu36, msra, mediapipe, mano or a skeleton .toml file")
     q.add_argument("--confidences", nargs="+", type=float, metavar="C",
                    help="one non-negative confidence per file (default: equal)")
     q.add_argument("--ground-truth", metavar="LABELS", help="ground truth in the same format, stored for evaluation")
