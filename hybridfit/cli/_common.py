@@ -87,6 +87,18 @@ def check_plugin(kind: str, name: str, config: dict[str, Any], path: str | None)
         raise
 
 
+def check_image_format(path: str, option: str = "--out") -> None:
+    """Refuse, before any work, an image file name whose format matplotlib cannot write."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    formats = FigureCanvasAgg(Figure()).get_supported_filetypes()
+    ext = Path(path).suffix.lower().lstrip(".")
+    if ext not in formats:
+        raise HybridfitError(f"{option} {path}: cannot write {'.' + ext if ext else 'a file without an extension'} "
+                             f"images; use .png (or {', '.join('.' + f for f in sorted(formats) if f != 'png')})")
+
+
 def read_results(path: str, dataset: str):
     """A results text file -> (F, J, 3) xyz mm; a binary file is named, not decoded."""
     from ..datasets.results import read_xyz

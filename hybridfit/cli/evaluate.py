@@ -6,6 +6,10 @@ draws the success-rate curves of the evaluated file and every ``--compare`` file
 A proposals npz is evaluated twice: its top-1 proposal per joint and the Oracle (the
 proposal closest to the truth). Ground truth comes from ``--ground-truth`` (a results
 file, with ``--dataset``), a data set folder DATA, or the npz's own ``ground_truth``.
+NaN or inf in any input is refused, naming the key and frame (except in the frames a fits
+file marks ``failed``, which count as failures). For a fits npz it also lists the frames
+whose fit is far from the proposals (fewer than half of the points within the fit's inlier
+distance of one of their proposals).
 """
 
 from __future__ import annotations
@@ -15,11 +19,39 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import HybridfitError
-from ..io import load_npz
-from ..metrics import fingertips, joint_errors, oracle, success_rate
+from ..fitting import INLIER_DISTANCE_MM
+from ..io import check_output, load_npz
+from ..metrics import fingertips, inliers, joint_errors, oracle, success_rate
+from ._common import check_image_format, read_results
 
 THRESHOLDS = np.arange(0, 81)
 REPORTED = (20, 40, 80)
+
+
+def points_array(path: str, data: dict, key: str, allow_nan=None) -> np.ndarray:
+    """data[key] as (F, J, 3) float mm; refuses other shapes and NaN/inf, naming the key and
+    the first bad frame (frames where ``allow_nan`` (F,) is True may be NaN: failed fits)."""
+    a = np.asarray(data[key])
+    if a.ndim != 3 or a.shape[-1] != 3 or a.dtype.kind not in "iuf":
+        raise HybridfitError(f"{path}: {key!r} must be numbers of shape (frames, points, 3), got {a.dtype} {a.shape}")
+    a = a.astype(float)
+    bad = ~np.isfinite(a).all(axis=(1, 2))
+    if allow_nan is not None and np.shape(allow_nan) == bad.shape:
+        bad &= ~np.asarray(allow_nan, bool)
+    if bad.any():
+        raise HybridfitError(f"{path}: {key!r} has NaN or inf values in frame {int(np.argmax(bad))} "
+                             f"({int(bad.sum())} frames)")
+    return a
+
+
+def point_names(path: str, data: dict, J: int) -> list[str] | None:
+    """The npz's joint_names (plain strings), checked against J points."""
+    if "joint_names" not in data:
+        return None
+    names = np.asarray(data["joint_names"])
+    if names.ndim != 1 or names.dtype.kind not in "US" or len(names) != J:
+        raise HybridfitError(f"{path}: 'joint_names' must be {J} strings, got {names.dtype} {names.shape}")
+    return [str(n) for n in names]
 
 
 def load_points(path: str, dataset: str | None) -> list[tuple[str, np.ndarray, list[str] | None]]:
@@ -27,30 +59,56 @@ def load_points(path: str, dataset: str | None) -> list[tuple[str, np.ndarray, l
     label = Path(path).name
     if path.endswith(".npz"):
         data = load_npz(path)
-        names = [str(n) for n in data["joint_names"]] if "joint_names" in data else None
         if "joints" in data:
-            return [(label, np.asarray(data["joints"], float), names)]
+            failed = np.asarray(data["failed"], bool) if "failed" in data else None
+            joints = points_array(path, data, "joints", failed)
+            return [(label, joints, point_names(path, data, joints.shape[1]))]
         if "proposals" in data:
-            from ..objective import normalise_confidences
+            from ..io import load_proposals
 
-            p = np.asarray(data["proposals"], float)
-            w = normalise_confidences(data["confidences"]) if "confidences" in data else np.ones(p.shape[:3])
+            z = load_proposals(path)
+            p, w = z["proposals"], z["confidences"]
+            names = point_names(path, z, p.shape[1])
             top = np.take_along_axis(p, w.argmax(axis=-1)[..., None, None], axis=2)[:, :, 0]
             out = [(f"{label} top-1", top, names)]
-            if "ground_truth" in data:
-                out.append((f"{label} Oracle", oracle(p, data["ground_truth"], w), names))
-            if "optimized" in data:
-                out.append((f"{label} optimized", np.asarray(data["optimized"], float), names))
+            if "ground_truth" in z:
+                out.append((f"{label} Oracle", oracle(p, points_array(path, z, "ground_truth"), w), names))
+            if "optimized" in z:
+                out.append((f"{label} optimized", points_array(path, z, "optimized"), names))
             return out
         if "optimized" in data:
-            return [(label, np.asarray(data["optimized"], float), names)]
+            pts = points_array(path, data, "optimized")
+            return [(label, pts, point_names(path, data, pts.shape[1]))]
         raise HybridfitError(f"{path}: no 'joints', 'proposals' or 'optimized' key")
     if dataset is None:
         raise HybridfitError(f"{path}: a results text file needs --dataset (icvl, nyu or msra)")
-    from ..datasets.results import read_xyz
     from ..datasets.skeletons import skeleton
 
-    return [(label, read_xyz(path, dataset), list(skeleton(dataset).model_names))]
+    return [(label, read_results(path, dataset), list(skeleton(dataset).model_names))]
+
+
+def far_frames(path: str) -> tuple[np.ndarray, float] | None:
+    """Frames of a fits npz whose fit is far from the proposals: fewer than half of the
+    points within the inlier distance of one of their proposals (``inliers`` as written by
+    ``fit``, or computed from the file's proposals); (frames, distance mm) or None."""
+    if not path.endswith(".npz"):
+        return None
+    data = load_npz(path)
+    if "joints" not in data:
+        return None
+    failed = np.asarray(data["failed"], bool) if "failed" in data else np.zeros(len(data["joints"]), bool)
+    Q = np.asarray(data["joints"]).shape[1]
+    if "inliers" in data:
+        count = np.asarray(data["inliers"])
+        dist = float(data["inlier_distance_mm"]) if "inlier_distance_mm" in data else INLIER_DISTANCE_MM
+    elif "proposals" in data and "confidences" in data:
+        dist = INLIER_DISTANCE_MM
+        count = inliers(data["joints"], data["proposals"], data["confidences"], dist)
+    else:
+        return None
+    if count.shape != failed.shape:
+        raise HybridfitError(f"{path}: 'inliers' has shape {count.shape}, expected ({len(failed)},)")
+    return np.flatnonzero((count < Q / 2) & ~failed), dist
 
 
 def load_truth(args) -> tuple[np.ndarray, list[str] | None]:
@@ -58,20 +116,20 @@ def load_truth(args) -> tuple[np.ndarray, list[str] | None]:
     if args.ground_truth:
         if not args.dataset:
             raise HybridfitError("--ground-truth needs --dataset (icvl, nyu or msra)")
-        from ..datasets.results import read_xyz
         from ..datasets.skeletons import skeleton
 
-        return read_xyz(args.ground_truth, args.dataset), list(skeleton(args.dataset).model_names)
+        return read_results(args.ground_truth, args.dataset), list(skeleton(args.dataset).model_names)
     if args.data:
         from ..datasets import open_dataset
 
         ds = open_dataset(args.data, args.dataset if args.dataset and Path(args.data).suffix != ".npz" else None)
-        return np.asarray(ds.joints_xyz, float), list(ds.joint_names)
+        truth = points_array(str(args.data), {"joints_xyz": ds.joints_xyz}, "joints_xyz")
+        return truth, list(ds.joint_names)
     if args.predictions.endswith(".npz"):
         data = load_npz(args.predictions)
         if "ground_truth" in data:
-            names = [str(n) for n in data["joint_names"]] if "joint_names" in data else None
-            return np.asarray(data["ground_truth"], float), names
+            truth = points_array(args.predictions, data, "ground_truth")
+            return truth, point_names(args.predictions, data, truth.shape[1])
     raise HybridfitError("no ground truth: give DATA, --ground-truth LABELS, or an npz with 'ground_truth'")
 
 
@@ -106,18 +164,23 @@ def register(sub) -> None:
     p.add_argument("--compare", nargs="+", default=[], metavar="FILE", help="further results files or npz to compare")
     p.add_argument("--frames", metavar="START:STOP",
                    help="evaluate only these frames of the ground truth (inputs with all frames are cut alike)")
-    p.add_argument("--plot", metavar="OUT.png", help="draw the success-rate curves")
+    p.add_argument("--plot", metavar="OUT.png", help="draw the success-rate curves (a PNG, or another format matplotlib writes)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from .calibrate import frame_slice
 
+    if args.plot:
+        check_output(args.plot, "--plot")
+        check_image_format(args.plot, "--plot")
     truth, truth_names = load_truth(args)
-    sel = frame_slice(args.frames, len(truth))
+    n_truth = len(truth)
+    sel = frame_slice(args.frames, n_truth)
     methods = []
     for path in [args.predictions, *args.compare]:
         for label, pts, names in load_points(path, args.dataset):
+            first_len = len(pts) if path is args.predictions else first_len
             if len(pts) == len(truth):
                 pts = pts[sel]  # else: already the selected frames
             methods.append((label, aligned(pts, names, truth[sel], truth_names, path)))
@@ -139,10 +202,26 @@ def run(args) -> int:
     print()
     _table(["point"] + [m[0] for m in methods],
            [[n] + [f"{pj[j]:.2f}" for pj in per_joint] for j, n in enumerate(names)])
+    report_far_frames(args.predictions, np.arange(n_truth)[sel], first_len == n_truth)
     if args.plot:
         plot_success(curves, args.plot, f"Success rate on {len(truth)} frames")
         print(f"plot -> {args.plot}")
     return 0
+
+
+def report_far_frames(path: str, chosen: np.ndarray, all_frames: bool) -> None:
+    """Print the evaluated frames (ground-truth indices ``chosen``) whose fit is far from the
+    proposals: a count and the first 10. ``all_frames``: the file has every ground-truth
+    frame (else only the chosen ones)."""
+    far = far_frames(path)
+    if far is None:
+        return
+    idx, dist = far
+    frames = idx[np.isin(idx, chosen)] if all_frames else chosen[idx[idx < len(chosen)]]
+    if len(frames):
+        shown = ", ".join(str(int(f)) for f in frames[:10]) + (", ..." if len(frames) > 10 else "")
+        print(f"\n{len(frames)} frames whose fit is far from the proposals (fewer than half of the points within "
+              f"{dist:g} mm of one of their proposals): {shown}")
 
 
 def _table(header, rows) -> None:

@@ -8,7 +8,8 @@ import numpy as np
 from ..camera import xyz_to_uvd
 from ..dataset import load_dataset
 from ..errors import HybridfitError
-from ..io import load_npz, load_proposals
+from ..io import check_output, load_npz, load_proposals
+from ._common import check_image_format
 
 
 def register(sub) -> None:
@@ -55,6 +56,8 @@ def _skeleton(ax, uv, parents, color: str, label: str, marker: str = "o", ls: st
 def run(args) -> int:
     import matplotlib
 
+    check_output(args.out)
+    check_image_format(args.out)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

@@ -117,6 +117,13 @@ class Forest:
         return forest
 
     def _check(self, where) -> None:
+        for k, ndim, kinds in (("node_feature", 2, "iuf"), ("node_threshold", 1, "iuf"), ("node_left", 1, "iu"),
+                               ("node_right", 1, "iu"), ("node_leaf", 1, "iu"), ("roots", 1, "iu"),
+                               ("leaf_offsets", 4, "iuf"), ("leaf_weights", 3, "iuf")):
+            a = np.asarray(getattr(self, k))
+            if a.ndim != ndim or a.dtype.kind not in kinds:
+                raise HybridfitError(f"{where}: forest array {k!r} is {a.dtype} {a.shape}, expected {ndim} dimensions "
+                                     f"of {'integers' if kinds == 'iu' else 'numbers'} (corrupt file?)")
         N, L = len(self.node_threshold), len(self.leaf_weights)
         ok = (self.node_feature.shape == (N, 4) and all(len(getattr(self, k)) == N for k in ("node_left", "node_right", "node_leaf"))
               and self.leaf_offsets.shape[:3] == self.leaf_weights.shape and self.leaf_offsets.shape[3:] == (3,)
@@ -126,6 +133,19 @@ class Forest:
               and ((self.node_left >= 0) | (self.node_leaf >= 0)).all())
         if not ok:
             raise HybridfitError(f"{where}: inconsistent forest arrays (corrupt file?)")
+        node = np.arange(N)
+        split = self.node_left >= 0
+        links = ((self.node_left >= -1).all() and (self.node_right >= -1).all() and (self.node_leaf >= -1).all()
+                 and (self.node_left[split] > node[split]).all() and (self.node_right[split] > node[split]).all()
+                 and (self.node_leaf[~split] >= 0).all())
+        if not links:  # children always follow their parent: this also rules out cycles
+            raise HybridfitError(f"{where}: forest node links out of range (corrupt file?)")
+        for k in ("node_feature", "node_threshold", "leaf_offsets", "leaf_weights"):
+            a = getattr(self, k)
+            if a.dtype.kind not in "iuf" or not np.isfinite(a).all():
+                raise HybridfitError(f"{where}: forest array {k!r} is not all finite numbers (corrupt file?)")
+        if (self.leaf_weights < 0).any():
+            raise HybridfitError(f"{where}: forest array 'leaf_weights' has negative values (corrupt file?)")
         for k, dt in (("node_feature", np.float32), ("node_threshold", np.float32), ("node_left", np.int32),
                       ("node_right", np.int32), ("node_leaf", np.int32), ("roots", np.int32),
                       ("leaf_offsets", np.float32), ("leaf_weights", np.float32)):
