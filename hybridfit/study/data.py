@@ -26,6 +26,13 @@ from .spec import DatasetData, ProposalsData, SyntheticDepthData, SyntheticPropo
 ProposalSet = dict[str, np.ndarray]
 
 
+def _skeleton_file(data) -> bool:
+    """Whether the data names its skeleton by a user's skeleton file."""
+    from ..datasets.skeletons import is_skeleton_file
+
+    return isinstance(getattr(data, "dataset", None), str) and is_skeleton_file(data.dataset)
+
+
 def file_hash(path: Path) -> str:
     """sha256 of a file, or of a data-set folder's meta.json and labels.npz."""
     path = Path(path)
@@ -57,6 +64,8 @@ class StudyData:
                 payload[name] = file_hash(value)
             elif isinstance(value, list):
                 payload[name] = [file_hash(v) for v in value]
+        if _skeleton_file(d):
+            payload["dataset"] = file_hash(Path(d.dataset))  # a user's skeleton: its content, not its path
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:20]
 
     def uses_proposal_set(self) -> bool:
@@ -211,7 +220,8 @@ class StudyData:
             from ..datasets.skeletons import skeleton, with_derived_points
 
             d, c = self.data, self.data.calibrate
-            payload = {"ground_truth": file_hash(d.ground_truth), "dataset": d.dataset, **c.model_dump(mode="json")}
+            dataset = file_hash(Path(d.dataset)) if _skeleton_file(d) else d.dataset
+            payload = {"ground_truth": file_hash(d.ground_truth), "dataset": dataset, **c.model_dump(mode="json")}
 
             def make(tmp: Path) -> None:
                 sk = skeleton(d.dataset)
