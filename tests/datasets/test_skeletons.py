@@ -307,3 +307,24 @@ def test_the_readmes_example_is_a_valid_skeleton(tmp_path):
     (tmp_path / "example.toml").write_text(re.search(r"```toml\n(.*?)```", text, re.S).group(1))
     sk = skeleton(str(tmp_path / "example.toml"))
     assert sk.dataset == "mydata" and sk.derived == {"my_palm": {"wrist": 0.5, "middle_mcp": 0.5}}
+
+
+def test_a_studys_data_key_follows_its_skeleton_files_content(tmp_path):
+    from hybridfit.study import load_spec
+    from hybridfit.study.cache import Cache
+    from hybridfit.study.data import StudyData
+
+    write_xyz(tmp_path / "r.txt", hand_points("icvl", 2), "icvl")
+    skel = tmp_path / "a.toml"
+    skel.write_text(to_toml(skeleton("icvl")))
+    study = tmp_path / "s.toml"
+
+    def key(name):
+        study.write_text(f'name = "s"\n[data]\nkind = "proposals"\nfile = "r.txt"\ndataset = "{name}"\n')
+        return StudyData(load_spec(study).data, Cache(tmp_path / "cache")).key
+
+    first = key("a.toml")
+    (tmp_path / "b.toml").write_text(skel.read_text())
+    assert key("b.toml") == first  # moved: same content, same data
+    skel.write_text(skel.read_text().replace("wrist = 0.4", "wrist = 0.6").replace("index_mcp = 0.15", "index_mcp = -0.05"))
+    assert key("a.toml") != first
