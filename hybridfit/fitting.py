@@ -83,18 +83,21 @@ class _Spec:
     search_radius_mm: float
 
 
-def _fit_one(spec: _Spec, frame: int, proposals: np.ndarray, confidences: np.ndarray):
-    problem = Problem(spec.model, spec.objective, proposals, confidences, spec.point_names, spec.search_radius_mm)
+def _fit_one(spec: _Spec, frame: int, proposals: np.ndarray, confidences: np.ndarray, observation=None):
+    problem = Problem(spec.model, spec.objective, proposals, confidences, spec.point_names, spec.search_radius_mm,
+                      observation)
     result = spec.optimizer.run(problem, spec.budget, np.random.default_rng([spec.seed, frame]))
     points = problem.points(result.params[None])[0]
-    return result.params, points, spec.model.forward(result.params), result.loss, result.evaluations
+    loss = result.loss if getattr(spec.objective, "additive", True) else float(problem.evaluate(result.params[None])[0])
+    return result.params, points, spec.model.forward(result.params), loss, result.evaluations
 
 
-def _fit_chunk(spec: _Spec, frames: Sequence[int], proposals, confidences):
+def _fit_chunk(spec: _Spec, frames: Sequence[int], proposals, confidences, observations=None):
     out = []
     for i, f in enumerate(frames):
         try:
-            out.append((f, _fit_one(spec, f, proposals[i], confidences[i]), None))
+            obs = None if observations is None else observations[i]
+            out.append((f, _fit_one(spec, f, proposals[i], confidences[i], obs), None))
         except HybridfitError as err:  # a user error in this frame's input: recorded, the others go on
             out.append((f, None, str(err)))
         except Exception as err:  # a plugin's bug: propagates, naming the plugins
@@ -107,12 +110,14 @@ def _name(plugin) -> str:
     return getattr(plugin, "name", None) or type(plugin).__name__
 
 
-def _first_problem(model, objective, proposals, confidences, names, search_radius_mm) -> Problem | None:
+def _first_problem(model, objective, proposals, confidences, names, search_radius_mm,
+                   observations=None) -> Problem | None:
     """The problem of the first frame that can be built (None if none can): frames that
     cannot are recorded per frame later, they do not abort the run."""
     for f in range(len(proposals)):
         try:
-            return Problem(model, objective, proposals[f], confidences[f], names, search_radius_mm)
+            return Problem(model, objective, proposals[f], confidences[f], names, search_radius_mm,
+                           None if observations is None else observations[f])
         except HybridfitError:
             continue
     return None
@@ -160,6 +165,7 @@ def fit(
     search_radius_mm: float = 60.0,
     jobs: int = 1,
     progress: bool = False,
+    observations: Sequence[Any] | None = None,
 ) -> FitResult:
     """Fit the model to each frame's proposals.
 
@@ -167,6 +173,8 @@ def fit(
     joint_names: the J proposal points as model joint or derived-point names (default: the
     model's joints in order). Plugins are registered names (with ``*_config`` settings) or
     plugin instances. budget: objective evaluations per frame, honoured exactly.
+    observations: per frame a ``hybridfit.objective.Observation`` (the depth), needed by
+    objectives that ``observes_depth`` (``rendered-depth``, ``hybrid``).
     """
     check_fit_options(budget, seed, search_radius_mm, jobs)
     model = registry.create("model", model, model_config)
@@ -177,8 +185,13 @@ def fit(
     if names != tuple(model.joint_names):
         model.point_matrix(names)  # an unknown point name fails every frame: raised at once
     F = len(proposals)
+    if getattr(objective, "observes_depth", False) and observations is None:
+        raise HybridfitError(f"objective {objective.name or type(objective).__name__} compares hypotheses with the "
+                             f"depth image: give the frames' depth (observations)")
+    if observations is not None and len(observations) != F:
+        raise HybridfitError(f"{len(observations)} observations for {F} frames of proposals")
     spec = _Spec(model, objective, optimizer, int(budget), int(seed), names, float(search_radius_mm))
-    problem = _first_problem(model, objective, proposals, confidences, names, search_radius_mm)
+    problem = _first_problem(model, objective, proposals, confidences, names, search_radius_mm, observations)
     if problem is not None:  # a budget too small fails every frame: raised at once
         optimizer.check_budget(Task(problem, budget))
         check_scale(model, proposals, confidences, names)
@@ -209,13 +222,16 @@ def fit(
     try:
         if jobs <= 1 or F <= 1:
             for f in range(F):
-                store(_fit_chunk(spec, [f], proposals[f : f + 1], confidences[f : f + 1]))
+                store(_fit_chunk(spec, [f], proposals[f : f + 1], confidences[f : f + 1],
+                                 None if observations is None else observations[f : f + 1]))
                 bar.update(1)
         else:
             chunks = np.array_split(np.arange(F), min(F, jobs * 8))
             ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
             with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-                futures = [pool.submit(_fit_chunk, spec, list(c), proposals[c], confidences[c]) for c in chunks if len(c)]
+                futures = [pool.submit(_fit_chunk, spec, list(c), proposals[c], confidences[c],
+                                       None if observations is None else [observations[i] for i in c])
+                           for c in chunks if len(c)]
                 try:
                     for fut in as_completed(futures):
                         items = fut.result()

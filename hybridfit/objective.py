@@ -7,23 +7,74 @@ Contract: the loss is a sum of per-point terms, so the loss on a subset of point
 stage of stepwise optimisation) is the sum of those points' terms, and the stage losses of
 a stepwise fit add up to the full loss. A point with no proposals (all confidences 0)
 contributes nothing.
+
+Objectives that look at the depth image (``observes_depth = True``) bind to the frame's
+:class:`Observation` and the model as well (``bind_observed``), and score the model's
+joints too: loss(points, subset, joints (N, J, 3)). An image term is not a sum over points
+(``additive = False``): on a stage's subset it still scores the whole rendered hand, with the
+parameters outside the stage at their current values, so the stage losses of a stepwise fit
+do not add up to the full loss.
 """
 
 from __future__ import annotations
 
 import abc
-from typing import Callable
+from dataclasses import dataclass
+from typing import Any, Callable, ClassVar
 
 import numpy as np
 
+from .camera import Intrinsics
+from .errors import HybridfitError
 from .plugin import Plugin
 
 #: loss(points (N, Q, 3) mm, subset (m,) int64 point indices) -> (N,) float64 losses
 Loss = Callable[[np.ndarray, np.ndarray], np.ndarray]
+#: loss(points (N, Q, 3) mm, subset (m,), joints (N, J, 3) mm model joints) -> (N,) float64 losses
+ObservedLoss = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One frame as the sensor saw it, cut to the hand.
+
+    depth_mm: (h, w) float32 depth in mm of the hand region ``box`` = (u0, v0, u1, v1)
+    (pixels of the full image, end exclusive), 0 where there is no measurement or no hand;
+    intrinsics: of the full image.
+    """
+
+    depth_mm: np.ndarray
+    box: tuple[int, int, int, int]
+    intrinsics: Intrinsics
+
+    @classmethod
+    def from_depth(cls, depth: np.ndarray, intrinsics: Intrinsics, mask: np.ndarray | None = None,
+                   margin: float = 0.15, where: str = "frame") -> "Observation":
+        """A full depth image (H, W) mm and its hand mask (H, W) bool (default: depth > 0) ->
+        the hand's bounding box grown by ``margin`` of its size on each side, the depth
+        outside the mask set to 0. ``where`` names the frame in errors."""
+        depth = np.asarray(depth)
+        if depth.ndim != 2 or depth.shape != (intrinsics.height, intrinsics.width):
+            raise HybridfitError(f"{where}: depth image of shape {depth.shape}, the intrinsics say "
+                                 f"{intrinsics.height}x{intrinsics.width}")
+        hand = depth > 0 if mask is None else np.asarray(mask, bool) & (depth > 0)
+        if not hand.any():
+            raise HybridfitError(f"{where}: no hand pixels in the depth image")
+        vs, us = np.nonzero(hand)
+        grow_u, grow_v = margin * (us.max() + 1 - us.min()), margin * (vs.max() + 1 - vs.min())
+        u0, u1 = max(int(us.min() - grow_u), 0), min(int(np.ceil(us.max() + 1 + grow_u)), depth.shape[1])
+        v0, v1 = max(int(vs.min() - grow_v), 0), min(int(np.ceil(vs.max() + 1 + grow_v)), depth.shape[0])
+        crop = np.where(hand, depth, 0)[v0:v1, u0:u1].astype(np.float32)
+        return cls(np.ascontiguousarray(crop), (u0, v0, u1, v1), intrinsics)
 
 
 class Objective(Plugin, abc.ABC):
     """Scores hypotheses' points against a frame's proposals; lower is better."""
+
+    #: capability: bind_observed needs the frame's depth Observation and the model
+    observes_depth: ClassVar[bool] = False
+    #: capability: the loss is a sum of per-point terms (stage losses add up)
+    additive: ClassVar[bool] = True
 
     @abc.abstractmethod
     def bind(self, proposals: np.ndarray, weights: np.ndarray) -> Loss:
@@ -32,6 +83,13 @@ class Objective(Plugin, abc.ABC):
         proposals: (Q, K, 3) mm; weights: (Q, K) confidences normalised per point to sum to
         1 (or all 0 for a point without proposals). Returns loss(points, subset).
         """
+
+    def bind_observed(self, proposals: np.ndarray, weights: np.ndarray, observation: Observation,
+                      model: Any) -> ObservedLoss:
+        """Fix an objective that ``observes_depth`` to one frame: its proposals and weights
+        as in ``bind``, its depth ``observation`` and the hand ``model`` (for its surface).
+        Returns loss(points, subset, joints)."""
+        raise NotImplementedError(f"objective {self.name or type(self).__name__} does not observe depth")
 
     def lower_bound(self, weights: np.ndarray) -> float:
         """A lower bound of the loss for these weights (-inf when unknown)."""

@@ -10,7 +10,7 @@ import numpy as np
 from .errors import HybridfitError
 from .geometry import kabsch, matrix_to_quaternion
 from .model import ORIENTATION, POSITION, HandModel
-from .objective import Objective, normalise_confidences
+from .objective import Objective, Observation, normalise_confidences
 
 
 class Problem:
@@ -19,6 +19,8 @@ class Problem:
     proposals: (Q, K, 3) mm for the Q points named by ``point_names`` (default: the
     model's joints); confidences: (Q, K) non-negative. The search box is the model's
     bounds, with the position limited to ``search_radius_mm`` around the initial guess.
+    observation: the frame's depth (needed by objectives that ``observes_depth``); x0: (P,)
+    an initial guess (tracking: the previous frame's fit) instead of the proposals' one.
     """
 
     def __init__(
@@ -29,6 +31,8 @@ class Problem:
         confidences: np.ndarray,
         point_names: Sequence[str] | None = None,
         search_radius_mm: float = 60.0,
+        observation: Observation | None = None,
+        x0: np.ndarray | None = None,
     ) -> None:
         self.model = model
         self.objective = objective
@@ -43,10 +47,17 @@ class Problem:
             self.point_matrix = None
         else:
             self.point_matrix = model.point_matrix(self.point_names)
-        self.loss = objective.bind(self.proposals, self.weights)
+        self.observed = bool(getattr(objective, "observes_depth", False))
+        if self.observed:
+            if observation is None:
+                raise HybridfitError(f"objective {objective.name or type(objective).__name__} compares hypotheses "
+                                     f"with the depth image, and this frame has none")
+            self.loss = objective.bind_observed(self.proposals, self.weights, observation, model)
+        else:
+            self.loss = objective.bind(self.proposals, self.weights)
         self.all_points = np.arange(len(self.point_names), dtype=np.int64)
         self._needed: dict[bytes, np.ndarray | None] = {}
-        self.x0 = initial_guess(self)
+        self.x0 = initial_guess(self) if x0 is None else model.clip(np.asarray(x0, dtype=float)[None])[0]
         lower, upper = model.bounds()
         lower, upper = lower.astype(float).copy(), upper.astype(float).copy()
         lower[POSITION] = self.x0[POSITION] - search_radius_mm
@@ -82,7 +93,16 @@ class Problem:
     def evaluate(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
         """(N, P) -> (N,) loss over the points in ``subset`` (all by default)."""
         subset = self.all_points if subset is None else subset
+        if self.observed:  # an image term needs the whole hand
+            joints = self.model.forward(params)
+            return self.loss(self._from_joints(joints), subset, joints)
         return self.loss(self.points(params, subset), subset)
+
+    def _from_joints(self, joints: np.ndarray) -> np.ndarray:
+        """All model joints (N, J, 3) -> (N, Q, 3) points."""
+        if self.point_matrix is None:
+            return joints
+        return np.einsum("qj,njc->nqc", self.point_matrix, joints)
 
     def stage_points(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """The model's stages as (name, parameter indices, point indices).
@@ -98,6 +118,15 @@ class Problem:
             (st.name, np.asarray(st.parameters, dtype=np.int64), np.flatnonzero(point_stage == s).astype(np.int64))
             for s, st in enumerate(stages)
         ]
+
+
+def point_depths(parents: np.ndarray, point_matrix: np.ndarray) -> np.ndarray:
+    """(Q,) each point's depth in the kinematic tree (root joint 0): that of the deepest joint
+    it depends on. parents (J,), point_matrix (Q, J) as ``HandModel.point_matrix``."""
+    depth = np.zeros(len(parents), dtype=np.int64)
+    for j, p in enumerate(parents):  # parents precede children
+        depth[j] = 0 if p < 0 else depth[p] + 1
+    return np.array([depth[np.flatnonzero(row)].max() for row in point_matrix], dtype=np.int64)
 
 
 def top_proposals(proposals: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -176,10 +176,48 @@ def _objective_frame(seed: int = 0, Q: int = 6, K: int = 3):
     return proposals, normalise_confidences(conf), points
 
 
+def _observed_frame(seed: int = 0, K: int = 3):
+    """For objectives that observe depth: hand26, the depth Observation of a pose 400 mm in
+    front of the camera, proposals (J, K, 3) around its joints, weights (J, K), and the joints
+    (5, J, 3) of that pose perturbed (row 0 unperturbed)."""
+    from .camera import Intrinsics
+    from .objective import Observation
+    from .render import Renderer
+    from .synthetic import PALM_TO_CAMERA
+    from .geometry import matrix_to_quaternion
+
+    rng = np.random.default_rng(seed)
+    model = registry.create("model", "hand26")
+    pose = model.default_params().astype(float)
+    pose[:3] = (0.0, 0.0, 400.0)
+    pose[3:7] = matrix_to_quaternion(PALM_TO_CAMERA)
+    intrinsics = Intrinsics(width=160, height=120, cx=80.0, cy=60.0, fx=120.0, fy=120.0)
+    depth = Renderer(model, intrinsics).render(pose)[0][0]
+    params = np.repeat(pose[None], 5, axis=0)
+    params[1:, :3] += rng.normal(0.0, 10.0, size=(4, 3))
+    params[1:, 7:] += rng.normal(0.0, 0.2, size=(4, model.n_params - 7))
+    joints = model.forward(model.clip(params))
+    proposals = joints[0][:, None] + rng.normal(0.0, 8.0, size=(model.n_joints, K, 3))
+    conf = rng.random((model.n_joints, K))
+    conf[1] = 0.0
+    return model, Observation.from_depth(depth, intrinsics), proposals, normalise_confidences(conf), joints
+
+
+def _bound_frame(objective: Objective, seed: int = 0):
+    """(loss(points, subset), proposals, weights, points) of a check frame: random points for
+    proposal objectives, a rendered hand's joints for objectives that observe depth (which
+    then score the points as the model's joints)."""
+    if not getattr(objective, "observes_depth", False):
+        proposals, weights, points = _objective_frame(seed)
+        return objective.bind(proposals, weights), proposals, weights, points
+    model, observation, proposals, weights, joints = _observed_frame(seed)
+    bound = objective.bind_observed(proposals, weights, observation, model)
+    return (lambda points, subset: bound(points, subset, points)), proposals, weights, joints
+
+
 def check_objective_shapes(objective: Objective) -> None:
     """loss(points (N, Q, 3), subset) is (N,) finite float64, N = 0 included."""
-    proposals, weights, points = _objective_frame()
-    loss = objective.bind(proposals, weights)
+    loss, proposals, weights, points = _bound_frame(objective)
     every = np.arange(len(proposals), dtype=np.int64)
     out = loss(points, every)
     _require(isinstance(out, np.ndarray) and out.shape == (5,) and out.dtype == np.float64,
@@ -190,8 +228,7 @@ def check_objective_shapes(objective: Objective) -> None:
 
 def check_objective_batching(objective: Objective) -> None:
     """Scoring a batch gives the same losses as scoring each hypothesis alone."""
-    proposals, weights, points = _objective_frame(1)
-    loss = objective.bind(proposals, weights)
+    loss, proposals, weights, points = _bound_frame(objective, 1)
     every = np.arange(len(proposals), dtype=np.int64)
     rows = np.array([loss(points[i : i + 1], every)[0] for i in range(len(points))])
     np.testing.assert_allclose(loss(points, every), rows, rtol=1e-12, atol=1e-12,
@@ -200,7 +237,10 @@ def check_objective_batching(objective: Objective) -> None:
 
 def check_objective_sum_over_points(objective: Objective) -> None:
     """The loss is a sum over points: disjoint subsets add up, the empty subset scores 0,
-    and a point without proposals contributes nothing wherever it is."""
+    and a point without proposals contributes nothing wherever it is. (Only for objectives
+    declared ``additive``; an image term scores the whole hand on any subset.)"""
+    if not getattr(objective, "additive", True):
+        return
     proposals, weights, points = _objective_frame(2)
     loss = objective.bind(proposals, weights)
     Q = len(proposals)
@@ -219,8 +259,7 @@ def check_objective_sum_over_points(objective: Objective) -> None:
 
 def check_objective_lower_bound(objective: Objective) -> None:
     """No loss is below ``lower_bound(weights)``, at the proposals themselves included."""
-    proposals, weights, points = _objective_frame(3)
-    loss = objective.bind(proposals, weights)
+    loss, proposals, weights, points = _bound_frame(objective, 3)
     every = np.arange(len(proposals), dtype=np.int64)
     at_top = proposals[np.arange(len(proposals)), weights.argmax(axis=-1)][None]
     low = objective.lower_bound(weights)
@@ -231,11 +270,29 @@ def check_objective_lower_bound(objective: Objective) -> None:
 
 def check_objective_deterministic(objective: Objective) -> None:
     """Binding twice and scoring twice gives bit-identical losses."""
-    proposals, weights, points = _objective_frame(4)
+    loss, proposals, weights, points = _bound_frame(objective, 4)
     every = np.arange(len(proposals), dtype=np.int64)
-    first = objective.bind(proposals, weights)(points, every)
-    second = objective.bind(proposals.copy(), weights.copy())(points.copy(), every)
+    first = loss(points, every)
+    second = _bound_frame(objective, 4)[0](points.copy(), every)
     np.testing.assert_array_equal(first, second, err_msg=f"{_label(objective)}: not deterministic")
+
+
+def check_objective_observed(objective: Objective) -> None:
+    """An objective that observes depth scores the rendered pose itself at least as well as
+    perturbed poses, and a Problem without the frame's depth is refused with a clear error.
+    (Nothing to check for proposal-only objectives.)"""
+    if not getattr(objective, "observes_depth", False):
+        return
+    loss, proposals, weights, joints = _bound_frame(objective, 5)
+    values = loss(joints, np.arange(len(proposals), dtype=np.int64))
+    _require(bool(values[0] <= values[1:].min()), f"{_label(objective)}: the observed pose scores {values[0]}, "
+             f"worse than a perturbed pose ({values[1:].min()})")
+    try:
+        Problem(registry.create("model", "hand26"), objective, proposals, weights)
+    except HybridfitError as err:
+        _require("depth" in str(err), f"{_label(objective)}: the error does not say the depth is missing: {err}")
+    else:
+        raise AssertionError(f"{_label(objective)}: a Problem without the depth image was accepted")
 
 
 # ------------------------------------------------------------------ optimizers
@@ -363,7 +420,7 @@ _CHECKS: dict[str, tuple[Callable, ...]] = {
     "model": _COMMON + (check_model_shapes, check_model_batching, check_model_default_pose,
                         check_model_bone_lengths, check_model_stages),
     "objective": _COMMON + (check_objective_shapes, check_objective_batching, check_objective_sum_over_points,
-                            check_objective_lower_bound, check_objective_deterministic),
+                            check_objective_lower_bound, check_objective_deterministic, check_objective_observed),
     "optimizer": _COMMON + (check_optimizer_budget, check_optimizer_deterministic, check_optimizer_bounds,
                             check_optimizer_subset, check_optimizer_min_budget),
 }

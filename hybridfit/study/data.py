@@ -51,6 +51,7 @@ class StudyData:
         self.data, self.cache, self.jobs, self.log = data, cache, jobs, log
         self._sets: dict[tuple[int, int], ProposalSet] = {}
         self._calibrated: dict[str, Any] | None = None
+        self._depth: dict[str, Any] | None = None
         self.key = self._key()
 
     # ------------------------------------------------------------------ identity
@@ -195,6 +196,32 @@ class StudyData:
                   joint_names=np.asarray(p.joint_names), ground_truth=np.asarray(ds.joints_xyz, float)[idx])
 
         return load_npz(self.cache.get("proposals", payload, make, ".npz")[1])
+
+    # ------------------------------------------------------------------ depth
+
+    def depth_frames(self) -> dict[str, Any]:
+        """The test frames' depth as ``observations`` (a list of ``Observation``, None for a
+        frame without hand pixels) and ground-truth model ``params`` (F, P), P = 0 when the
+        data has none; the same frames as the proposals. Forest data only."""
+        if self._depth is None:
+            from ..dataset import load_dataset
+            from ..forest.segment import dataset_masks
+            from ..objective import Observation
+
+            if not self.uses_proposal_set():
+                raise HybridfitError(f"data kind {self.data.kind!r} has no depth images; objectives that compare "
+                                     f"with the depth need synthetic-depth or dataset data")
+            test, _ = self._datasets()
+            ds = load_dataset(test)
+            frames = getattr(self.data, "frames", None)
+            idx = np.arange(len(ds) if frames is None else min(frames, len(ds)))
+            self.log(f"reading the depth of {len(idx)} test frames")
+            depths = np.asarray(ds.depths(idx))
+            masks = dataset_masks(ds, idx, depths)
+            obs = [Observation.from_depth(d, ds.intrinsics, m, where=f"{test}, frame {i}") if (m & (d > 0)).any()
+                   else None for i, d, m in zip(idx, depths, masks)]
+            self._depth = {"observations": obs, "params": np.asarray(ds.params, float)[idx]}
+        return self._depth
 
     # ------------------------------------------------------------------ model
 

@@ -19,9 +19,11 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
+from .. import registry
 from ..errors import HybridfitError
 from ..fitting import fit
 from ..metrics import joint_errors
+from ..tracking import TrackingSettings, track
 from .cache import Cache
 from .data import StudyData, baseline_errors
 from .executors import make_executor
@@ -86,16 +88,24 @@ def run_trial(settings: dict, model_config: dict, seed: int, data: dict) -> dict
     Returns per-frame errors (F, J) mm against the ground truth (NaN for failed frames),
     objective, evaluations, failed, messages and the trial's wall time per frame (after
     one untimed warm-up frame per worker and settings, so JIT compilation is not timed)."""
+    tracking = settings.get("tracking")
+    frames = np.arange(len(data["proposals"]))[::tracking["frame_step"] if tracking else 1]
+    data = {key: ([value[f] for f in frames] if key == "observations" else value[frames])
+            for key, value in data.items() if key != "joint_names"} | {"joint_names": data["joint_names"]}
     keep = np.flatnonzero(~data["empty"])
     F, J = data["proposals"].shape[:2]
 
     def run(frames):
-        return fit(data["proposals"][frames], data["confidences"][frames], model=settings["model"],
-                   model_config=model_config, objective=settings["objective"],
-                   objective_config=settings["objective_config"], optimizer=settings["optimizer"],
-                   optimizer_config=settings["optimizer_config"], budget=settings["budget"], seed=seed,
-                   joint_names=[str(n) for n in data["joint_names"]],
-                   search_radius_mm=settings["search_radius_mm"], jobs=1)
+        common = dict(model=settings["model"], model_config=model_config, objective=settings["objective"],
+                      objective_config=settings["objective_config"], optimizer=settings["optimizer"],
+                      optimizer_config=settings["optimizer_config"], budget=settings["budget"], seed=seed,
+                      joint_names=[str(n) for n in data["joint_names"]], search_radius_mm=settings["search_radius_mm"],
+                      observations=[data["observations"][f] for f in frames] if "observations" in data else None)
+        if tracking:  # one sequence: frame t starts from frame t-1's fit
+            first = data["params"][frames[0]] if tracking["first_frame"] == "ground-truth" else None
+            return track(data["proposals"][frames], data["confidences"][frames], first_params=first,
+                         settings={k: tracking[k] for k in TrackingSettings.model_fields}, **common)
+        return fit(data["proposals"][frames], data["confidences"][frames], jobs=1, **common)
 
     warm = digest([settings, model_config])
     if warm not in _WARM and len(keep):
@@ -192,12 +202,22 @@ def _baselines(study: Study, data: StudyData, variants, store: Store) -> list[st
     return list(seen)
 
 
+def _needs_depth(settings) -> bool:
+    """Whether a trial needs the depth frames: its objective observes depth, or it tracks from
+    the ground truth."""
+    objective = registry.create("objective", settings.objective, settings.objective_settings)
+    gt_start = settings.tracking is not None and settings.tracking.first_frame == "ground-truth"
+    return bool(getattr(objective, "observes_depth", False)) or gt_start
+
+
 def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: str, jobs: int,
                 scheduler: str | None, progress: bool, dask_processes: bool, summary: RunSummary) -> None:
     sets = {}
     for t in pending:  # shared steps first, once each, in this process
         s = t.variant.settings
-        sets.setdefault((s.k, s.proposal_set), data.proposals(s.k, s.proposal_set))
+        if (s.k, s.proposal_set, _needs_depth(s)) not in sets:
+            z = data.proposals(s.k, s.proposal_set)
+            sets[(s.k, s.proposal_set, _needs_depth(s))] = {**z, **data.depth_frames()} if _needs_depth(s) else z
     kwargs = {"processes": dask_processes} if executor == "dask" else {}
     ex = make_executor(executor, jobs, scheduler, **kwargs)
     try:
@@ -205,7 +225,7 @@ def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: s
         tasks = []
         for t in pending:
             s = t.variant.settings
-            tasks.append((s.as_dict(), data.model_config(s), t.seed, shared[(s.k, s.proposal_set)]))
+            tasks.append((s.as_dict(), data.model_config(s), t.seed, shared[(s.k, s.proposal_set, _needs_depth(s))]))
             store.start(t.key, t.variant.name, t.variant.index, "fit", s.as_dict(), t.seed)
         bar = tqdm(total=summary.total, initial=summary.skipped, unit="trial", desc="study", disable=not progress)
         try:

@@ -32,6 +32,7 @@ from ..datasets.skeletons import is_skeleton_file, skeleton
 from ..errors import HybridfitError
 from ..forest import ForestConfig
 from ..synthdata import GridConfig, SequenceConfig
+from ..tracking import TrackingSettings
 
 PLOTS = ("success", "k", "proposal_set", "budget", "variants", "per_joint")
 BASELINES = ("oracle", "top1")
@@ -41,6 +42,17 @@ METRICS = ("mean_error_mm", "median_error_mm", "fingertip_error_mm", "success_20
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", protected_namespaces=(), populate_by_name=True)
+
+
+class StudyTracking(TrackingSettings):
+    """Tracking in a study: the ``hybridfit.tracking`` settings plus where the first frame
+    starts and which frames are tracked."""
+
+    first_frame: Literal["proposals", "ground-truth"] = Field(
+        "proposals", description="frame 0's initial guess: its proposals, or the data's ground-truth model "
+        "parameters (FORTH's set-up)")
+    frame_step: int = Field(1, ge=1, description="track every n-th frame only (faster motion); the trial "
+                            "reports those frames")
 
 
 class TrialSettings(_Strict):
@@ -56,6 +68,8 @@ class TrialSettings(_Strict):
     proposal_set: int = Field(200, ge=1, description="|P~|: votes per joint into mean-shift (forest data only)")
     budget: int = Field(3400, ge=1, description="objective evaluations per frame")
     search_radius_mm: float = Field(60.0, gt=0)
+    tracking: StudyTracking | None = Field(None, description="track the sequence (each frame starts from the "
+                                           "previous fit) instead of fitting frames independently")
 
     @field_validator("model", "objective", "optimizer")
     @classmethod
@@ -76,8 +90,12 @@ class TrialSettings(_Strict):
         return self
 
     def as_dict(self) -> dict[str, Any]:
-        """The settings as written in study files (``*_config`` keys)."""
-        return self.model_dump(mode="json", by_alias=True)
+        """The settings as written in study files (``*_config`` keys; ``tracking`` only when set,
+        so the keys of trials that do not track stay what they were)."""
+        out = self.model_dump(mode="json", by_alias=True)
+        if out["tracking"] is None:
+            del out["tracking"]
+        return out
 
 
 class SyntheticProposalsData(_Strict):

@@ -1,0 +1,123 @@
+"""Tracking: fit a sequence frame by frame, each frame starting from the previous frame's fit.
+
+Frame t's initial guess (the centre of the optimiser's search) is frame t-1's fitted
+parameters; frame 0 starts from ``first_params`` (the paper's FORTH set-up: the ground
+truth) or, without them, from its proposals (``hybridfit.problem.initial_guess``). Frame
+t is optimised with ``numpy.random.default_rng([seed, t])``, like ``hybridfit.fit``; frames
+depend on each other, so a sequence runs in one process.
+
+Lost track: a fit is *lost* when fewer than ``lost_inlier_share`` of its points lie within
+``lost_distance_mm`` of one of their proposals (needs proposals; frames without any
+proposal are never called lost). ``on_lost = "reinit"`` starts the next frame from its own
+proposals instead of the lost fit; ``"continue"`` (FORTH) keeps tracking from it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal, Mapping, Sequence
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from tqdm.auto import tqdm
+
+from . import registry
+from .errors import HybridfitError
+from .fitting import FitResult, check_fit_options
+from .io import validate_proposals
+from .metrics import inliers
+from .problem import Problem
+
+
+class TrackingSettings(BaseModel):
+    """How a sequence is tracked (see the module docstring)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    on_lost: Literal["continue", "reinit"] = Field("reinit", description="when a fit is lost: keep tracking from it "
+                                                   "(continue, FORTH) or start the next frame from its proposals")
+    lost_inlier_share: float = Field(0.5, ge=0, le=1, description="a fit with fewer points near one of their "
+                                     "proposals than this share is lost")
+    lost_distance_mm: float = Field(40.0, gt=0, description="how near a point must be to a proposal, mm")
+
+
+@dataclass
+class TrackResult(FitResult):
+    """A FitResult plus per frame: lost (F,) bool, the fit was lost; started_from_proposals
+    (F,) bool, the frame's initial guess came from its proposals (frame 0 without
+    first_params, and every frame after a lost one under ``reinit``)."""
+
+    lost: np.ndarray | None = None
+    started_from_proposals: np.ndarray | None = None
+
+
+def track(
+    proposals: np.ndarray,
+    confidences: np.ndarray,
+    *,
+    model: Any = "hand26",
+    objective: Any = "clamped-confidence",
+    optimizer: Any = "stepwise-pso",
+    budget: int = 3400,
+    seed: int = 0,
+    joint_names: Sequence[str] | None = None,
+    model_config: Mapping[str, Any] | None = None,
+    objective_config: Mapping[str, Any] | None = None,
+    optimizer_config: Mapping[str, Any] | None = None,
+    search_radius_mm: float = 60.0,
+    observations: Sequence[Any] | None = None,
+    first_params: np.ndarray | None = None,
+    settings: TrackingSettings | Mapping[str, Any] | None = None,
+    progress: bool = False,
+) -> TrackResult:
+    """Track a sequence: arguments as ``hybridfit.fit`` (proposals (F, Q, K, 3) mm in frame
+    order), plus first_params (P,) frame 0's initial guess and the tracking ``settings``."""
+    check_fit_options(budget, seed, search_radius_mm, 1)
+    settings = settings if isinstance(settings, TrackingSettings) else TrackingSettings(**(settings or {}))
+    model = registry.create("model", model, model_config)
+    objective = registry.create("objective", objective, objective_config)
+    optimizer = registry.create("optimizer", optimizer, optimizer_config)
+    names = tuple(str(n) for n in joint_names) if joint_names is not None else tuple(model.joint_names)
+    proposals, confidences = validate_proposals(proposals, confidences, names)
+    F, P, Q, J = len(proposals), model.n_params, len(names), model.n_joints
+    if observations is not None and len(observations) != F:
+        raise HybridfitError(f"{len(observations)} observations for {F} frames of proposals")
+    if first_params is not None:
+        first_params = np.asarray(first_params, dtype=float)
+        if first_params.shape != (P,) or not np.isfinite(first_params).all():
+            raise HybridfitError(f"first_params must be {P} finite model parameters, got shape {first_params.shape}")
+    result = TrackResult(params=np.full((F, P), np.nan), joints=np.full((F, Q, 3), np.nan),
+                         model_joints=np.full((F, J, 3), np.nan), objective=np.full(F, np.nan),
+                         evaluations=np.zeros(F, np.int64), joint_names=names, failed=np.ones(F, bool),
+                         lost=np.zeros(F, bool), started_from_proposals=np.zeros(F, bool))
+    start = first_params
+    t = 0
+    try:
+        for t in tqdm(range(F), disable=not progress, unit="frame", desc="track"):
+            result.started_from_proposals[t] = start is None
+            try:
+                problem = Problem(model, objective, proposals[t], confidences[t], names, search_radius_mm,
+                                  None if observations is None else observations[t], start)
+                res = optimizer.run(problem, budget, np.random.default_rng([seed, t]))
+            except HybridfitError as err:  # this frame cannot be fitted: recorded, tracking goes on
+                result.errors[t] = str(err)
+                continue
+            result.params[t] = res.params
+            result.joints[t] = problem.points(res.params[None])[0]
+            result.model_joints[t] = model.forward(res.params)
+            result.objective[t] = res.loss if objective.additive else problem.evaluate(res.params[None])[0]
+            result.evaluations[t] = res.evaluations
+            result.failed[t] = False
+            has = (confidences[t] > 0).any()
+            near = inliers(result.joints[t:t + 1], proposals[t:t + 1], confidences[t:t + 1],
+                           settings.lost_distance_mm)[0]
+            result.lost[t] = bool(has and near < settings.lost_inlier_share * Q)
+            start = None if result.lost[t] and settings.on_lost == "reinit" else res.params
+    except KeyboardInterrupt:
+        result.interrupted = True
+        for f in range(t, F):
+            if result.failed[f]:
+                result.errors.setdefault(f, "interrupted")
+    result.inlier_distance_mm = settings.lost_distance_mm
+    result.inliers = inliers(result.joints, proposals, confidences, settings.lost_distance_mm)
+    return result
