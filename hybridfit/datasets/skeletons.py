@@ -70,6 +70,18 @@ class Skeleton:
         return len(self.names)
 
 
+def _key(name: str) -> str:
+    """A TOML key as written in a file: bare, or quoted (one line) when it needs quotes."""
+    return name if re.fullmatch(r"[A-Za-z0-9_-]+", name) else json.dumps(name)
+
+
+def _number(w: Any) -> bool:
+    try:
+        return not isinstance(w, bool) and isinstance(w, (int, float)) and math.isfinite(float(w))
+    except OverflowError:  # an integer beyond float range
+        return False
+
+
 def _closest(word: str, choices) -> str:
     close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=1)
     return f" (did you mean {close[0]!r}?)" if close else ""
@@ -84,7 +96,7 @@ def _parse(raw: dict[str, Any], where: str, default_name: str) -> Skeleton:
 
     for key in raw:
         if key not in _KEYS:
-            raise fail(key, f"unknown key{_closest(key, _KEYS)}; keys: {', '.join(_KEYS)}")
+            raise fail(_key(key), f"unknown key{_closest(key, _KEYS)}; keys: {', '.join(_KEYS)}")
     for key in ("name", "model", "convention"):
         if key in raw and (not isinstance(raw[key], str) or not raw[key].strip()):
             raise fail(key, f"must be a non-empty string, got {raw[key]!r}")
@@ -101,9 +113,9 @@ def _parse(raw: dict[str, Any], where: str, default_name: str) -> Skeleton:
     used: dict[str, str] = {}
     for name, target in points.items():
         if not isinstance(target, str) or not target:
-            raise fail(f"points.{name}", f"must be a model point name (a string), got {target!r}")
+            raise fail(f"points.{_key(name)}", f"must be a model point name (a string), got {target!r}")
         if target in used:
-            raise fail(f"points.{name}", f"maps onto {target!r} like points.{used[target]}; "
+            raise fail(f"points.{_key(name)}", f"maps onto {target!r} like points.{_key(used[target])}; "
                        "each point needs its own model point (define a derived point)")
         used[target] = name
 
@@ -112,14 +124,14 @@ def _parse(raw: dict[str, Any], where: str, default_name: str) -> Skeleton:
         raise fail("derived", f"must be a table of derived points, got {derived_raw!r}")
     derived: dict[str, dict[str, float]] = {}
     for dname, weights in derived_raw.items():
-        key = f"derived.{dname}"
+        key = f"derived.{_key(dname)}"
         if dname not in used:
             raise fail(key, f"not used by any point{_closest(dname, list(used))}")
         if not isinstance(weights, dict) or not weights:
             raise fail(key, "must be a non-empty table of joint = weight")
         for joint, w in weights.items():
-            if isinstance(w, bool) or not isinstance(w, (int, float)) or not math.isfinite(w):
-                raise fail(f"{key}.{joint}", f"must be a finite number, got {w!r}")
+            if not _number(w):
+                raise fail(f"{key}.{_key(joint)}", f"must be a finite number, got {w!r}")
         total = math.fsum(weights.values())
         if abs(total - 1.0) > 1e-6:
             raise fail(key, f"weights sum to {total:g}; they must sum to 1 (so the point moves rigidly with the hand)")
@@ -160,14 +172,15 @@ def check_model(sk: Skeleton) -> None:
     known = (*joints, *model.derived_points, *sk.derived_weights)
     for name, target in zip(sk.names, sk.model_names):
         if target not in known:
-            raise HybridfitError(f"{sk.source}: points.{name}: unknown {sk.model} point {target!r}"
+            raise HybridfitError(f"{sk.source}: points.{_key(name)}: unknown {sk.model} point {target!r}"
                                  f"{_closest(target, known)}")
     for dname, weights in sk.derived_weights.items():
         if dname in joints:
-            raise HybridfitError(f"{sk.source}: derived.{dname}: has the name of a {sk.model} joint")
+            raise HybridfitError(f"{sk.source}: derived.{_key(dname)}: has the name of a {sk.model} joint")
         for joint in weights:
             if joint not in joints:
-                raise HybridfitError(f"{sk.source}: derived.{dname}.{joint}: unknown {sk.model} joint{_closest(joint, joints)}")
+                raise HybridfitError(f"{sk.source}: derived.{_key(dname)}.{_key(joint)}: unknown {sk.model} joint"
+                                     f"{_closest(joint, joints)}")
 
 
 def load_skeleton(path: str | Path) -> Skeleton:
@@ -227,16 +240,13 @@ def to_toml(sk: Skeleton) -> str:
     reads it back equal, its ``name`` included)."""
     q = json.dumps  # a JSON string is a TOML basic string
 
-    def key(s: str) -> str:
-        return s if re.fullmatch(r"[A-Za-z0-9_-]+", s) else q(s)
-
     lines = [f"name = {q(sk.dataset)}", f"model = {q(sk.model)}"]
     if sk.convention is not None:
         lines.append(f"convention = {q(sk.convention)}")
     lines += [f"fingertips = [{', '.join(q(sk.names[i]) for i in sk.fingertips)}]", "", "[points]"]
-    lines += [f"{key(n)} = {q(m)}" for n, m in zip(sk.names, sk.model_names)]
+    lines += [f"{_key(n)} = {q(m)}" for n, m in zip(sk.names, sk.model_names)]
     for dname, weights in sk.derived_weights.items():
-        lines += ["", f"[derived.{key(dname)}]"] + [f"{key(j)} = {w!r}" for j, w in weights.items()]
+        lines += ["", f"[derived.{_key(dname)}]"] + [f"{_key(j)} = {w!r}" for j, w in weights.items()]
     return "\n".join(lines) + "\n"
 
 

@@ -134,26 +134,36 @@ def user_skeletons(draw):
     return raw
 
 
-def _text(raw) -> str:
-    """A dict of a skeleton file's shape as TOML (string values, lists, tables)."""
+def _value(v) -> str:
+    """A Python value as a TOML value (strings, numbers, booleans, arrays, inline tables)."""
     import json
 
-    def val(v):
-        return json.dumps(v) if not isinstance(v, float) else repr(v)
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return {"nan": "nan", "inf": "inf", "-inf": "-inf"}.get(repr(v), repr(v))
+    if isinstance(v, list):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{json.dumps(k)} = {_value(x)}" for k, x in v.items()) + "}"
+    return json.dumps(v) if isinstance(v, str) else str(v)
+
+
+def _text(raw) -> str:
+    """A dict of a skeleton file's shape as TOML: top-level tables of values or of tables."""
+    import json
 
     lines, tables = [], []
     for k, v in raw.items():
-        if isinstance(v, dict):
-            tables.append((k, v))
-        else:
-            lines.append(f"{json.dumps(k)} = {val(v)}")
+        (tables if isinstance(v, dict) else lines).append((k, v))
+    lines = [f"{json.dumps(k)} = {_value(v)}" for k, v in lines]
     for k, v in tables:
-        nested = {kk: vv for kk, vv in v.items() if isinstance(vv, dict)}
         lines.append(f"[{json.dumps(k)}]")
-        lines += [f"{json.dumps(kk)} = {val(vv)}" for kk, vv in v.items() if not isinstance(vv, dict)]
-        for kk, vv in nested.items():
-            lines.append(f"[{json.dumps(k)}.{json.dumps(kk)}]")
-            lines += [f"{json.dumps(j)} = {val(w)}" for j, w in vv.items()]
+        lines += [f"{json.dumps(kk)} = {_value(vv)}" for kk, vv in v.items() if not isinstance(vv, dict)]
+        for kk, vv in v.items():
+            if isinstance(vv, dict):
+                lines.append(f"[{json.dumps(k)}.{json.dumps(kk)}]")
+                lines += [f"{json.dumps(j)} = {_value(w)}" for j, w in vv.items()]
     return "\n".join(lines) + "\n"
 
 
@@ -211,6 +221,33 @@ def test_each_bad_key_is_named(tmp_path, i):
         skeleton(str(path))
     msg = str(err.value)
     assert msg.startswith(f"{path}: {key}: ") and pattern in msg and "\n" not in msg, msg
+
+
+_leaves = st.one_of(st.booleans(), st.integers(), st.integers(10**308, 10**400), st.floats(), st.text(max_size=6))
+_values = st.one_of(_leaves, st.lists(_leaves, max_size=3), st.dictionaries(st.text(max_size=4), _leaves, max_size=3))
+_keys = st.text(max_size=6) | st.sampled_from(["name", "model", "convention", "fingertips", "points", "derived"])
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(where=st.sampled_from(["top", "points", "derived", "weights", "fingertips"]), key=_keys, value=_values,
+       drop=st.booleans())
+def test_generated_bad_files_give_one_line(tmp_path, where, key, value, drop):
+    """Any key set to any value (or dropped) at any level: loads, or one line naming the file."""
+    raw = copy.deepcopy(VALID)
+    table = {"top": raw, "points": raw["points"], "derived": raw["derived"],
+             "weights": raw["derived"]["icvl_palm"], "fingertips": None}[where]
+    if table is None:
+        raw["fingertips"] = [value] if drop else raw["fingertips"] + [value]
+    elif drop and table:
+        table.pop(key if key in table else next(iter(table)))
+    else:
+        table[key] = value
+    path = tmp_path / "gen.toml"
+    path.write_text(_text(raw))
+    try:
+        skeleton(str(path))
+    except hybridfit.HybridfitError as err:
+        assert str(err).startswith(f"{path}: ") and "\n" not in str(err), str(err)
 
 
 def test_a_derived_point_with_a_joints_name_is_refused(tmp_path):
