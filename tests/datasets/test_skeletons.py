@@ -225,7 +225,7 @@ def test_each_bad_key_is_named(tmp_path, i):
 
 _leaves = st.one_of(st.booleans(), st.integers(), st.integers(10**308, 10**400), st.floats(), st.text(max_size=6))
 _values = st.one_of(_leaves, st.lists(_leaves, max_size=3), st.dictionaries(st.text(max_size=4), _leaves, max_size=3))
-_keys = st.text(max_size=6) | st.sampled_from(["name", "model", "convention", "fingertips", "points", "derived"])
+_keys = st.text(max_size=6) | st.sampled_from(["name", "model", "convention", "fingertips", "points", "derived", "a\nb"])
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
