@@ -20,13 +20,16 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
-from . import registry
+from . import compiled, registry
 from .errors import HybridfitError, PluginError
 from .io import validate_proposals
 from .metrics import inliers
 from .optimizer import Task
 from .problem import Problem
 
+
+#: frames per call of the compiled path (progress and Ctrl-C granularity)
+COMPILED_CHUNK = 256
 
 #: the inlier distance of objectives without a ``d_max_mm`` setting
 INLIER_DISTANCE_MM = 40.0
@@ -218,9 +221,17 @@ def fit(
              result.evaluations[f]) = values
             result.failed[f] = False
 
+    # PSO and stepwise PSO on a kinematic tree with a compiled objective: many frames per
+    # numba call, jobs as threads sharing memory (hybridfit.compiled)
+    fitter = (compiled.CompiledFitter(model, objective, optimizer, names, budget, seed, search_radius_mm)
+              if observations is None and compiled.supports(model, objective, optimizer) else None)
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
-        if jobs <= 1 or F <= 1:
+        if fitter is not None:
+            for c in np.array_split(np.arange(F), max(1, -(-F // COMPILED_CHUNK))):
+                store(fitter.fit_chunk([int(f) for f in c], proposals[c], confidences[c], jobs))
+                bar.update(len(c))
+        elif jobs <= 1 or F <= 1:
             for f in range(F):
                 store(_fit_chunk(spec, [f], proposals[f : f + 1], confidences[f : f + 1],
                                  None if observations is None else observations[f : f + 1]))

@@ -18,6 +18,7 @@ import numba as nb
 import numpy as np
 from pydantic import Field
 
+from hybridfit.compiled import KERNEL_SIGNATURE
 from hybridfit.objective import Objective, kernel_loss
 from hybridfit.plugin import Settings
 
@@ -26,12 +27,13 @@ class ClampedConfidenceSettings(Settings):
     d_max_mm: float = Field(40.0, gt=0, description="clamping distance d_max in millimetres")
 
 
-@nb.njit(cache=True, fastmath=True)
-def clamped_confidence_loss(points, subset, proposals, weights, inv_d_max_sq):
-    """points (N, Q, 3), subset (m,), proposals (Q, K, 3), weights (Q, K) -> (N,) -E."""
+@nb.njit(KERNEL_SIGNATURE, cache=True, fastmath=True)
+def clamped_confidence_kernel(points, subset, proposals, weights, consts, out):
+    """points (N, Q, 3), subset (m,), proposals (Q, K, 3), weights (Q, K), consts (1/d_max^2,)
+    -> out (N,) -E over the subset's points."""
     N = points.shape[0]
     K = proposals.shape[1]
-    out = np.empty(N)
+    inv_d_max_sq = consts[0]
     for n in range(N):
         total = 0.0
         for jj in range(subset.shape[0]):
@@ -54,6 +56,13 @@ def clamped_confidence_loss(points, subset, proposals, weights, inv_d_max_sq):
                         best = v
             total += best
         out[n] = -total
+
+
+@nb.njit(cache=True)
+def clamped_confidence_loss(points, subset, proposals, weights, consts):
+    """points (N, Q, 3), subset (m,), proposals (Q, K, 3), weights (Q, K) -> (N,) -E."""
+    out = np.empty(points.shape[0])
+    clamped_confidence_kernel(points, subset, proposals, weights, consts, out)
     return out
 
 
@@ -64,7 +73,11 @@ class ClampedConfidence(Objective):
 
     def bind(self, proposals, weights):
         return kernel_loss(clamped_confidence_loss, np.ascontiguousarray(proposals, dtype=np.float64),
-                           np.ascontiguousarray(weights, dtype=np.float64), 1.0 / self.settings.d_max_mm**2)
+                           np.ascontiguousarray(weights, dtype=np.float64), *self.compiled_kernel()[1:])
+
+    def compiled_kernel(self):
+        """(kernel, constants) for :mod:`hybridfit.compiled`."""
+        return clamped_confidence_kernel, np.array([1.0 / self.settings.d_max_mm**2])
 
     def lower_bound(self, weights):
         return -float(np.max(weights, axis=-1).sum())

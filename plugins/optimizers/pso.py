@@ -14,10 +14,10 @@ generation is cut short so the budget is used exactly.
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 from pydantic import Field
 
+from hybridfit.compiled import constriction, pso_step, update_bests
 from hybridfit.optimizer import Optimizer, Task
 from hybridfit.plugin import Settings
 
@@ -33,45 +33,6 @@ class PSOSettings(Settings):
     max_velocity: float = Field(0.5, gt=0, description="velocity limit per generation, as a fraction of the range")
 
 
-@nb.njit(cache=True, fastmath=True)
-def pso_step(x, v, pbest_x, gbest_x, r1, r2, chi, c1, c2, vmax, lower, upper, m):
-    """Constricted velocity and position update of the first m particles, in place."""
-    d = x.shape[1]
-    for i in range(m):
-        for k in range(d):
-            vk = chi * (v[i, k] + c1 * r1[i, k] * (pbest_x[i, k] - x[i, k]) + c2 * r2[i, k] * (gbest_x[k] - x[i, k]))
-            if vk > vmax[k]:
-                vk = vmax[k]
-            elif vk < -vmax[k]:
-                vk = -vmax[k]
-            xk = x[i, k] + vk
-            if xk < lower[k]:
-                xk = lower[k]
-                vk = 0.0
-            elif xk > upper[k]:
-                xk = upper[k]
-                vk = 0.0
-            x[i, k] = xk
-            v[i, k] = vk
-
-
-@nb.njit(cache=True)
-def update_bests(x, f, pbest_x, pbest_f, m):
-    """Personal bests of the first m particles; returns the index of the swarm's best."""
-    for i in range(m):
-        if f[i] < pbest_f[i]:
-            pbest_f[i] = f[i]
-            for k in range(x.shape[1]):
-                pbest_x[i, k] = x[i, k]
-    return np.argmin(pbest_f)
-
-
-def constriction(c1: float, c2: float) -> float:
-    """Clerc-Kennedy constriction factor for psi = c1 + c2 (1.0 when psi <= 4)."""
-    psi = c1 + c2
-    return 1.0 if psi <= 4 else 2.0 / abs(2.0 - psi - np.sqrt(psi * psi - 4.0 * psi))
-
-
 class PSO(Optimizer):
     """Particle Swarm Optimisation with constriction (global best), batched per generation."""
 
@@ -81,17 +42,32 @@ class PSO(Optimizer):
         n = self.settings.particles
         return max(2, int(round(np.sqrt(budget)))) if n is None else n
 
+    def swarm(self, budget: int, available: int | None = None) -> tuple[int, int]:
+        """(particles, particles started around the initial guess) for a task with this budget
+        and ``available`` evaluations left (default: the budget)."""
+        n = min(self.swarm_size(budget), budget if available is None else available)
+        return n, int(round(self.settings.init_share * n))
+
+    def coefficients(self) -> np.ndarray:
+        """(c1, c2, chi, init_sigma, max_velocity), the settings of the compiled path."""
+        s = self.settings
+        return np.array([s.cognitive, s.social, constriction(s.cognitive, s.social), s.init_sigma, s.max_velocity])
+
+    def compiled_pso(self) -> "PSO | None":
+        """This optimiser for :mod:`hybridfit.compiled` (None for a subclass that changes
+        ``minimize``, which the compiled path would not follow)."""
+        return self if type(self).minimize is PSO.minimize else None
+
     def min_budget(self, task: Task) -> int:
         # one initial generation and at least one update
         return 2 * (self.settings.particles or 2)
 
     def minimize(self, task: Task, rng: np.random.Generator) -> None:
         s = self.settings
-        n = min(self.swarm_size(task.budget), task.remaining)
+        n, near = self.swarm(task.budget, task.remaining)
         lower, upper = task.lower, task.upper
         span = upper - lower
         x = rng.uniform(lower, upper, size=(n, task.dim))
-        near = int(round(s.init_share * n))
         if near:
             x[:near] = task.x0 + rng.normal(0.0, s.init_sigma, size=(near, task.dim)) * span
             x[0] = task.x0  # the guess itself is always tried
