@@ -75,8 +75,7 @@ class RenderedDepth(Objective):
 
         def loss(points, subset, joints):
             joints = np.asarray(joints, dtype=np.float64)
-            A = np.ascontiguousarray(np.einsum("mj,njc->nmc", Wa, joints))
-            B = np.ascontiguousarray(np.einsum("mj,njc->nmc", Wb, joints))
+            A, B = np.matmul(Wa, joints), np.matmul(Wb, joints)  # (N, M, 3) cone end points
             return depth_discrepancy_kernel(A, B, ra, rb, view.fx, view.fy, view.cx, view.cy, view.rays,
                                             view.observed, s.d_max_mm, s.silhouette_weight_mm, zbuf)
 
