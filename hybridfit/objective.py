@@ -68,6 +68,19 @@ class Observation:
         return cls(np.ascontiguousarray(crop), (u0, v0, u1, v1), intrinsics)
 
 
+def dataset_observations(ds, indices, where: str = "data") -> list[Observation | None]:
+    """Observations of frames ``indices`` of a data set in camera coordinates (a
+    ``hybridfit.dataset`` folder): the hand masked as the forest masks it
+    (``hybridfit.forest.dataset_masks``); None for a frame without hand pixels."""
+    from .forest.segment import dataset_masks
+
+    idx = np.asarray(indices, dtype=np.int64)
+    depths = np.asarray(ds.depths(idx))
+    masks = dataset_masks(ds, idx, depths)
+    return [Observation.from_depth(d, ds.intrinsics, m, where=f"{where}, frame {i}") if (m & (d > 0)).any() else None
+            for i, d, m in zip(idx, depths, masks)]
+
+
 class Objective(Plugin, abc.ABC):
     """Scores hypotheses' points against a frame's proposals; lower is better."""
 

@@ -11,7 +11,10 @@ from ..datasets.skeletons import dataset_model_config, skeleton
 from .. import registry
 from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK, HybridfitError
 from ..io import check_output, load_proposals, save_npz
+from ..dataset import load_dataset
 from ..metrics import summary
+from ..objective import dataset_observations
+from ..tracking import track
 from ._common import add_fit_options, add_plugin_options, plugin_kwargs
 
 
@@ -23,6 +26,16 @@ def register(sub) -> None:
                    "(copied from the input)")
     add_plugin_options(p)
     add_fit_options(p)
+    p.add_argument("--depth", metavar="DIR", help="a data-set folder (hybridfit synth test) holding the proposals' "
+                   "frames: their depth, for objectives that compare with the depth image (rendered-depth, hybrid)")
+    p.add_argument("--track", action="store_true", help="track the frames as a sequence: each starts from the "
+                   "previous fit (one process; --jobs is ignored)")
+    p.add_argument("--on-lost", choices=["reinit", "continue"], default="reinit",
+                   help="with --track, when a fit is lost: start the next frame from its proposals (default) or "
+                   "keep tracking from it")
+    p.add_argument("--first-frame", choices=["proposals", "ground-truth"], default="proposals",
+                   help="with --track, frame 0's initial guess: its proposals, or the --depth folder's model "
+                   "parameters")
     p.add_argument("--dataset", help="the proposals' skeleton when the npz has no joint_names (and its derived "
                    "points for its model): icvl, nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file")
     p.set_defaults(func=run)
@@ -48,11 +61,15 @@ def run(args) -> int:
         check_point_names(plugins, names, args.proposals)
     if "ground_truth" in data:
         extra["ground_truth"] = data["ground_truth"]
-    result = fit_frames(
-        data["proposals"], data["confidences"], joint_names=names,
-        budget=args.budget, seed=args.seed, jobs=args.jobs, search_radius_mm=args.search_radius,
-        progress=sys.stderr.isatty(), **plugins,
-    )
+    depth = depth_frames(args, len(data["proposals"]))
+    common = dict(joint_names=names, budget=args.budget, seed=args.seed, search_radius_mm=args.search_radius,
+                  progress=sys.stderr.isatty(), observations=depth.get("observations"), **plugins)
+    if args.track:
+        result = track(data["proposals"], data["confidences"], first_params=depth.get("first_params"),
+                       settings={"on_lost": args.on_lost}, **common)
+        extra["lost"] = result.lost
+    else:
+        result = fit_frames(data["proposals"], data["confidences"], jobs=args.jobs, **common)
     save_npz(args.out, **result.to_npz(), **extra)
     F, done = len(result.failed), ~result.failed
     print(f"fitted {int(done.sum())}/{F} frames -> {args.out}")
@@ -66,6 +83,23 @@ def run(args) -> int:
         print(f"interrupted: finished frames saved to {args.out}", file=sys.stderr)
         return EXIT_INTERRUPTED
     return EXIT_OK if done.all() else EXIT_INCOMPLETE
+
+
+def depth_frames(args, frames: int) -> dict:
+    """observations (and first_params for --first-frame ground-truth) from --depth."""
+    if args.depth is None:
+        if args.first_frame == "ground-truth":
+            raise HybridfitError("--first-frame ground-truth needs --depth DIR (the data set's model parameters)")
+        return {}
+    ds = load_dataset(args.depth)
+    if len(ds) != frames:
+        raise HybridfitError(f"{args.depth}: {len(ds)} frames, but the proposals have {frames}")
+    out = {"observations": dataset_observations(ds, np.arange(frames), args.depth)}
+    if args.first_frame == "ground-truth":
+        if ds.params.shape[1] == 0:
+            raise HybridfitError(f"{args.depth}: labels.npz has no model parameters for --first-frame ground-truth")
+        out["first_params"] = ds.params[0]
+    return out
 
 
 def check_point_names(plugins: dict, names, where: str) -> None:

@@ -205,8 +205,7 @@ class StudyData:
         data has none; the same frames as the proposals. Forest data only."""
         if self._depth is None:
             from ..dataset import load_dataset
-            from ..forest.segment import dataset_masks
-            from ..objective import Observation
+            from ..objective import dataset_observations
 
             if not self.uses_proposal_set():
                 raise HybridfitError(f"data kind {self.data.kind!r} has no depth images; objectives that compare "
@@ -216,11 +215,8 @@ class StudyData:
             frames = getattr(self.data, "frames", None)
             idx = np.arange(len(ds) if frames is None else min(frames, len(ds)))
             self.log(f"reading the depth of {len(idx)} test frames")
-            depths = np.asarray(ds.depths(idx))
-            masks = dataset_masks(ds, idx, depths)
-            obs = [Observation.from_depth(d, ds.intrinsics, m, where=f"{test}, frame {i}") if (m & (d > 0)).any()
-                   else None for i, d, m in zip(idx, depths, masks)]
-            self._depth = {"observations": obs, "params": np.asarray(ds.params, float)[idx]}
+            self._depth = {"observations": dataset_observations(ds, idx, str(test)),
+                           "params": np.asarray(ds.params, float)[idx]}
         return self._depth
 
     # ------------------------------------------------------------------ model
