@@ -1,150 +1,188 @@
-"""Calibrate the hand model's geometry to annotated frames.
+"""Calibrate a hand model's geometry to annotated frames, through the HandModel interface.
 
-Estimates hand26's bone lengths, finger base positions, handedness (``mirror``) and the
-weights of the derived points a dataset maps onto, from ground-truth points (F, Q, 3) mm:
+Works for any model that declares its calibratable geometry (``HandModel.geometry()`` and
+``with_geometry()``); handedness goes through ``mirror_setting``, dataset points through
+the model's joints and derived points. From ground-truth points (F, Q, 3) mm:
 
-1. fit every frame's pose with :func:`hybridfit.fit` (the truth as k = 1 proposals), for
-   both hands unless ``mirror`` is given, and keep the hand that fits better;
-2. solve one sparse least-squares problem over the geometry and all frames' poses jointly
-   (``scipy.optimize.least_squares``, angles within the model's limits, a weak prior
-   pulling unobserved geometry towards its start);
-3. refit the poses with :func:`hybridfit.fit` on the new model and repeat (``rounds``).
+1. **Hold out** the last ``holdout`` share of the frames (default 20 %, rounded down, at
+   least one frame when two or more are given); they only measure the held-out error.
+2. **Start at the prior**: the model's anatomical prior geometry (hand26: the proportions of
+   Buchholz, Armstrong & Goldstein, Ergonomics 1992, ratios of hand length), scaled to the
+   data's size; fit every calibration frame with :func:`hybridfit.fit` (the truth as
+   k = 1 proposals) for both hands unless ``mirror`` is given, and keep the better hand.
+3. **Keep what the points cannot determine at the prior** (:func:`determined`): an entry
+   whose child end has no observed point at or below it along its chain, or whose parent
+   end has none at or above it (nor a sibling), and the weights of derived points not given.
+4. **Regularised least squares** over the free geometry, one free whole-hand scale ``s`` and
+   all frames' poses (``scipy.optimize.least_squares``, angles within the model's limits,
+   geometry within its bounds): point residuals / ``noise_mm`` plus prior residuals
+   ``(g - s mean) / (s std)`` for lengths (proportions pulled towards the literature's,
+   the size free) and ``(g - mean) / std`` for weights.
+5. **Refit** the poses with :func:`hybridfit.fit` on the new model and repeat (``rounds``).
 
-The errors before and after are those of :func:`hybridfit.fit` itself (what a user gets).
+Reported errors are those of :func:`hybridfit.fit` itself (what a user gets): on the
+calibration frames before and after, and on the held-out frames after.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
+from tqdm.auto import tqdm
 
 from . import registry
 from .errors import HybridfitError
 from .fitting import fit
-
-SUPPORT = ("wrist", "thumb_cmc", "index_mcp", "middle_mcp", "ring_mcp", "little_mcp")
-FINGERS = ("thumb", "index", "middle", "ring", "little")
+from .model import Geometry, HandModel
 
 
 @dataclass
 class CalibrationResult:
-    """settings: hand26 settings (a model config); errors mean point error (mm) of
-    hybridfit.fit before / after; ls_error: of the final least-squares poses; params (F, P)."""
+    """settings: the calibrated model's settings (a model config); error_before /
+    error_after: mean point error (mm) of hybridfit.fit on the calibration frames with the
+    start and the calibrated model; error_heldout: on the held-out frames (NaN if none);
+    calibration_frames / heldout_frames: indices into the given frames; ls_error: of the
+    final least-squares poses; params (F_cal, P); per_point_after / per_point_heldout (Q,)
+    mm; scale: the whole-hand scale relative to the prior; at_prior: geometry entries the
+    points could not determine (kept at the prior)."""
 
     settings: dict[str, Any]
     error_before: float
     error_after: float
+    error_heldout: float
+    calibration_frames: np.ndarray
+    heldout_frames: np.ndarray
     ls_error: float
     params: np.ndarray
     per_point_after: np.ndarray
+    per_point_heldout: np.ndarray
+    scale: float
+    at_prior: tuple[str, ...] = field(default_factory=tuple)
 
 
-class _Geometry:
-    """hand26 geometry <-> a flat vector: bone lengths (mm), base positions (mm) and the
-    free weights of each calibrated derived point (its last support weight is 1 - the rest)."""
-
-    def __init__(self, base: dict[str, Any], derived: Sequence[str]) -> None:
-        self.base = dict(base)
-        model = registry.create("model", "hand26", base)
-        self.bones = list(model.bone_names)
-        tree = model._tree
-        self.derived = {n: tuple(dict.fromkeys((*SUPPORT, *model.derived_points[n]))) for n in derived}
-        s = float(base.get("scale", 1.0))
-        lengths = model.bone_lengths()
-        bases = [tree.offsets[1 + 4 * f] for f in range(5)]  # scaled base positions relative to the wrist
-        parts = [np.array([lengths[b] for b in self.bones]), np.concatenate(bases)]
-        for n, support in self.derived.items():
-            w = model.derived_points[n]
-            parts.append(np.array([w.get(j, 0.0) for j in support[:-1]]))
-        self.x0 = np.concatenate(parts)
-        self.scale0 = s
-        self.size = len(self.x0)
-        self.n_metric = len(self.bones) + 15  # entries in mm
-
-    def settings(self, g: np.ndarray, digits: int | None = None) -> dict[str, Any]:
-        """hand26 settings of geometry g (values rounded to ``digits`` decimals if given)."""
-
-        def rnd(v, extra=0):
-            return float(v) if digits is None else round(float(v), digits + extra)
-
-        nb = len(self.bones)
-        out = {k: v for k, v in self.base.items() if k not in ("bone_lengths", "base_positions", "scale")}
-        out["scale"] = 1.0
-        out["bone_lengths"] = {b: rnd(v) for b, v in zip(self.bones, g[:nb])}
-        out["base_positions"] = {f: [rnd(c) for c in g[nb + 3 * i: nb + 3 * i + 3]] for i, f in enumerate(FINGERS)}
-        derived = dict(self.base.get("derived_points", {}))
-        k = nb + 15
-        for n, support in self.derived.items():
-            w = g[k: k + len(support) - 1]
-            k += len(support) - 1
-            weights = {j: rnd(v, 1) for j, v in zip(support, w)}
-            weights[support[-1]] = rnd(1.0 - sum(weights.values()), 1)
-            derived[n] = {j: v for j, v in weights.items() if v != 0.0}
-        out["derived_points"] = derived
-        return out
-
-    def model(self, g: np.ndarray):
-        return registry.create("model", "hand26", self.settings(g))
+def split_frames(n: int, holdout: float) -> tuple[np.ndarray, np.ndarray]:
+    """(calibration, held-out) frame indices: the last floor(holdout * n) frames are held out,
+    at least one when n >= 2 and holdout > 0, and at least one frame is always kept."""
+    if not 0.0 <= holdout < 1.0:
+        raise HybridfitError(f"holdout must be in [0, 1), got {holdout}")
+    k = int(np.floor(holdout * n))
+    if holdout > 0 and n >= 2:
+        k = max(k, 1)
+    k = min(k, n - 1)
+    return np.arange(n - k), np.arange(n - k, n)
 
 
-def _fit_error(truth, names, config, budget, seed, jobs):
-    r = fit(truth[:, :, None, :], np.ones(truth.shape[:2] + (1,)), model="hand26", model_config=config,
-            joint_names=names, budget=budget, seed=seed, jobs=jobs)
+def determined(model: HandModel, geometry: Geometry, names: Sequence[str]) -> np.ndarray:
+    """(G,) bool: the geometry entries the given points can determine.
+
+    An entry with ends (a, b) along the kinematic tree needs an observed joint at b or
+    below it (its child chain) and one at a or above it, or at another child of a (its
+    parent chain); a derived-point weight needs that derived point among the points."""
+    index = {n: i for i, n in enumerate(model.joint_names)}
+    parents = np.asarray(model.parents)
+    observed = np.zeros(len(parents), bool)
+    observed[[index[n] for n in names if n in index]] = True
+    below = observed.copy()  # the joint or one of its descendants is observed
+    for j in np.flatnonzero(observed):
+        while parents[j] >= 0 and not below[parents[j]]:
+            j = parents[j]
+            below[j] = True
+
+    def chain_up(a: int, b: int) -> bool:
+        if any(observed[c] for c in np.flatnonzero(parents == a) if c != b):
+            return True
+        while a >= 0:
+            if observed[a]:
+                return True
+            a = parents[a]
+        return False
+
+    out = np.zeros(len(geometry), bool)
+    given = set(names)
+    for i, (a, b) in enumerate(geometry.ends):
+        if a not in index:
+            out[i] = a in given
+        else:
+            out[i] = bool(below[index[b]]) and chain_up(index[a], index[b])
+    return out
+
+
+def _prior(geometry: Geometry, scale: float) -> np.ndarray:
+    return np.where(geometry.scaled, scale * geometry.prior_mean, geometry.prior_mean)
+
+
+def _configured(model: HandModel, values: np.ndarray) -> HandModel:
+    return type(model)(**model.with_geometry(values))
+
+
+def _fit_error(truth, names, model, budget, seed, jobs, progress):
+    r = fit(truth[:, :, None, :], np.ones(truth.shape[:2] + (1,)), model=model, joint_names=names,
+            budget=budget, seed=seed, jobs=jobs, progress=progress)
     err = np.linalg.norm(r.joints - truth, axis=-1)
     return float(np.nanmean(err)), r.params, err
 
 
-def _least_squares(truth, names, geom: _Geometry, g0, params, prior_mm, max_nfev):
+def _least_squares(truth, names, model, free, scale, g, params, noise_mm, max_nfev, progress):
+    """Jointly refine log scale, the free geometry entries and every frame's pose."""
+    geo = model.geometry()
     F, Q, _ = truth.shape
-    model = geom.model(g0)
     P = model.n_params
+    Gf = int(free.sum())
     lower_p, upper_p = model.bounds()
-    G = geom.size
-    ref = geom.x0.copy()
-    prior_scale = np.where(np.arange(G) < geom.n_metric, 1.0 / prior_mm, 50.0 / prior_mm)  # weights: 0.02 ~ 1 mm
+    bar = tqdm(desc="geometry", unit=" evaluations", disable=not progress, leave=False)
 
     def unpack(z):
-        return z[:G], z[G:].reshape(F, P)
+        s = float(np.exp(z[0]))
+        full = _prior(geo, s)
+        full[free] = z[1:1 + Gf]
+        return s, full, z[1 + Gf:].reshape(F, P)
+
+    sd = geo.prior_std[free]
+    sc = geo.scaled[free]
+    mean = geo.prior_mean[free]
 
     def residuals(z):
-        g, poses = unpack(z)
-        m = geom.model(g)
-        pts = np.einsum("qj,njc->nqc", m.point_matrix(names), m.forward(poses))
+        bar.update()
+        s, full, poses = unpack(z)
+        pts = _configured(model, full).points(poses, names)  # derived-point weights are geometry too
         q = np.linalg.norm(poses[:, 3:7], axis=1) - 1.0
-        return np.concatenate([(pts - truth).ravel(), (g - ref) * prior_scale, 10.0 * q])
+        prior = np.where(sc, (full[free] - s * mean) / (s * sd), (full[free] - mean) / sd)
+        return np.concatenate([(pts - truth).ravel() / noise_mm, prior, 10.0 * q])
 
-    rows = F * Q * 3 + G + F
-    S = lil_matrix((rows, G + F * P), dtype=np.int8)
+    n_data, n_var = F * Q * 3, 1 + Gf + F * P
+    S = lil_matrix((n_data + Gf + F, n_var), dtype=np.int8)
+    S[:n_data, :1 + Gf] = 1
     for f in range(F):
-        S[f * Q * 3:(f + 1) * Q * 3, :G] = 1
-        S[f * Q * 3:(f + 1) * Q * 3, G + f * P: G + (f + 1) * P] = 1
-        S[F * Q * 3 + G + f, G + f * P + 3: G + f * P + 7] = 1
-    for i in range(G):
-        S[F * Q * 3 + i, i] = 1
-    lo_g = np.where(np.arange(G) < len(geom.bones), 3.0, -np.inf)
-    lo = np.concatenate([lo_g, np.tile(np.where(np.isfinite(lower_p), lower_p, -np.inf), F)])
-    hi = np.concatenate([np.full(G, np.inf), np.tile(np.where(np.isfinite(upper_p), upper_p, np.inf), F)])
-    lo[G:].reshape(F, P)[:, 3:7] = -np.inf  # the quaternion is normalised inside the model
-    hi[G:].reshape(F, P)[:, 3:7] = np.inf
-    z0 = np.concatenate([g0, params.ravel()])
+        S[f * Q * 3:(f + 1) * Q * 3, 1 + Gf + f * P: 1 + Gf + (f + 1) * P] = 1
+        S[n_data + Gf + f, 1 + Gf + f * P + 3: 1 + Gf + f * P + 7] = 1
+    for i in range(Gf):
+        S[n_data + i, 0] = 1
+        S[n_data + i, 1 + i] = 1
+    pose_lo = np.where(np.isfinite(lower_p), lower_p, -np.inf)
+    pose_hi = np.where(np.isfinite(upper_p), upper_p, np.inf)
+    pose_lo[3:7], pose_hi[3:7] = -np.inf, np.inf  # the quaternion is normalised inside the model
+    lo = np.concatenate([[np.log(0.3)], geo.lower[free], np.tile(pose_lo, F)])
+    hi = np.concatenate([[np.log(3.0)], geo.upper[free], np.tile(pose_hi, F)])
+    z0 = np.concatenate([[np.log(scale)], g[free], params.ravel()])
     with np.errstate(invalid="ignore"):
         eps = np.nan_to_num(1e-7 * (hi - lo), nan=0.0, posinf=0.0)
         z0 = np.clip(z0, lo + eps, hi - eps)
-    sol = least_squares(residuals, z0, jac_sparsity=S.tocsr(), bounds=(lo, hi), method="trf",
-                        x_scale="jac", max_nfev=max_nfev, tr_solver="lsmr")
-    g, poses = unpack(sol.x)
-    m = geom.model(g)
-    err = np.linalg.norm(m.points(poses, names) - truth, axis=-1)
-    return g, poses, float(err.mean())
+    try:
+        sol = least_squares(residuals, z0, jac_sparsity=S.tocsr(), bounds=(lo, hi), method="trf",
+                            x_scale="jac", max_nfev=max_nfev, tr_solver="lsmr")
+    finally:
+        bar.close()
+    s, full, poses = unpack(sol.x)
+    err = np.linalg.norm(_configured(model, full).points(poses, names) - truth, axis=-1)
+    return s, full, float(err.mean())
 
 
-def initial_scale(truth: np.ndarray, names: Sequence[str], config: Mapping[str, Any]) -> float:
-    """Ratio of the data's to the model's mean distance between the points (a first guess)."""
-    model = registry.create("model", "hand26", config)
+def initial_scale(truth: np.ndarray, names: Sequence[str], model: HandModel) -> float:
+    """Ratio of the data's to the model's mean distance of the points from their centroid."""
     ref = model.points(model.default_params(), names)[0]
 
     def spread(p):
@@ -157,54 +195,75 @@ def calibrate(
     truth: np.ndarray,
     point_names: Sequence[str],
     *,
+    model: Any = "hand26",
     model_config: Mapping[str, Any] | None = None,
     mirror: bool | None = None,
+    holdout: float = 0.2,
     rounds: int = 2,
     budget: int = 3400,
     seed: int = 0,
     jobs: int = 1,
-    prior_mm: float = 5.0,
+    noise_mm: float = 3.0,
     max_nfev: int = 60,
+    progress: bool = False,
     log=None,
 ) -> CalibrationResult:
-    """Calibrate hand26 to truth (F, Q, 3) mm of the named model points (joints or derived
-    points; derived points that are not joints get their weights fitted)."""
+    """Calibrate a model (a registered name or a configured instance, with ``model_config``)
+    to truth (F, Q, 3) mm of the named model points (joints or derived points); see the
+    module doc. mirror: the hand (True: the model's mirror image) or None to choose."""
     truth = np.asarray(truth, dtype=np.float64)
     names = tuple(point_names)
     if truth.ndim != 3 or truth.shape[1:] != (len(names), 3) or not len(truth):
         raise HybridfitError(f"calibration needs ground truth of shape (frames, {len(names)}, 3), got {truth.shape}")
+    if not np.isfinite(truth).all():
+        bad = int(np.flatnonzero(~np.isfinite(truth).all(axis=(1, 2)))[0])
+        raise HybridfitError(f"calibration: ground truth of frame {bad} is not finite")
     say = log or (lambda msg: None)
-    base = dict(model_config or {})
-    model = registry.create("model", "hand26", base)
-    model.point_matrix(names)  # unknown point names fail here, once
-    derived = [n for n in dict.fromkeys(names) if n not in model.joint_names]
-    if "scale" not in base and "bone_lengths" not in base:
-        base["scale"] = round(initial_scale(truth, names, base), 4)
-        say(f"initial scale {base['scale']:.3f}")
-    hands = [mirror] if mirror is not None else [False, True]
+    base = registry.create("model", model, model_config)
+    base.point_matrix(names)  # unknown point names fail here, once
+    geo = base.geometry()
+    cal, held = split_frames(len(truth), holdout)
+    fit_truth = truth[cal]
+    prior_model = _configured(base, _prior(geo, 1.0))
+    scale = initial_scale(fit_truth, names, prior_model)
+    g = _prior(geo, scale)  # the prior is the start
+    say(f"initial scale {scale:.3f}; calibrating on {len(cal)} frames, {len(held)} held out")
+    if mirror is not None and base.mirror_setting is None:
+        raise HybridfitError(f"model {base.name or type(base).__name__} has no mirror setting (handedness)")
+    hands = [None] if base.mirror_setting is None else [mirror] if mirror is not None else [False, True]
     tried = {}
     for m in hands:
-        cfg = {**base, "mirror": m}
-        tried[m] = _fit_error(truth, names, cfg, budget, seed, jobs)
-        say(f"{'left' if m else 'right'} hand, start model: fit error {tried[m][0]:.2f} mm")
-    m = min(tried, key=lambda k: tried[k][0])
-    base["mirror"] = m
-    before, params, _ = tried[m]
-    geom = _Geometry(base, derived)
-    g = geom.x0.copy()
+        cand = base if m is None else base.with_params(**{base.mirror_setting: m})
+        cand = _configured(cand, g)
+        tried[m] = (cand, *_fit_error(fit_truth, names, cand, budget, seed, jobs, progress))
+        say(f"{'model' if m is None else 'left' if m else 'right'} hand, prior geometry: fit error {tried[m][1]:.2f} mm")
+    hand = min(tried, key=lambda k: tried[k][1])
+    current, before, params, _ = tried[hand]
+    free = determined(current, geo, names)
+    at_prior = tuple(n for n, f in zip(geo.names, free) if not f)
+    if at_prior:
+        say(f"kept at the prior (not determined by the points): {', '.join(at_prior)}")
     ls_err = np.nan
+    per = None
     for r in range(rounds):
-        g, poses, ls_err = _least_squares(truth, names, geom, g, params, prior_mm, max_nfev)
-        after, params, per = _fit_error(truth, names, geom.settings(g, 3), budget, seed, jobs)
-        say(f"round {r + 1}: least-squares error {ls_err:.2f} mm, fit error {after:.2f} mm")
-    settings = geom.settings(g, 3)
-    if not rounds:
-        after, _, per = _fit_error(truth, names, settings, budget, seed, jobs)
-    return CalibrationResult(settings, before, after, ls_err, params, np.nanmean(per, axis=0))
+        scale, g, ls_err = _least_squares(fit_truth, names, current, free, scale, g, params, noise_mm, max_nfev,
+                                          progress)
+        current = _configured(current, np.round(g, 4))
+        after, params, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
+        say(f"round {r + 1}: scale {scale:.3f}, least-squares error {ls_err:.2f} mm, fit error {after:.2f} mm")
+    if per is None:
+        after, params, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
+    if len(held):
+        heldout, _, per_held = _fit_error(truth[held], names, current, budget, seed, jobs, progress)
+        say(f"held-out fit error {heldout:.2f} mm on {len(held)} frames")
+    else:
+        heldout, per_held = np.nan, np.full((1, len(names)), np.nan)
+    return CalibrationResult(current.get_params(), before, after, heldout, cal, held, ls_err, params,
+                             np.nanmean(per, axis=0), np.nanmean(per_held, axis=0), scale, at_prior)
 
 
 def to_toml(settings: Mapping[str, Any]) -> str:
-    """hand26 settings as TOML (scalars first, then one table per dict setting)."""
+    """Model settings as TOML (scalars first, then one table per dict setting)."""
 
     def value(v):
         if isinstance(v, bool):

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -42,6 +42,44 @@ class Stage:
     joints: tuple[int, ...]
 
 
+@dataclass(frozen=True, eq=False)
+class Geometry:
+    """The geometry of a configured model that calibration may change, as a flat vector.
+
+    All arrays are (G,). ``values``: the model's current geometry, lengths in mm, weights
+    unitless; ``prior_mean`` and ``prior_std``: an anatomical prior for a hand of the
+    model's reference size (lengths at scale 1; ``scaled`` marks the entries, lengths, that
+    grow with the whole hand, whose prior is ``scale * prior_mean`` with std
+    ``scale * prior_std`` for a free scale); ``lower``/``upper``: hard limits. ``ends``: per
+    entry the two model points whose relation it sets: ``(parent joint, child joint)`` of
+    a length or an offset along the kinematic tree, or ``(derived point, joint)`` for the
+    weight of a joint in a derived point; calibration keeps an entry at its prior when the
+    given points cannot determine it.
+    """
+
+    names: tuple[str, ...]
+    values: np.ndarray
+    prior_mean: np.ndarray
+    prior_std: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    scaled: np.ndarray
+    ends: tuple[tuple[str, str], ...]
+
+    def __post_init__(self) -> None:
+        G = len(self.names)
+        for field in ("values", "prior_mean", "prior_std", "lower", "upper", "scaled"):
+            if np.shape(getattr(self, field)) != (G,):
+                raise HybridfitError(f"Geometry.{field} must have shape ({G},), got {np.shape(getattr(self, field))}")
+        if len(self.ends) != G:
+            raise HybridfitError(f"Geometry.ends must name {G} pairs of points, got {len(self.ends)}")
+        if not (np.all(self.prior_std > 0) and np.all(self.lower <= self.upper)):
+            raise HybridfitError("Geometry: prior_std must be positive and lower <= upper")
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+
 class HandModel(Plugin, abc.ABC):
     """A kinematic hand model mapping (N, P) parameter vectors to (N, J, 3) joints in mm."""
 
@@ -49,6 +87,10 @@ class HandModel(Plugin, abc.ABC):
     parameter_names: tuple[str, ...]
     #: names of the J joints, in order
     joint_names: tuple[str, ...]
+    #: name of a boolean setting choosing the mirror-image (left) hand; None: the model has none
+    mirror_setting: str | None = None
+    #: name of a setting {point: {joint: weight}} adding derived points; None: the model has none
+    derived_points_setting: str | None = None
 
     @property
     @abc.abstractmethod
@@ -82,6 +124,16 @@ class HandModel(Plugin, abc.ABC):
 
         joints: if given, only these joints are needed (a model may leave the others NaN
         to save time; computing all is always correct)."""
+
+    def geometry(self) -> Geometry:
+        """The geometry calibration may change (see :class:`Geometry`); a model without
+        calibratable geometry raises."""
+        raise HybridfitError(f"model {self.name or type(self).__name__} declares no calibratable geometry")
+
+    def with_geometry(self, values: np.ndarray) -> dict[str, Any]:
+        """The complete settings of this model with geometry ``values`` (G,) (a config
+        ``registry.create`` and ``type(self)(**settings)`` accept)."""
+        raise HybridfitError(f"model {self.name or type(self).__name__} declares no calibratable geometry")
 
     # ----------------------------------------------------------------- derived API
     @property

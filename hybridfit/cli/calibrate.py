@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import sys
+
 import numpy as np
 
 from ..calibrate import calibrate, to_toml
 from ..datasets.results import read_xyz
-from ..datasets.skeletons import skeleton, with_derived_points
+from ..datasets.skeletons import dataset_model_config, skeleton
 from ..errors import HybridfitError
 from ._common import load_toml, positive_int
 
@@ -32,9 +34,13 @@ def register(sub) -> None:
     p.add_argument("--dataset", required=True, help="skeleton of the ground truth: icvl, nyu, nyu36, "
                    "msra, mediapipe, mano or a skeleton .toml file")
     p.add_argument("--ground-truth", required=True, metavar="LABELS", help="ground truth in the common results format")
-    p.add_argument("--frames", metavar="START:STOP", help="frames to calibrate on (default: all)")
-    p.add_argument("--out", required=True, metavar="MODEL.toml", help="hand26 model config to write")
-    p.add_argument("--model-config", metavar="TOML", help="starting hand26 settings (default: the built-in hand)")
+    p.add_argument("--frames", metavar="START:STOP", help="frames to use (default: all); the last --holdout of them are held out")
+    p.add_argument("--holdout", type=float, default=0.2, metavar="FRACTION",
+                   help="share of the frames, the last ones, held out to measure the fit error of the calibrated "
+                        "model on frames it was not calibrated on (default 0.2; 0: none)")
+    p.add_argument("--out", required=True, metavar="MODEL.toml", help="model config to write")
+    p.add_argument("--model", default="hand26", help="hand model plugin (default: hand26)")
+    p.add_argument("--model-config", metavar="TOML", help="the model's other settings (geometry starts at its prior)")
     p.add_argument("--hand", choices=("auto", "right", "left"), default="auto", help="handedness (default: the better fit)")
     p.add_argument("--rounds", type=int, default=3, help="pose-fit / geometry alternations (default 3)")
     p.add_argument("--budget", type=positive_int, default=3400, help="evaluations per frame of each pose fit")
@@ -46,19 +52,37 @@ def register(sub) -> None:
 def run(args) -> int:
     sk = skeleton(args.dataset)
     truth = read_xyz(args.ground_truth, sk.dataset)
-    truth = truth[frame_slice(args.frames, len(truth))]
-    start = with_derived_points(load_toml(args.model_config), sk.dataset)
+    frames = np.arange(len(truth))[frame_slice(args.frames, len(truth))]
+    truth = truth[frames]
+    start = dataset_model_config(args.model, load_toml(args.model_config), sk.dataset)
     mirror = {"auto": None, "right": False, "left": True}[args.hand]
-    result = calibrate(truth, sk.model_names, model_config=start, mirror=mirror, rounds=args.rounds,
-                       budget=args.budget, seed=args.seed, jobs=args.jobs, log=lambda m: print(f"  {m}"))
+    result = calibrate(truth, sk.model_names, model=args.model, model_config=start, mirror=mirror,
+                       holdout=args.holdout, rounds=args.rounds, budget=args.budget, seed=args.seed, jobs=args.jobs,
+                       progress=sys.stderr.isatty(), log=lambda m: print(f"  {m}"))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    header = (f"# hand26 calibrated by `hybridfit calibrate --dataset {sk.dataset}` on {len(truth)} frames of "
-              f"{args.ground_truth}\n# fit error {result.error_before:.2f} mm before, {result.error_after:.2f} mm after\n")
+    cal, held = frames[result.calibration_frames], frames[result.heldout_frames]
+    where = f"frames {cal[0]}-{cal[-1]}" + (f", held out {held[0]}-{held[-1]}" if len(held) else "")
+    heldout = f"{result.error_heldout:.2f} mm held out ({len(held)} frames)" if len(held) else "no frames held out"
+    header = (f"# {args.model} calibrated by `hybridfit calibrate --dataset {sk.dataset}` on {len(cal)} frames of "
+              f"{args.ground_truth} ({where})\n"
+              f"# fit error {result.error_before:.2f} mm before, {result.error_after:.2f} mm after (in-sample), "
+              f"{heldout}\n")
     out.write_text(header + to_toml(result.settings))
-    hand = "left" if result.settings["mirror"] else "right"
-    print(f"calibrated on {len(truth)} frames ({hand} hand): mean fit error {result.error_before:.2f} mm before, "
-          f"{result.error_after:.2f} mm after -> {out}")
+    hand = _hand(result.settings, args.model)
+    print(f"calibrated on {len(cal)} frames{hand}: mean fit error {result.error_before:.2f} mm before, "
+          f"{result.error_after:.2f} mm after (in-sample); {heldout} -> {out}")
     print("per point after (mm): " + ", ".join(
         f"{n} {e:.1f}" for n, e in zip(sk.names, np.asarray(result.per_point_after))))
+    if len(held):
+        print("per point held out (mm): " + ", ".join(
+            f"{n} {e:.1f}" for n, e in zip(sk.names, np.asarray(result.per_point_heldout))))
     return 0
+
+
+def _hand(settings: dict, model: str) -> str:
+    """' (left hand)' / ' (right hand)' for a model with a mirror setting, else ''."""
+    from .. import registry
+
+    key = registry.get("model", model).mirror_setting
+    return "" if key is None else f" ({'left' if settings[key] else 'right'} hand)"

@@ -24,6 +24,16 @@ Anatomical limits (degrees; static constraints):
 Default bone lengths are those of an average adult hand (about 190 mm long): phalanx
 lengths after Buchholz, Armstrong & Goldstein, "Anthropometric data for describing the
 kinematics of the human hand", Ergonomics 1992 (ratios of hand length), rounded to mm.
+
+Calibratable geometry (``geometry()`` / ``with_geometry()``): the 15 bone lengths, the 15
+coordinates of the five finger base positions (mm) and the weights of the derived points
+in the ``derived_points`` setting. Prior: the proportions above (Buchholz et al. 1992 for
+the bones), for a free whole-hand scale, with a standard deviation of ``PRIOR_BONE_REL``
+of each length and ``PRIOR_BASE_MM`` per base coordinate (at scale 1). A derived point
+whose weights are a convex combination (all >= 0, sum 1) keeps them so: each weight of its
+support (the palm joints and its own joints) lies in [0, 1] and they are normalised to sum
+1; any other derived point is an offset from its largest-weight joint, each other weight
+within +-``OFFSET_WEIGHT_MAX``.
 """
 
 from __future__ import annotations
@@ -33,7 +43,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from hybridfit.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
-from hybridfit.model import Stage
+from hybridfit.model import Geometry, Stage
 from hybridfit.plugin import Settings
 
 FINGERS = ("thumb", "index", "middle", "ring", "little")
@@ -80,6 +90,15 @@ DEFAULT_POSE_DEG = {
     "thumb": (5.0, 0.0, 5.0, 5.0),
     **{f: (10.0, 0.0, 10.0, 5.0) for f in FINGERS[1:]},
 }
+
+#: calibration prior: std of each bone length as a fraction of it, std of base coordinates (mm, scale 1)
+PRIOR_BONE_REL = 0.08
+PRIOR_BASE_MM = 5.0
+#: std of a derived point's weights in the prior; the bound of an offset point's weights
+PRIOR_WEIGHT = 0.15
+OFFSET_WEIGHT_MAX = 0.6
+#: joints of the rigid palm: every derived point's weights may use them
+PALM_JOINTS = ("wrist", "thumb_cmc", "index_mcp", "middle_mcp", "ring_mcp", "little_mcp")
 
 PARAMETER_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz") + tuple(
     f"{f}_{a}" for f in FINGERS for a in FINGER_ANGLES[f]
@@ -166,6 +185,8 @@ class Hand26(TreeHandModel):
     parameter_names = PARAMETER_NAMES
     joint_names = JOINT_NAMES
     bone_names = BONE_NAMES
+    mirror_setting = "mirror"
+    derived_points_setting = "derived_points"
 
     def kinematic_tree(self) -> KinematicTree:
         """Wrist (root) -> each finger's base joint -> two further joints -> tip."""
@@ -209,6 +230,66 @@ class Hand26(TreeHandModel):
         lengths = self._lengths()
         return {f"{f}_{seg}": float(lengths[i, k]) for i, f in enumerate(FINGERS) for k, seg in enumerate(SEGMENTS[f])}
 
+    def geometry(self) -> Geometry:
+        """Bone lengths and base positions (mm, scale applied) and the settings' derived-point
+        weights, with the Buchholz et al. (1992) proportions as the prior (see the module doc)."""
+        s = self.settings
+        names, values, mean, std, lower, upper, scaled, ends = [], [], [], [], [], [], [], []
+
+        def add(name, value, mu, sd, lo, hi, is_length, end):
+            names.append(name), values.append(value), mean.append(mu), std.append(sd)
+            lower.append(lo), upper.append(hi), scaled.append(is_length), ends.append(end)
+
+        lengths = self.bone_lengths()
+        for f in FINGERS:
+            chain = [f"{f}_{j}" for j in FINGER_JOINTS[f]]
+            for k, seg in enumerate(SEGMENTS[f]):
+                mu = BONE_LENGTHS[f][k]
+                add(f"{f}_{seg}", lengths[f"{f}_{seg}"], mu, PRIOR_BONE_REL * mu, 0.3 * mu, 3.0 * mu, True,
+                    (chain[k], chain[k + 1]))
+        for f in FINGERS:
+            base = np.array(s.base_positions.get(f, BASE_POSITIONS[f]), float) * s.scale
+            for c, axis in enumerate("xyz"):
+                mu = BASE_POSITIONS[f][c]
+                add(f"{f}_base_{axis}", base[c], mu, PRIOR_BASE_MM, mu - 150.0, mu + 150.0, True,
+                    ("wrist", f"{f}_{FINGER_JOINTS[f][0]}"))
+        for point, weights in s.derived_points.items():
+            support, anchor = _weight_support(weights)
+            convex = anchor is None
+            for j in support:
+                w = weights.get(j, 0.0)
+                lo, hi = (0.0, 1.0) if convex else (-OFFSET_WEIGHT_MAX, OFFSET_WEIGHT_MAX)
+                add(f"{point}.{j}", w, w, PRIOR_WEIGHT, lo, hi, False, (point, j))
+        f64 = lambda v: np.asarray(v, dtype=np.float64)  # noqa: E731
+        return Geometry(tuple(names), f64(values), f64(mean), f64(std), f64(lower), f64(upper),
+                        np.asarray(scaled, dtype=bool), tuple(ends))
+
+    def with_geometry(self, values) -> dict:
+        """These settings with geometry ``values`` (the order of ``geometry().names``): scale 1,
+        explicit bone lengths and base positions, convex weights normalised to sum 1."""
+        values = np.asarray(values, dtype=np.float64)
+        s = self.settings
+        out = self.get_params()
+        out["scale"] = 1.0
+        out["bone_lengths"] = {b: float(v) for b, v in zip(BONE_NAMES, values[:15])}
+        out["base_positions"] = {f: [float(c) for c in values[15 + 3 * i: 18 + 3 * i]] for i, f in enumerate(FINGERS)}
+        k = 30
+        derived = {}
+        for point, weights in s.derived_points.items():
+            support, anchor = _weight_support(weights)
+            w = dict(zip(support, values[k: k + len(support)]))
+            k += len(support)
+            if anchor is None:
+                total = sum(w.values())
+                w = {j: v / total for j, v in w.items()} if total > 0 else dict(weights)
+            else:
+                w[anchor] = sum(weights.values()) - sum(w.values())
+            derived[point] = {j: float(v) for j, v in w.items() if v != 0.0}
+        out["derived_points"] = derived
+        if k != len(values):
+            raise ValueError(f"hand26 geometry has {k} entries, got {len(values)} values")
+        return out
+
     def bounds(self):
         lower = np.full(27, -np.inf)
         upper = np.full(27, np.inf)
@@ -233,3 +314,14 @@ class Hand26(TreeHandModel):
             for i, f in enumerate(FINGERS)
         )
         return (palm,) + fingers
+
+
+def _weight_support(weights: dict[str, float]) -> tuple[tuple[str, ...], str | None]:
+    """The joints whose weights calibration may change for a derived point, and its anchor:
+    None for a convex combination (all weights >= 0, sum 1), else the largest-weight joint
+    (its weight keeps the sum and is not in the support)."""
+    joints = tuple(dict.fromkeys((*PALM_JOINTS, *weights)))
+    if min(weights.values()) >= 0 and abs(sum(weights.values()) - 1.0) < 1e-6:
+        return joints, None
+    anchor = max(weights, key=lambda j: weights[j])
+    return tuple(j for j in joints if j != anchor), anchor

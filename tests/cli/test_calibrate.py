@@ -13,8 +13,10 @@ def test_calibrate_writes_a_usable_model_config(tmp_path, capsys):
     assert main(["calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--frames", "0:4", "--out", str(model),
                  "--rounds", "1", "--budget", "600", "--hand", "right"]) == 0
     out = capsys.readouterr().out
-    assert "mm before" in out and "calibrated on 4 frames (right hand)" in out
-    settings = tomllib.loads(model.read_text())
+    assert "mm before" in out and "calibrated on 3 frames (right hand)" in out and "mm held out (1 frames)" in out
+    text = model.read_text()
+    assert "(frames 0-2, held out 3-3)" in text and "mm held out (1 frames)" in text.splitlines()[1]
+    settings = tomllib.loads(text)
     assert "icvl_palm" in settings["derived_points"] and len(settings["bone_lengths"]) == 15
     p = tmp_path / "p.npz"
     assert main(["proposals", "from-results", "--dataset", "icvl", str(gt), "--out", str(p)]) == 0
@@ -26,3 +28,19 @@ def test_bad_frames_option(tmp_path, capsys):
     assert main(["calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--frames", "5:9",
                  "--out", str(tmp_path / "m.toml")]) == 2
     assert "--frames 5:9: no frames selected out of 3" in capsys.readouterr().err
+
+
+def test_holdout_zero_uses_every_frame(tmp_path, capsys):
+    gt, _ = write_results(tmp_path, frames=4)
+    model = tmp_path / "model.toml"
+    assert main(["calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--frames", "1:", "--holdout", "0",
+                 "--out", str(model), "--rounds", "0", "--budget", "600", "--hand", "left"]) == 0
+    assert "calibrated on 3 frames (left hand)" in capsys.readouterr().out
+    assert "(frames 1-3)" in model.read_text()
+
+
+def test_bad_holdout_option(tmp_path, capsys):
+    gt, _ = write_results(tmp_path, frames=3)
+    assert main(["calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--holdout", "1.5",
+                 "--out", str(tmp_path / "m.toml")]) == 2
+    assert "holdout must be in [0, 1)" in capsys.readouterr().err
