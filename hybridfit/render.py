@@ -211,39 +211,6 @@ def render_kernel(A, B, ra, rb, joints, fx, fy, cx, cy, rays, depth, parts, zbuf
 
 
 @nb.njit(cache=True, inline="always")
-def _hull_row(a0, a1, b0, b1, c0, c1, d0, d1, v):
-    """The u range (lo, hi) at image row v of the convex hull of two boxes [a0, a1] x [b0, b1]
-    and [c0, c1] x [d0, d1] (lo > hi when the row misses it). The hull of two spheres' boxes
-    contains the projected rounded cone, so it bounds the pixels a ray can hit.
-
-    A hull point at row v mixes a point of box 1 and one of box 2 with weight t on box 2;
-    t is feasible where (1 - t) b0 + t d0 <= v <= (1 - t) b1 + t d1, and the leftmost
-    (rightmost) u is a0 + t (c0 - a0) (a1 + t (c1 - a1)) at the feasible t's end."""
-    t_lo, t_hi = 0.0, 1.0
-    # first constraint: b0 + t (d0 - b0) <= v
-    dv = d0 - b0
-    if dv > 0.0:
-        t_hi = min(t_hi, (v - b0) / dv)
-    elif dv < 0.0:
-        t_lo = max(t_lo, (v - b0) / dv)
-    elif v < b0:
-        return 1.0, 0.0
-    # second constraint: b1 + t (d1 - b1) >= v
-    dv = d1 - b1
-    if dv > 0.0:
-        t_lo = max(t_lo, (v - b1) / dv)
-    elif dv < 0.0:
-        t_hi = min(t_hi, (v - b1) / dv)
-    elif v > b1:
-        return 1.0, 0.0
-    if t_lo > t_hi:
-        return 1.0, 0.0
-    lo = a0 + (t_hi if c0 < a0 else t_lo) * (c0 - a0)
-    hi = a1 + (t_hi if c1 > a1 else t_lo) * (c1 - a1)
-    return lo - 1e-6, hi + 1e-6  # a pixel on the hull's edge is kept despite rounding
-
-
-@nb.njit(cache=True, inline="always")
 def _zbuffer(A, B, ra, rb, n, fx, fy, cx, cy, rays, zbuf):
     """Ray-cast hypothesis n's rounded cones A, B (N, M, 3) mm, radii ra, rb (M,) into zbuf
     (H, W) float64 (inf = no surface; z mm along the optical axis); rays (H, W, 3) are the
@@ -275,8 +242,7 @@ def _zbuffer(A, B, ra, rb, n, fx, fy, cx, cy, rays, zbuf):
         m7 = qx * qx + qy * qy + qz * qz
         d2 = m0 - rr * rr
         for v in range(v0, v1 + 1):
-            lo, hi = _hull_row(a0, a1, b0, b1, c0, c1, d0, d1, float(v))
-            for u in range(max(int(np.ceil(lo)), u0), min(int(np.floor(hi)), u1) + 1):
+            for u in range(u0, u1 + 1):
                 dz = rays[v, u, 2]
                 t = _hit(px, py, pz, ba_x, ba_y, ba_z, m0, m1, m5, m7, -qx, -qy, -qz,
                          r1, r2, rr, d2, rays[v, u, 0], rays[v, u, 1], dz)
@@ -307,23 +273,19 @@ def depth_discrepancy_kernel(A, B, ra, rb, fx, fy, cx, cy, rays, observed, d_max
     [0, d_max + silhouette_weight] (mm-scaled)."""
     N = A.shape[0]
     H, W = zbuf.shape
-    counts = np.zeros((H + 1, W + 1), np.int64)  # counts[v, u]: observed pixels above and left of (v, u)
+    n_obs = 0
     for v in range(H):
         for u in range(W):
-            counts[v + 1, u + 1] = counts[v, u + 1] + counts[v + 1, u] - counts[v, u] + (observed[v, u] > 0.0)
-    n_obs = counts[H, W]
+            if observed[v, u] > 0.0:
+                n_obs += 1
     out = np.empty(N)
     for n in range(N):
-        u0, u1, v0, v1 = _zbuffer(A, B, ra, rb, n, fx, fy, cx, cy, rays, zbuf)
-        if u0 > u1:
-            u0, u1, v0, v1 = 0, -1, 0, -1
-        # observed pixels outside the rendered box: only in O
-        outside = n_obs - (counts[v1 + 1, u1 + 1] - counts[v0, u1 + 1] - counts[v1 + 1, u0] + counts[v0, u0])
-        diff = outside * d_max
-        union = outside
+        _zbuffer(A, B, ra, rb, n, fx, fy, cx, cy, rays, zbuf)
+        diff = 0.0
+        union = 0
         inter = 0
-        for v in range(v0, v1 + 1):
-            for u in range(u0, u1 + 1):
+        for v in range(H):
+            for u in range(W):
                 r = zbuf[v, u]
                 o = observed[v, u]
                 if r == np.inf:
