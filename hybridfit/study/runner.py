@@ -122,6 +122,8 @@ def run_trial(settings: dict, model_config: dict, seed: int, data: dict) -> dict
     objective[keep], evaluations[keep], failed[keep] = res.objective, res.evaluations, res.failed
     errors[failed] = np.nan
     messages = {int(keep[f]): m for f, m in res.errors.items()}
+    if getattr(res, "lost", None) is not None:  # a tracking trial: which fits were judged lost
+        messages.update({int(keep[f]): "track lost" for f in np.flatnonzero(res.lost) if int(keep[f]) not in messages})
     messages.update({int(f): "no foreground pixels" for f in np.flatnonzero(data["empty"])})
     return {"errors": errors, "objective": objective, "evaluations": evaluations, "failed": failed,
             "messages": messages, "time_per_frame": elapsed / max(len(keep), 1),
