@@ -231,7 +231,6 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
     P = x0.shape[0]
     J = parents.shape[0]
     Q = proposals.shape[0]
-    c1, c2, chi, sigma, vfrac = pso[0], pso[1], pso[2], pso[3], pso[4]
     base = x0.copy()
     p = x0.copy()
     W = np.zeros((J, 3, 3))
@@ -249,6 +248,7 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
         par_lo, par_hi = stages[s, PARAMS], stages[s, PARAMS + 1]
         pts_lo, pts_hi = stages[s, POINTS], stages[s, POINTS + 1]
         own_lo, own_hi = stages[s, OWNED], stages[s, OWNED + 1]
+        c1, c2, chi, sigma, vfrac = pso[s, 0], pso[s, 1], pso[s, 2], pso[s, 3], pso[s, 4]
         d = par_hi - par_lo
         pidx = indices[par_lo:par_hi]
         subset = indices[pts_lo:pts_hi].copy()
@@ -359,7 +359,7 @@ _SIGNATURE = T.void(
     T.int64[::1], T.int64[::1], T.float64[::1],
     T.float64[:, :, :, ::1], T.float64[:, :, ::1], T.float64[::1],
     T.float64[:, ::1], T.float64[:, ::1], T.float64[:, ::1],
-    T.int64[::1], T.int64[:, ::1], T.int64[::1], T.float64[::1],
+    T.int64[::1], T.int64[:, ::1], T.int64[::1], T.float64[:, ::1],
     T.float64[::1], T.int64[::1],
     T.float64[:, ::1], T.float64[::1], T.int64[::1],
 )
@@ -373,13 +373,15 @@ def _fit_batch(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
     proposals (F, Q, K, 3) mm, weights (F, Q, K); x0, lower, upper, out_params (F, P);
     frame f's stages are rows ``frame_stages[f]:frame_stages[f + 1]`` of ``stages`` (S, 9)
     (columns BUDGET, SWARM, NEAR and [lo, hi) ranges of ``indices`` for its PARAMS, POINTS
-    and OWNED), its random numbers ``random[frame_random[f]:frame_random[f + 1]]``;
-    pso = (c1, c2, chi, init_sigma, max_velocity); the point map (Q, J) in CSR form
+    and OWNED) with the PSO coefficients in the same rows of ``pso`` (S, 5) (c1, c2, chi,
+    init_sigma, max_velocity), its random numbers ``random[frame_random[f]:frame_random[f + 1]]``;
+    the point map (Q, J) in CSR form
     (pm_ptr, pm_joint, pm_weight)."""
     for f in nb.prange(x0.shape[0]):
         loss, used = _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params, mirror,
                                 pm_ptr, pm_joint, pm_weight, proposals[f], weights[f], consts, x0[f], lower[f],
-                                upper[f], stages[frame_stages[f]:frame_stages[f + 1]], indices, pso,
+                                upper[f], stages[frame_stages[f]:frame_stages[f + 1]], indices,
+                                pso[frame_stages[f]:frame_stages[f + 1]],
                                 random[frame_random[f]:frame_random[f + 1]], out_params[f])
         out_loss[f] = loss
         out_evaluations[f] = used
@@ -395,34 +397,39 @@ def fit_batch():
 # ---------------------------------------------------------------- Python side
 
 
-def pso_of(optimizer):
-    """The PSO that runs each stage, or None when the compiled path cannot run this optimiser.
-
-    An optimiser runs here if it offers ``compiled_pso()`` (the ``pso`` plugin: one stage of
-    all parameters), or if it runs such a PSO stage by stage (``inner`` and ``plan(task)``,
-    the ``stepwise`` plugins)."""
+def _compiled(optimizer):
+    """The optimiser as a PSO of the compiled path, or None."""
     own = getattr(optimizer, "compiled_pso", None)
-    if own is not None:
-        return own()
-    inner = getattr(optimizer, "inner", None)
-    if inner is not None and hasattr(optimizer, "plan") and hasattr(inner, "compiled_pso"):
-        return inner.compiled_pso()
-    return None
+    return None if own is None else own()
+
+
+def runs_compiled(optimizer) -> bool:
+    """Whether the compiled path can run this optimiser: one that offers ``compiled_pso()``
+    (the ``pso`` plugin: one stage of all parameters), or that runs such PSOs stage by stage
+    (``plan(task)`` with ``inner`` and ``refiner`` PSOs: the ``stepwise`` plugins)."""
+    if _compiled(optimizer) is not None:
+        return True
+    return (hasattr(optimizer, "plan") and _compiled(getattr(optimizer, "inner", None)) is not None
+            and _compiled(getattr(optimizer, "refiner", None)) is not None)
 
 
 def supports(model, objective, optimizer) -> bool:
     """Whether :func:`fit_frames` can fit with these plugins."""
     return (hasattr(model, "kinematic_tree") and hasattr(objective, "compiled_kernel")
             and not getattr(objective, "observes_depth", False) and getattr(objective, "additive", True)
-            and pso_of(optimizer) is not None)
+            and runs_compiled(optimizer))
 
 
-def plan(optimizer, task) -> list[StagePlan]:
-    """The stages the optimiser runs on a frame's task (budgets add up to the task's)."""
-    if hasattr(optimizer, "compiled_pso"):
-        return [StagePlan("all", task.parameters, task.points, task.points, task.budget)]
-    return [StagePlan(s.name, np.asarray(s.parameters, dtype=np.int64), np.asarray(s.points, dtype=np.int64),
-                      np.asarray(s.owned, dtype=np.int64), int(s.budget)) for s in optimizer.plan(task)]
+def plan(optimizer, task) -> list[tuple[StagePlan, object]]:
+    """The stages the optimiser runs on a frame's task (budgets add up to the task's), each
+    with the PSO that runs it (a stepwise optimiser's ``refiner`` runs its ``refine`` stage)."""
+    own = _compiled(optimizer)
+    if own is not None:
+        return [(StagePlan("all", task.parameters, task.points, task.points, task.budget), own)]
+    inner, refiner = _compiled(optimizer.inner), _compiled(optimizer.refiner)
+    return [(StagePlan(s.name, np.asarray(s.parameters, dtype=np.int64), np.asarray(s.points, dtype=np.int64),
+                       np.asarray(s.owned, dtype=np.int64), int(s.budget)), refiner if s.name == "refine" else inner)
+            for s in optimizer.plan(task)]
 
 
 def _require(a, dtype) -> np.ndarray:
@@ -433,10 +440,11 @@ def _require(a, dtype) -> np.ndarray:
 class Layout:
     """A schedule as :func:`fit_batch` reads it: ``stages`` (S, 9) rows (budget, swarm size,
     particles started near the guess, and [lo, hi) ranges of ``indices`` for the parameters,
-    points and owned points) and ``draws``, the random numbers each stage takes in the Task
+    points and owned points), the PSO ``coefficients`` (S, 5) of each stage and ``draws``, the random numbers each stage takes in the Task
     path's order: (count, normal?) pairs."""
 
     stages: np.ndarray
+    coefficients: np.ndarray
     indices: np.ndarray
     draws: tuple[tuple[int, bool], ...]
 
@@ -445,10 +453,10 @@ class Layout:
         return sum(n for n, _ in self.draws)
 
 
-def layout(stages: list[StagePlan], pso) -> Layout:
-    """Lay out a frame's stages for the PSO ``pso`` (its ``swarm(budget)``)."""
+def layout(stages: list[tuple[StagePlan, object]]) -> Layout:
+    """Lay out a frame's stages, each with its PSO (as :func:`plan` gives them)."""
     rows, parts, draws, at = [], [], [], 0
-    for st in stages:
+    for st, pso in stages:
         n, near = pso.swarm(st.budget)
         d = len(st.parameters)
         row = [st.budget, n, near]
@@ -458,7 +466,9 @@ def layout(stages: list[StagePlan], pso) -> Layout:
             at += len(idx)
         rows.append(row)
         draws += [(n * d, False), (near * d, True), (2 * d * (st.budget - n), False)]
-    return Layout(np.array(rows, dtype=np.int64).reshape(-1, 9), np.concatenate(parts), tuple(draws))
+    return Layout(np.array(rows, dtype=np.int64).reshape(-1, 9),
+                  np.array([pso.coefficients() for _, pso in stages], dtype=np.float64).reshape(-1, 5),
+                  np.concatenate(parts), tuple(draws))
 
 
 def draw(rng: np.random.Generator, plan: Layout, out: np.ndarray) -> None:
@@ -481,7 +491,6 @@ class CompiledFitter:
     def __init__(self, model, objective, optimizer, point_names, budget: int, seed: int,
                  search_radius_mm: float = 60.0) -> None:
         self.model, self.objective, self.optimizer = model, objective, optimizer
-        self.pso = pso_of(optimizer)
         self.names = tuple(point_names)
         self.budget, self.seed, self.search_radius_mm = int(budget), int(seed), float(search_radius_mm)
         tree = model.kinematic_tree()
@@ -495,7 +504,6 @@ class CompiledFitter:
                           _require(cols, np.int64), _require(M[rows, cols], np.float64))
         self.kernel, consts = objective.compiled_kernel()
         self.consts = _require(consts, np.float64)
-        self.coefficients = _require(self.pso.coefficients(), np.float64)
         self._layouts: dict[bytes, Layout] = {}
 
     def layout(self, problem) -> Layout:
@@ -505,14 +513,14 @@ class CompiledFitter:
         key = (problem.weights.sum(axis=-1) > 0).tobytes()
         found = self._layouts.get(key)
         if found is None:
-            found = self._layouts[key] = layout(plan(self.optimizer, Task(problem, self.budget)), self.pso)
+            found = self._layouts[key] = layout(plan(self.optimizer, Task(problem, self.budget)))
         return found
 
     def fit_chunk(self, frames, proposals: np.ndarray, confidences: np.ndarray, threads: int = 1):
         """Fit frames (their indices: the random streams and messages) with proposals (F, Q, K, 3)
         mm and confidences (F, Q, K), on ``threads`` numba threads. Returns a list of (frame,
         (params (P,), points (Q, 3), joints (J, 3), loss, evaluations), None), or (frame, None,
-        message) for a frame whose input cannot be fitted, in frame order."""
+        message) for a frame whose input cannot be fitted, in the order of ``frames``."""
         out, problems, layouts, kept = [], [], [], []
         for i, f in enumerate(frames):
             try:
@@ -537,7 +545,8 @@ class CompiledFitter:
             points = joints if self.point_matrix is None else np.einsum("qj,njc->nqc", self.point_matrix, joints)
             out += [(frames[i], (params[n], points[n], joints[n], float(loss[n]), int(used[n])), None)
                     for n, i in enumerate(kept)]
-        return sorted(out, key=lambda item: item[0])
+        order = {f: n for n, f in enumerate(frames)}
+        return sorted(out, key=lambda item: order[item[0]])
 
     def fit(self, proposals, weights, x0, lower, upper, layouts: list[Layout], random, random_at, threads: int = 1):
         """proposals (F, Q, K, 3) mm, weights (F, Q, K) normalised, x0, lower, upper (F, P), a
@@ -563,7 +572,7 @@ class CompiledFitter:
             kernel(self.kernel, *self.tree, *self.point_map, _require(proposals, np.float64),
                    _require(weights, np.float64), self.consts, _require(x0, np.float64), _require(lower, np.float64),
                    _require(upper, np.float64), frame_stages, _require(stages, np.int64), _require(indices, np.int64),
-                   self.coefficients, _require(random, np.float64), _require(random_at, np.int64), params, loss,
+                   np.concatenate([lay.coefficients for lay in layouts]), _require(random, np.float64), _require(random_at, np.int64), params, loss,
                    evaluations)
         finally:
             nb.set_num_threads(previous)

@@ -46,9 +46,10 @@ def random_params(model, n, rng):
 @pytest.fixture
 def interrupt_at(monkeypatch):
     """interrupt_at(frame): make hybridfit.fit raise KeyboardInterrupt when it reaches that frame."""
-    from hybridfit import fitting
+    from hybridfit import compiled, fitting
 
     real = fitting._fit_chunk
+    real_compiled = compiled.CompiledFitter.fit_chunk
 
     def arm(frame: int) -> None:
         def chunk(spec, frames, *rest):
@@ -56,6 +57,13 @@ def interrupt_at(monkeypatch):
                 raise KeyboardInterrupt
             return real(spec, frames, *rest)
 
+        def compiled_chunk(fitter, frames, *rest):
+            if frames[0] == frame:
+                raise KeyboardInterrupt
+            return real_compiled(fitter, frames, *rest)
+
         monkeypatch.setattr(fitting, "_fit_chunk", chunk)
+        monkeypatch.setattr(compiled.CompiledFitter, "fit_chunk", compiled_chunk)
+        monkeypatch.setattr(fitting, "COMPILED_CHUNK", 1)  # the compiled path, one frame per call
 
     return arm
