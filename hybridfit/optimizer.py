@@ -40,16 +40,22 @@ class Task:
     """A box-bounded minimisation over ``dim`` of the problem's parameters, with a budget.
 
     parameters: indices of the free parameters (the others stay at ``base``); points: the
-    point indices the loss is summed over. Child tasks (stages) charge their parent too.
+    point indices the loss is summed over; owned: the points whose loss this task
+    contributes to its parent's loss (default: ``points``). A stage may minimise over more
+    points than it owns (guide points that a later stage owns); the owned sets of a parent's
+    committed stages partition the parent's points. Child tasks (stages) charge their
+    parent too. One evaluation is one hypothesis scored, whatever the points.
     """
 
     def __init__(self, problem: Problem, budget: int, parameters=None, points=None,
-                 base=None, name: str = "all", parent: "Task | None" = None) -> None:
+                 base=None, name: str = "all", parent: "Task | None" = None, owned=None) -> None:
         self.problem = problem
         self.budget = int(budget)
         P = problem.model.n_params
         self.parameters = np.arange(P) if parameters is None else np.asarray(parameters, dtype=np.int64)
         self.points = problem.all_points if points is None else np.asarray(points, dtype=np.int64)
+        self.owned = self.points if owned is None else np.asarray(owned, dtype=np.int64)
+        self._guided = not _same_set(self.owned, self.points)
         self.base = (problem.x0 if base is None else np.asarray(base, dtype=float)).copy()
         self.name = name
         self.parent = parent
@@ -60,6 +66,7 @@ class Task:
         self.used = 0
         self.best_x = self.x0.copy()
         self.best_loss = np.inf
+        self.best_owned_loss = np.inf
         self._committed: list[Task] = []
         if parent is None:
             self._history: list[tuple[float, int, str]] = []
@@ -91,7 +98,8 @@ class Task:
         n = len(X)
         if n > self.remaining:
             raise BudgetExceeded(f"task {self.name}: {n} evaluations asked, {self.remaining} left")
-        losses = self.problem.evaluate(self.full(X), self.points)
+        full = self.full(X)
+        losses = self.problem.evaluate(full, self.points)
         task: Task | None = self
         while task is not None:
             task.used += n
@@ -101,31 +109,39 @@ class Task:
             if losses[i] < self.best_loss:
                 self.best_loss = float(losses[i])
                 self.best_x = X[i].copy()
+                self.best_owned_loss = (float(self.problem.evaluate(full[i:i + 1], self.owned)[0])
+                                        if self._guided else self.best_loss)
             self.root._history.append((self.best_loss, self.root.used, self.name))
         return losses
 
-    def stage(self, name: str, parameters, points, budget: int) -> "Task":
-        """A child task over some parameters and points, starting from this task's base."""
-        return Task(self.problem, budget, parameters, points, base=self.base, name=name, parent=self)
+    def stage(self, name: str, parameters, points, budget: int, owned=None) -> "Task":
+        """A child task over some parameters and points (owning ``owned``, default ``points``),
+        starting from this task's base."""
+        return Task(self.problem, budget, parameters, points, base=self.base, name=name, parent=self, owned=owned)
 
     def commit(self, child: "Task") -> None:
         """Fix a finished child's best parameters into this task's base.
 
-        Committed children whose points partition this task's points add up to its loss; a
-        child scored on all of this task's points (a final refinement) replaces them.
+        Committed children whose owned points partition this task's points add up to its
+        loss. A child owning all of this task's points (a final refinement) replaces them,
+        but only if it is better than what this task already had: a stage can never make
+        the task's result worse.
         """
-        self.base[child.parameters] = child.best_x
-        if len(child.points) == len(self.points) and np.array_equal(np.sort(child.points), np.sort(self.points)):
+        if _same_set(child.owned, self.points):
+            if child.best_owned_loss >= self.best_loss:
+                return
             self._committed = []
+        self.base[child.parameters] = child.best_x
         self._committed.append(child)
         self.best_x = self.base[self.parameters].copy()
-        self.best_loss = float(sum(c.best_loss for c in self._committed))
+        self.best_loss = float(sum(c.best_owned_loss for c in self._committed))
 
     def result(self) -> OptimizeResult:
         """The best evaluated parameters (full vector) and loss.
 
-        After stages were committed, the loss is the sum of the stages' best losses (exact,
-        since the objective is a sum over points and the stages partition the points).
+        After stages were committed, the loss is the sum of the stages' best losses over the
+        points they own (exact, since the objective is a sum over points and the owned sets
+        partition the points).
         """
         params, loss = self.full(self.best_x[None])[0], self.best_loss
         hist = self.root._history
@@ -137,6 +153,10 @@ class Task:
             history_evaluations=np.array([h[1] for h in hist], dtype=np.int64),
             history_stage=tuple(h[2] for h in hist),
         )
+
+
+def _same_set(a: np.ndarray, b: np.ndarray) -> bool:
+    return len(a) == len(b) and np.array_equal(np.sort(a), np.sort(b))
 
 
 class Optimizer(Plugin, abc.ABC):

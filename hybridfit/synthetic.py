@@ -99,25 +99,8 @@ def synthetic_proposals(
     rng = np.random.default_rng(seed)
     params = random_poses(model, frames, rng, distance_mm=distance_mm)
     truth = model.forward(params) if frames else np.zeros((0, model.n_joints, 3))
-    J = model.n_joints
-    sources = _decoy_sources(model)
-    proposals = np.empty((frames, J, k, 3))
-    confidences = np.empty((frames, J, k))
-    for f in range(frames):
-        for j in range(J):
-            conf = np.sort(rng.dirichlet(np.full(k, 1.5)))[::-1]
-            has_true = rng.random() >= p_missing
-            true_rank = (0 if rng.random() < p_true_top else int(rng.integers(1, k))) if k > 1 else 0
-            for r in range(k):
-                if has_true and r == true_rank:
-                    centre = truth[f, j]
-                elif sources[j] and rng.random() < 0.7:
-                    centre = truth[f, rng.choice(sources[j])]
-                else:
-                    direction = rng.normal(size=3)
-                    centre = truth[f, j] + direction / np.linalg.norm(direction) * rng.uniform(15, 45)
-                proposals[f, j, r] = centre + rng.normal(0.0, noise_mm, 3)
-            confidences[f, j] = conf
+    proposals, confidences = proposals_around(truth, _decoy_sources(model), rng, k=k, noise_mm=noise_mm,
+                                              p_missing=p_missing, p_true_top=p_true_top)
     return {
         "proposals": proposals,
         "confidences": confidences,
@@ -125,3 +108,42 @@ def synthetic_proposals(
         "ground_truth": truth,
         "params": params,
     }
+
+
+def proposals_around(truth: np.ndarray, sources: list[list[int]], rng: np.random.Generator, *, k: int,
+                     noise_mm, p_missing: float, p_true_top: float, p_heavy: float = 0.0,
+                     frame_offset_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """k proposals per point around truth (F, Q, 3) mm: (proposals (F, Q, k, 3), confidences (F, Q, k)).
+
+    Per point: the true point with Gaussian noise of standard deviation ``noise_mm`` (a
+    number, or (Q,) per point) per axis, absent with probability ``p_missing``; with
+    probability ``p_heavy`` its noise is 3x larger (a heavy tail); plus, if
+    ``frame_offset_mm``, an offset shared by all points of a frame (errors of real
+    predictors are correlated). Decoys: with probability 0.7 one of the points in
+    ``sources[q]`` (what a forest confuses the point with), else an outlier 15-45 mm away.
+    Confidences are Dirichlet, sorted descending, the true proposal the most confident with
+    probability ``p_true_top``."""
+    F, Q, _ = truth.shape
+    noise = np.broadcast_to(np.asarray(noise_mm, dtype=float), (Q,))
+    proposals = np.empty((F, Q, k, 3))
+    confidences = np.empty((F, Q, k))
+    for f in range(F):
+        shift = rng.normal(0.0, frame_offset_mm, 3) if frame_offset_mm else 0.0
+        for j in range(Q):
+            conf = np.sort(rng.dirichlet(np.full(k, 1.5)))[::-1]
+            has_true = rng.random() >= p_missing
+            true_rank = (0 if rng.random() < p_true_top else int(rng.integers(1, k))) if k > 1 else 0
+            for r in range(k):
+                sd = noise[j]
+                if has_true and r == true_rank:
+                    centre = truth[f, j] + shift
+                    if p_heavy and rng.random() < p_heavy:
+                        sd = 3.0 * sd
+                elif sources[j] and rng.random() < 0.7:
+                    centre = truth[f, rng.choice(sources[j])]
+                else:
+                    direction = rng.normal(size=3)
+                    centre = truth[f, j] + direction / np.linalg.norm(direction) * rng.uniform(15, 45)
+                proposals[f, j, r] = centre + rng.normal(0.0, sd, 3)
+            confidences[f, j] = conf
+    return proposals, confidences

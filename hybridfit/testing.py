@@ -309,9 +309,9 @@ class RecordingTask(Task):
         self.record.append((self, X))
         return losses
 
-    def stage(self, name, parameters, points, budget):
+    def stage(self, name, parameters, points, budget, owned=None):
         return RecordingTask(self.problem, budget, parameters, points, base=self.base, name=name, parent=self,
-                             record=self.record)
+                             owned=owned, record=self.record)
 
 
 def check_problem(seed: int = 0) -> Problem:

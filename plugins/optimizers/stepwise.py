@@ -22,6 +22,7 @@ budget for a final joint refinement of all parameters starting from the stepwise
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, Literal
 
@@ -32,6 +33,7 @@ from hybridfit import registry
 from hybridfit.errors import HybridfitError, UnknownPluginError
 from hybridfit.optimizer import Optimizer, Task
 from hybridfit.plugin import Settings
+from hybridfit.problem import point_depths
 
 
 class StepwiseSettings(Settings):
@@ -42,6 +44,15 @@ class StepwiseSettings(Settings):
     stage_weights: list[float] | None = Field(None, description="relative budget per stage (overrides root_share)")
     refine_share: float = Field(
         0.0, ge=0, lt=1, description="share of the budget for a final joint refinement of all parameters (0 = the paper)"
+    )
+    refine_config: dict[str, Any] = Field(
+        default_factory=dict, description="the inner optimiser's settings overridden for the refinement stage"
+    )
+    min_root_points: int = Field(
+        4, ge=0, description="with fewer observed points of its own, the root stage is also scored on guide points"
+    )
+    min_root_lever_mm: float = Field(
+        10.0, ge=0, description="likewise below this rotation lever (mm) of its own observed points (nearly collinear)"
     )
 
     @field_validator("optimizer")
@@ -65,8 +76,42 @@ def split_budget(budget: int, weights) -> list[int]:
     return [int(b) for b in out]
 
 
+@dataclass(frozen=True)
+class StagePlan:
+    """One stage of a frame's schedule: optimise ``parameters`` (int64 indices) over ``points``
+    (the point indices minimised over) with ``budget`` evaluations; ``owned`` (a subset of
+    ``points``) are the points whose loss the stage contributes to the frame's loss. The
+    owned sets of a plan partition the task's points, except a final ``refine`` stage, which
+    owns them all. Each stage starts from the parameters the stages before it left."""
+
+    name: str
+    parameters: np.ndarray
+    points: np.ndarray
+    owned: np.ndarray
+    budget: int
+
+
+def rotation_lever_mm(points: np.ndarray) -> float:
+    """How well (Q, 3) points determine a rotation: the root-mean-square distance of the points
+    from the axis (through their centroid) about which they constrain a rotation least, mm.
+    0 for collinear points; a rotation error is about noise / (lever * sqrt(Q)) radians."""
+    if len(points) < 3:
+        return 0.0
+    c = points - points.mean(axis=0)
+    inertia = np.eye(3) * (c * c).sum() - c.T @ c
+    return float(np.sqrt(max(np.linalg.eigvalsh(inertia)[0], 0.0) / len(points)))
+
+
 class Stepwise(Optimizer):
-    """Runs any registered optimiser stage by stage (palm first, then fingers) or jointly."""
+    """Runs any registered optimiser stage by stage (palm first, then fingers) or jointly.
+
+    The schedule adapts to the frame's points (``plan``): stages without free parameters or
+    without any point that has proposals are skipped (their budget goes to the others), and
+    when the root stage's own observed points cannot determine the global rotation (fewer than
+    3, or collinear: ``rotation_lever_mm`` below ``min_root_lever_mm``), the root stage is also
+    scored on guide points: each later stage's observed points nearest to the root, with the
+    fingers at their starting articulation. Guide points stay owned by their own stage.
+    """
 
     Settings = StepwiseSettings
 
@@ -79,14 +124,12 @@ class Stepwise(Optimizer):
         return registry.create("optimizer", s.optimizer, s.optimizer_config)
 
     def _stages(self, task: Task):
-        """The stages restricted to the task's parameters and points, with budget weights.
-
-        Stages left with no free parameters or no points to score are skipped (their
-        parameters stay at the task's base) and their budget goes to the others.
-        """
+        """The stages restricted to the task's parameters and observed points, with budget
+        weights: a list of (name, parameters, points, owned), and the weights."""
         if self.settings.schedule == "joint":
-            return [("joint", task.parameters, task.points)], [1.0]
-        stages = task.problem.stage_points()
+            return [("joint", task.parameters, task.points, task.points)], [1.0]
+        problem = task.problem
+        stages = problem.stage_points()
         w = self.settings.stage_weights
         if w is None:
             rest = (1.0 - self.settings.root_share) / (len(stages) - 1)
@@ -96,42 +139,67 @@ class Stepwise(Optimizer):
                 f"{self.name}: stage_weights needs {len(stages)} positive weights "
                 f"({', '.join(s[0] for s in stages)}), got {w}"
             )
+        observed = np.flatnonzero(problem.weights.sum(axis=-1) > 0)
         kept, weights = [], []
         for (name, params, points), weight in zip(stages, w):
             params = np.intersect1d(params, task.parameters)
-            points = np.intersect1d(points, task.points)
+            points = np.intersect1d(np.intersect1d(points, task.points), observed)
             if len(params) and len(points):
-                kept.append((name, params, points))
+                kept.append([name, params, points, points])
                 weights.append(weight)
         if not kept:
-            return [("joint", task.parameters, task.points)], [1.0]
-        # points no kept stage scores only add a constant: score them with the first stage
-        # so that the stage losses still add up to the task's loss
-        left = np.setdiff1d(task.points, np.concatenate([k[2] for k in kept]))
-        kept[0] = (kept[0][0], kept[0][1], np.union1d(kept[0][2], left))
-        return kept, weights
+            return [("joint", task.parameters, task.points, task.points)], [1.0]
+        # points no kept stage scores only add a constant: the first stage owns them, so that
+        # the stage losses still add up to the task's loss
+        left = np.setdiff1d(task.points, np.concatenate([k[3] for k in kept]))
+        first = kept[0]
+        first[2], first[3] = np.union1d(first[2], left), np.union1d(first[3], left)
+        if stages[0][0] == first[0] and len(kept) > 1:
+            first[2] = np.union1d(first[2], self._guide_points(problem, first[3], [k[3] for k in kept[1:]]))
+        return [tuple(k) for k in kept], weights
+
+    def _guide_points(self, problem, root_points: np.ndarray, later: list[np.ndarray]) -> np.ndarray:
+        """Points of later stages to score the root stage on when its own observed points
+        cannot determine the rotation (none when they can)."""
+        observed = root_points[problem.weights[root_points].sum(axis=-1) > 0]
+        canonical = problem.points(problem.x0[None])[0]
+        s = self.settings
+        if len(observed) >= s.min_root_points and rotation_lever_mm(canonical[observed]) >= s.min_root_lever_mm:
+            return np.zeros(0, dtype=np.int64)
+        M = np.eye(problem.model.n_joints) if problem.point_matrix is None else problem.point_matrix
+        depth = point_depths(problem.model.parents, M)
+        return np.concatenate([p[depth[p] == depth[p].min()] for p in later]).astype(np.int64)
+
+    def plan(self, task: Task) -> list[StagePlan]:
+        """The frame's schedule: stages with exact budgets adding up to ``task.budget``."""
+        stages, w = self._stages(task)
+        refine = int(round(self.settings.refine_share * task.budget)) if self.settings.schedule == "stepwise" else 0
+        plan = [StagePlan(name, params, points, owned, budget)
+                for (name, params, points, owned), budget in zip(stages, split_budget(task.budget - refine, w))]
+        if refine:
+            plan.append(StagePlan("refine", task.parameters, task.points, task.points, refine))
+        return plan
 
     def min_budget(self, task: Task) -> int:
         inner = self.inner
         stages, w = self._stages(task)
         w = np.asarray(w) / np.sum(w)
         share = 1.0 - (self.settings.refine_share if self.settings.schedule == "stepwise" else 0.0)
-        need = [inner.min_budget(task.stage(n, p, q, task.budget)) / (s * share) for (n, p, q), s in zip(stages, w)]
+        need = [inner.min_budget(task.stage(n, p, q, task.budget, o)) / (s * share)
+                for (n, p, q, o), s in zip(stages, w)]
         if share < 1.0:
             need.append(inner.min_budget(task) / (1.0 - share))
         return int(np.ceil(max(need)))
 
+    @cached_property
+    def refiner(self) -> Optimizer:
+        """The inner optimiser with ``refine_config`` applied, for the refinement stage."""
+        return self.inner.with_params(**self.settings.refine_config) if self.settings.refine_config else self.inner
+
     def minimize(self, task: Task, rng: np.random.Generator) -> None:
-        inner = self.inner
-        stages, w = self._stages(task)
-        refine = int(round(self.settings.refine_share * task.budget)) if self.settings.schedule == "stepwise" else 0
-        for (name, params, points), budget in zip(stages, split_budget(task.budget - refine, w)):
-            stage = task.stage(name, params, points, budget)
-            inner.minimize(stage, rng)
-            task.commit(stage)
-        if refine:
-            stage = task.stage("refine", task.parameters, task.points, refine)
-            inner.minimize(stage, rng)
+        for st in self.plan(task):
+            stage = task.stage(st.name, st.parameters, st.points, st.budget, st.owned)
+            (self.refiner if st.name == "refine" else self.inner).minimize(stage, rng)
             task.commit(stage)
 
 
