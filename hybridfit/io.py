@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import struct
 import zipfile
 import zlib
 from pathlib import Path
@@ -69,7 +70,8 @@ def load_npz(path: str | os.PathLike, kind: str = "") -> dict[str, np.ndarray]:
             raise HybridfitError(f"{path}: {'key ' + repr(key) + ' ' if key else ''}holds Python objects, "
                                  f"which hybridfit never loads; {expected} of numbers and strings") from None
         raise HybridfitError(f"{path}: not a readable {what} ({err}); {expected}") from None
-    except (zipfile.BadZipFile, OSError, EOFError, KeyError, zlib.error) as err:
+    except (zipfile.BadZipFile, OSError, EOFError, KeyError, zlib.error, NotImplementedError, RuntimeError,
+            struct.error, SyntaxError, MemoryError, UnicodeDecodeError) as err:  # what zipfile and numpy raise
         raise HybridfitError(f"{path}: not a readable {what} (corrupt or truncated: {type(err).__name__}: {err})") from None
 
 

@@ -96,18 +96,25 @@ def far_frames(path: str) -> tuple[np.ndarray, float] | None:
     data = load_npz(path)
     if "joints" not in data:
         return None
-    failed = np.asarray(data["failed"], bool) if "failed" in data else np.zeros(len(data["joints"]), bool)
-    Q = np.asarray(data["joints"]).shape[1]
+    joints = points_array(path, data, "joints", data.get("failed"))
+    failed = np.asarray(data["failed"], bool) if "failed" in data else np.zeros(len(joints), bool)
+    dist = np.asarray(data.get("inlier_distance_mm", INLIER_DISTANCE_MM))
+    if dist.shape != () or dist.dtype.kind not in "iuf" or not 0 < dist < np.inf:
+        raise HybridfitError(f"{path}: 'inlier_distance_mm' must be one positive number (mm), got {dist}")
     if "inliers" in data:
         count = np.asarray(data["inliers"])
-        dist = float(data["inlier_distance_mm"]) if "inlier_distance_mm" in data else INLIER_DISTANCE_MM
     elif "proposals" in data and "confidences" in data:
-        dist = INLIER_DISTANCE_MM
-        count = inliers(data["joints"], data["proposals"], data["confidences"], dist)
+        from ..io import load_proposals
+
+        z = load_proposals(path)
+        if z["proposals"].shape[:2] != joints.shape[:2]:
+            raise HybridfitError(f"{path}: 'proposals' {z['proposals'].shape} do not match 'joints' {joints.shape}")
+        count = inliers(joints, z["proposals"], z["confidences"], float(dist))
     else:
         return None
-    if count.shape != failed.shape:
-        raise HybridfitError(f"{path}: 'inliers' has shape {count.shape}, expected ({len(failed)},)")
+    if count.shape != failed.shape or count.dtype.kind not in "iu":
+        raise HybridfitError(f"{path}: 'inliers' must be {len(failed)} integers, got {count.dtype} {count.shape}")
+    Q, dist = joints.shape[1], float(dist)
     return np.flatnonzero((count < Q / 2) & ~failed), dist
 
 

@@ -100,10 +100,12 @@ class Forest:
         """Read a forest file; a corrupt file or another format version raises HybridfitError naming it."""
         path = Path(path)
         d = load_npz(path, "forest")
-        if "format" not in d or str(d["format"]) != FORMAT:
+        if "format" not in d or d["format"].shape != () or str(d["format"]) != FORMAT:
             raise HybridfitError(f"{path}: not a hybridfit forest file")
-        if int(d.get("version", -1)) != VERSION:
-            raise HybridfitError(f"{path}: forest file version {int(d.get('version', -1))}, this hybridfit reads version {VERSION}; retrain the forest")
+        version = d.get("version", np.asarray(-1))
+        if version.shape != () or version.dtype.kind not in "iu" or int(version) != VERSION:
+            raise HybridfitError(f"{path}: forest file version {version}, this hybridfit reads version {VERSION}; "
+                                 f"retrain the forest")
         missing = [k for k in (*_ARRAYS, "config", "intrinsics", "joint_names") if k not in d]
         if missing:
             raise HybridfitError(f"{path}: forest file lacks {', '.join(missing)}")
@@ -111,7 +113,10 @@ class Forest:
             config = ForestConfig.model_validate_json(str(d["config"]))
             intrinsics = Intrinsics.model_validate_json(str(d["intrinsics"]))
         except ValueError as err:
-            raise HybridfitError(f"{path}: bad forest settings ({err})") from None
+            raise HybridfitError(f"{path}: bad forest settings ({' '.join(str(err).split())})") from None
+        names = d["joint_names"]
+        if names.ndim != 1 or names.dtype.kind not in "US":
+            raise HybridfitError(f"{path}: forest 'joint_names' must be strings, got {names.dtype} {names.shape}")
         forest = cls(config, [str(n) for n in d["joint_names"]], intrinsics, **{k: d[k] for k in _ARRAYS})
         forest._check(path)
         return forest

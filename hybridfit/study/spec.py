@@ -68,6 +68,8 @@ class TrialSettings(_Strict):
     proposal_set: int = Field(200, ge=1, description="|P~|: votes per joint into mean-shift (forest data only)")
     budget: int = Field(3400, ge=1, description="objective evaluations per frame")
     search_radius_mm: float = Field(60.0, gt=0)
+    skeleton: str | None = Field(None, description="the dataset skeleton of synthetic-stress data (a sweep "
+                                 "dimension; icvl by default)")
     tracking: StudyTracking | None = Field(None, description="track the sequence (each frame starts from the "
                                            "previous fit) instead of fitting frames independently")
 
@@ -93,8 +95,9 @@ class TrialSettings(_Strict):
         """The settings as written in study files (``*_config`` keys; ``tracking`` only when set,
         so the keys of trials that do not track stay what they were)."""
         out = self.model_dump(mode="json", by_alias=True)
-        if out["tracking"] is None:
-            del out["tracking"]
+        for optional in ("tracking", "skeleton"):
+            if out[optional] is None:
+                del out[optional]
         return out
 
 
@@ -175,7 +178,44 @@ class ProposalsData(_Strict):
         return self
 
 
-Data = Annotated[Union[SyntheticProposalsData, SyntheticDepthData, DatasetData, ProposalsData],
+class StressSettings(_Strict):
+    """``hybridfit.stress.stress_proposals`` settings: how the frames differ from the model's."""
+
+    noise_mm: float = Field(2.0, ge=0, description="proposal noise per axis at the root, mm")
+    noise_per_depth_mm: float = Field(1.5, ge=0, description="added per joint along a finger, mm")
+    frame_offset_mm: float = Field(2.0, ge=0, description="noise shared by a frame's points, per axis, mm")
+    p_heavy: float = Field(0.05, ge=0, le=1)
+    p_missing: float = Field(0.05, ge=0, le=1)
+    p_true_top: float = Field(0.92, ge=0, le=1)
+    scale_range: tuple[float, float] = Field((0.9, 1.1), description="the subject's hand scale, drawn once")
+    proportion_sd: float = Field(0.05, ge=0, description="the subject's per-bone proportions, relative sd")
+    bone_jitter_mm: float = Field(3.0, ge=0, description="per-frame bone-length jitter, sd in mm")
+    weight_sd: float = Field(0.1, ge=0, description="perturbation of the derived points' weights")
+    offset_mm: float = Field(4.0, ge=0, description="annotated points' offsets in the hand frame, sd in mm")
+
+
+class StressCalibration(_Strict):
+    """Calibrate the model on annotated frames of the same subject before the fitted frames."""
+
+    frames: int = Field(100, ge=1, description="annotated frames to calibrate on (never fitted)")
+    rounds: int = Field(2, ge=0)
+    budget: int = Field(3400, ge=1)
+    seed: int = 0
+
+
+class SyntheticStressData(_Strict):
+    """Synthetic stress data like real annotations (``hybridfit.stress``), one sequence per
+    skeleton (the trials' ``skeleton`` setting): calibration frames, then the fitted frames."""
+
+    kind: Literal["synthetic-stress"]
+    frames: int = Field(300, ge=1, description="fitted frames per skeleton")
+    k: int = Field(3, ge=1, description="proposals generated per point; a trial's k must not exceed it")
+    seed: int = 2026
+    stress: StressSettings = Field(default_factory=StressSettings)
+    calibrate: StressCalibration | None = Field(default_factory=StressCalibration)
+
+
+Data = Annotated[Union[SyntheticProposalsData, SyntheticDepthData, DatasetData, ProposalsData, SyntheticStressData],
                  Field(discriminator="kind")]
 
 
@@ -309,6 +349,8 @@ def load_spec(path: str | Path, quick: bool = False) -> Study:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as err:
         raise HybridfitError(f"{path}: invalid TOML: {err}") from None
+    except UnicodeDecodeError:
+        raise HybridfitError(f"{path}: not a text file; expected a study file (TOML)") from None
     where = str(path)
     if quick:
         over = raw.get("quick", {})
