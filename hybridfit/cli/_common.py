@@ -66,11 +66,14 @@ def plugin_kwargs(args: argparse.Namespace) -> dict[str, Any]:
 def check_plugin(kind: str, name: str, config: dict[str, Any], path: str | None) -> None:
     """Create the plugin; errors name the settings file, the key and the closest valid key."""
     where = f"{path}: " if path else ""
+    settings = getattr(registry.get(kind, name), "Settings", None)
     try:
+        if settings is not None:
+            settings.model_validate(config)
         plugin = registry.create(kind, name, config)
         getattr(plugin, "inner", None)  # a wrapper's inner optimiser (stepwise) is checked too
     except ValidationError as err:
-        fields = registry.get(kind, name).Settings.model_fields
+        fields = settings.model_fields
         parts = []
         for e in err.errors():
             key = ".".join(str(p) for p in e["loc"]) or "(settings)"
