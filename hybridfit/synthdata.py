@@ -37,7 +37,7 @@ import itertools
 import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -366,10 +366,15 @@ def _make(out, config: _Common, params: np.ndarray, generator: str, progress: bo
     return write_dataset(out, depth, parts, joints, params, config.intrinsics, model.joint_names, meta, progress=progress)
 
 
-def make_train(out, config: GridConfig | Mapping | None = None, *, progress: bool = False) -> Path:
-    """Render and write the training grid data set to the folder ``out``."""
+def make_train(out, config: GridConfig | Mapping | None = None, *, progress: bool = False,
+               frames: Sequence[int] | None = None) -> Path:
+    """Render and write the training grid data set to the folder ``out``; with ``frames``
+    (indices into the grid) only those frames, in that order (without sensor noise they are
+    the same images as in the whole grid)."""
     config = parse_config(GridConfig, config)
-    return _make(out, config, grid_poses(config), "hybridfit.synthdata.make_train", progress)
+    params = grid_poses(config)
+    return _make(out, config, params if frames is None else params[np.asarray(frames, np.int64)],
+                 "hybridfit.synthdata.make_train", progress)
 
 
 def make_test(out, config: SequenceConfig | Mapping | None = None, *, progress: bool = False) -> Path:

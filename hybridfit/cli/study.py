@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from ..errors import EXIT_INCOMPLETE, EXIT_OK, HybridfitError
@@ -36,6 +37,6 @@ def run(args) -> int:
         return 0
     executor = args.executor or ("processes" if args.jobs > 1 else "serial")
     s = run_study(study, out, jobs=args.jobs, executor=executor, scheduler=args.scheduler, cache_dir=args.cache,
-                  progress=True)
+                  progress=sys.stderr.isatty())  # bars on a terminal only, never written into logs
     print(f"{s.total} trials: {s.skipped} already complete, {s.ran} run, {s.failed} failed -> {out}/report.md")
     return EXIT_INCOMPLETE if s.failed else EXIT_OK

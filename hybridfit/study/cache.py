@@ -1,17 +1,23 @@
 """A content-addressed cache of expensive shared steps (data, forests, proposals, calibrations).
 
-An entry is ``ROOT/KIND/KEY[SUFFIX]``, KEY a hash of everything that determines it. It is
-built under a temporary name in the same folder and renamed into place, so a killed run
-leaves no half-written entry; two runs building the same entry at once both succeed
-(the second rename finds it in place and discards its own copy).
+An entry is ``ROOT/KIND/KEY[SUFFIX]``, KEY a hash of everything that determines it, the
+versions of hybridfit and of every plugin distribution included (``code_versions``), so an
+upgrade recomputes instead of reusing what older code made. It is built under a temporary
+name holding the builder's PID (``.tmp-PID-...``) in the same folder and renamed into place,
+so a killed run leaves no half-written entry, and the temporary files and folders of runs
+that are gone are removed when a cache is opened; two runs building the same entry at once
+both succeed (the second rename finds it in place and discards its own copy).
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import os
+import re
 import shutil
 import uuid
+from importlib import metadata
 from pathlib import Path
 from typing import Any, Callable
 
@@ -24,10 +30,11 @@ class Cache:
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
         self.made: list[tuple[str, str]] = []
+        self.removed = remove_stale(self.root)
 
     def path(self, kind: str, payload: Any, suffix: str = "") -> tuple[str, Path]:
-        """(key, path) of the entry for ``payload``."""
-        key = digest(payload)
+        """(key, path) of the entry for ``payload`` (made by this code: versions included)."""
+        key = digest({"payload": payload, "code": code_versions()})
         return key, self.root / kind / f"{key}{suffix}"
 
     def get(self, kind: str, payload: Any, make: Callable[[Path], None], suffix: str = "") -> tuple[str, Path]:
@@ -36,7 +43,7 @@ class Cache:
         if path.exists():
             return key, path
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".tmp-{uuid.uuid4().hex[:8]}-{path.name}")
+        tmp = path.with_name(f".tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}-{path.name}")
         try:
             make(tmp)
             _write_json(path.parent / f"{key}.payload.json", payload)
@@ -53,8 +60,52 @@ class Cache:
         return key, path
 
 
+@functools.cache
+def code_versions() -> dict[str, str]:
+    """{distribution: version} of hybridfit and of every distribution providing a plugin."""
+    from .. import registry
+
+    names = {"hybridfit"}
+    for kind in ("model", "objective", "optimizer"):
+        names.update(i.distribution for i in registry.available(kind) if i.distribution != "?")
+    out = {}
+    for n in sorted(names):
+        try:
+            out[n] = metadata.version(n)
+        except metadata.PackageNotFoundError:
+            out[n] = "?"
+    return out
+
+
+_TEMPORARY = re.compile(r"^\.?\.tmp-(\d+)-|\.partial-(\d+)$")
+
+
+def remove_stale(root: Path) -> int:
+    """Remove temporary entries (``.tmp-PID-*``, ``*.partial-PID``) under ``root/KIND/``
+    whose process is gone (a killed run); returns how many."""
+    removed = 0
+    for entry in root.glob("*/.*") if root.is_dir() else []:
+        m = _TEMPORARY.search(entry.name)
+        if m and not _alive(int(m.group(1) or m.group(2))):
+            _remove(entry)
+            removed += 1
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def _write_json(path: Path, payload: Any) -> None:
-    tmp = path.with_name(f".tmp-{uuid.uuid4().hex[:8]}-{path.name}")
+    tmp = path.with_name(f".tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}-{path.name}")
     tmp.write_text(json.dumps(payload, indent=1, sort_keys=True, default=str))
     os.replace(tmp, path)
 

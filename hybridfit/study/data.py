@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import HybridfitError
 from ..io import load_npz
 from ..metrics import joint_errors, oracle
-from .cache import Cache
+from .cache import Cache, code_versions
 from .spec import DatasetData, ProposalsData, SyntheticDepthData, SyntheticProposalsData, TrialSettings
 
 #: the arrays a trial needs: proposals (F, J, k, 3), confidences (F, J, k), joint_names (J,),
@@ -34,10 +34,15 @@ def _skeleton_file(data) -> bool:
 
 
 def file_hash(path: Path) -> str:
-    """sha256 of a file, or of a data-set folder's meta.json and labels.npz."""
+    """sha256 of a file, or of every file in a folder (names and contents: the depth images
+    too). A cache entry is named by its key, which already hashes what made it."""
     path = Path(path)
+    if (path.parent / f"{path.name.split('.')[0]}.payload.json").is_file():
+        return f"cache:{path.name}"
     h = hashlib.sha256()
-    for f in ([path / "meta.json", path / "labels.npz"] if path.is_dir() else [path]):
+    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    for f in files:
+        h.update(str(f.relative_to(path) if path.is_dir() else "").encode() + b"\0")
         with open(f, "rb") as fh:
             for block in iter(lambda: fh.read(1 << 20), b""):
                 h.update(block)
@@ -47,8 +52,8 @@ def file_hash(path: Path) -> str:
 class StudyData:
     """The data of a study: ``key`` (its identity) and ``proposals(k, proposal_set)``."""
 
-    def __init__(self, data, cache: Cache, jobs: int = 1, log: Callable[[str], None] = print):
-        self.data, self.cache, self.jobs, self.log = data, cache, jobs, log
+    def __init__(self, data, cache: Cache, jobs: int = 1, log: Callable[[str], None] = print, progress: bool = False):
+        self.data, self.cache, self.jobs, self.log, self.progress = data, cache, jobs, log, progress
         self._sets: dict[tuple[int, int], ProposalSet] = {}
         self._calibrated: dict[str, Any] | None = None
         self._depth: dict[str, Any] | None = None
@@ -67,6 +72,7 @@ class StudyData:
                 payload[name] = [file_hash(v) for v in value]
         if _skeleton_file(d):
             payload["dataset"] = file_hash(Path(d.dataset))  # a user's skeleton: its content, not its path
+        payload["code"] = code_versions()  # results of other code are never reused
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:20]
 
     def uses_proposal_set(self) -> bool:
@@ -146,11 +152,26 @@ class StudyData:
         d = self.data
         if isinstance(d, DatasetData):
             return d.test, d.train
-        _, train = self.cache.get("train-data", d.train.model_dump(mode="json"),
-                                  lambda tmp: (self.log("rendering the training grid"), make_train(tmp, d.train)))
-        _, test = self.cache.get("test-data", d.test.model_dump(mode="json"),
-                                 lambda tmp: (self.log("rendering the test sequence"), make_test(tmp, d.test)))
+        frames = self._train_subset()
+        payload = d.train.model_dump(mode="json")
+        if frames is not None:  # only the frames the forest trains on are rendered
+            payload = {**payload, "subset": d.train_subset, "subset_seed": d.forest.seed}
+        _, train = self.cache.get("train-data", payload, lambda tmp: (
+            self.log(f"rendering {'the training grid' if frames is None else f'{len(frames)} frames of the training grid'}"),
+            make_train(tmp, d.train, frames=frames, progress=self.progress)))
+        _, test = self.cache.get("test-data", d.test.model_dump(mode="json"), lambda tmp: (
+            self.log("rendering the test sequence"), make_test(tmp, d.test, progress=self.progress)))
         return test, train
+
+    def _train_subset(self) -> np.ndarray | None:
+        """The grid frames the forest trains on (sorted), None for all."""
+        from ..synthdata import grid_poses
+
+        d = self.data
+        n = len(grid_poses(d.train)) if isinstance(d, SyntheticDepthData) else None
+        if d.train_subset is None or n is None or d.train_subset >= n:
+            return None
+        return np.sort(np.random.default_rng(d.forest.seed).choice(n, d.train_subset, replace=False))
 
     def forest_path(self) -> Path:
         """The trained forest (cached by its training data and config)."""
@@ -166,12 +187,12 @@ class StudyData:
         def make(tmp: Path) -> None:
             ds = load_dataset(train)
             idx = None
-            if d.train_subset is not None and d.train_subset < len(ds):
+            if isinstance(d, DatasetData) and d.train_subset is not None and d.train_subset < len(ds):
                 rng = np.random.default_rng(d.forest.seed)
                 idx = np.sort(rng.choice(len(ds), d.train_subset, replace=False))
             self.log(f"training the forest on {len(ds) if idx is None else len(idx)} frames "
                      f"({d.forest.n_trees} trees, depth {d.forest.max_depth})")
-            train_forest_dataset(ds, d.forest, idx, jobs=self.jobs).save(tmp)
+            train_forest_dataset(ds, d.forest, idx, jobs=self.jobs, progress=self.progress).save(tmp)
 
         return self.cache.get("forest", payload, make, ".npz")[1]
 
@@ -191,7 +212,7 @@ class StudyData:
             idx = np.arange(len(ds) if frames is None else min(frames, len(ds)))
             self.log(f"proposals for {len(idx)} test frames, k = {k}, |P~| = {proposal_set}")
             est = HybridEstimator(forest, k=k, proposal_set=proposal_set, stride=d.stride, bandwidth_mm=d.bandwidth_mm)
-            p = est.propose_dataset(ds, idx)
+            p = est.propose_dataset(ds, idx, progress=self.progress)
             np.savez(tmp, proposals=p.proposals, confidences=p.confidences, empty=p.empty,
                   joint_names=np.asarray(p.joint_names), ground_truth=np.asarray(ds.joints_xyz, float)[idx])
 

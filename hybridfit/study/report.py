@@ -55,9 +55,12 @@ def aggregate(store: Store) -> list[dict[str, Any]]:
     groups: dict[str, list[dict]] = {}
     keys = store.get_meta("trial_keys")
     keys = None if keys is None else set(keys)
+    labels = store.get_meta("trial_labels") or {}
     for t in store.trials("complete"):
         if keys is not None and t["key"] not in keys:
             continue  # from an earlier version of the study file
+        if t["key"] in labels:  # the current study file names it (it may have been run by another)
+            t = {**t, "variant": labels[t["key"]][0], "variant_index": labels[t["key"]][1]}
         groups.setdefault(t["variant"], []).append(t)
     rows = []
 

@@ -111,19 +111,23 @@ def run_trial(settings: dict, model_config: dict, seed: int, data: dict) -> dict
     if warm not in _WARM and len(keep):
         run(keep[:1])
         _WARM.add(warm)
+    # a fit gets every frame, so frame f's random stream is [seed, f] whichever frames are empty
+    # (empty frames have all-0 confidences and fail at once); a track skips them
+    fitted = keep if tracking else np.arange(F)
     t = time.perf_counter()
-    res = run(keep)
+    res = run(fitted)
     if res.interrupted:
         raise KeyboardInterrupt
     elapsed = time.perf_counter() - t
     errors = np.full((F, J), np.nan)
-    errors[keep] = joint_errors(res.joints, data["ground_truth"][keep])
+    errors[fitted] = joint_errors(res.joints, data["ground_truth"][fitted])
     objective, evaluations, failed = np.full(F, np.nan), np.zeros(F, np.int64), np.ones(F, bool)
-    objective[keep], evaluations[keep], failed[keep] = res.objective, res.evaluations, res.failed
+    objective[fitted], evaluations[fitted], failed[fitted] = res.objective, res.evaluations, res.failed
     errors[failed] = np.nan
-    messages = {int(keep[f]): m for f, m in res.errors.items()}
+    messages = {int(fitted[f]): m for f, m in res.errors.items()}
     if getattr(res, "lost", None) is not None:  # a tracking trial: which fits were judged lost
-        messages.update({int(keep[f]): "track lost" for f in np.flatnonzero(res.lost) if int(keep[f]) not in messages})
+        messages.update({int(fitted[f]): "track lost" for f in np.flatnonzero(res.lost)
+                         if int(fitted[f]) not in messages})
     messages.update({int(f): "no foreground pixels" for f in np.flatnonzero(data["empty"])})
     return {"errors": errors, "objective": objective, "evaluations": evaluations, "failed": failed,
             "messages": messages, "time_per_frame": elapsed / max(len(keep), 1),
@@ -151,12 +155,14 @@ def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: 
         store = Store(out / DB_NAME)
         try:
             cache = Cache(Path(cache_dir) if cache_dir else out / "cache")
-            data = StudyData(study.data, cache, jobs=jobs, log=log)
+            data = StudyData(study.data, cache, jobs=jobs, log=log, progress=progress)
             variants = expand(study)
             todo = trials(study, variants, data.key)
             store.set_meta("study", {"name": study.name, "description": study.description,
                                      "spec": study.model_dump(mode="json", by_alias=True)})
             store.set_meta("variant_order", [v.name for v in variants])
+            # labels come from this study file, also for trials an earlier study in this folder ran
+            store.set_meta("trial_labels", {t.key: [t.variant.name, t.variant.index] for t in todo})
             stale = store.mark_interrupted()
             if stale:
                 log(f"{stale} trial(s) of an interrupted run will run again")

@@ -356,6 +356,7 @@ def load_spec(path: str | Path, quick: bool = False) -> Study:
         over = raw.get("quick", {})
         if not isinstance(over, dict) or not over:
             raise HybridfitError(f"{path}: --quick needs a [quick] table of overrides")
+        parse_spec(raw, where, path.parent)  # the whole file is valid, also what [quick] overrides
         raw = deep_merge(raw, over)
         where = f"{path} (with its [quick] overrides)"
     return parse_spec(raw, where, path.parent)
