@@ -33,6 +33,7 @@ from numba import types as T
 
 from .errors import HybridfitError
 from .geometry import quaternion_matrix
+from .kinematics import sincos
 from .objective import normalise_confidences
 from .optimizer import Task
 from .problem import Problem
@@ -72,19 +73,11 @@ def pso_step(x, v, pbest_x, gbest_x, r1, r2, chi, c1, c2, vmax, lower, upper, m)
     for i in range(m):
         for k in range(d):
             vk = chi * (v[i, k] + c1 * r1[i, k] * (pbest_x[i, k] - x[i, k]) + c2 * r2[i, k] * (gbest_x[k] - x[i, k]))
-            if vk > vmax[k]:
-                vk = vmax[k]
-            elif vk < -vmax[k]:
-                vk = -vmax[k]
+            vk = min(max(vk, -vmax[k]), vmax[k])
             xk = x[i, k] + vk
-            if xk < lower[k]:
-                xk = lower[k]
-                vk = 0.0
-            elif xk > upper[k]:
-                xk = upper[k]
-                vk = 0.0
-            x[i, k] = xk
-            v[i, k] = vk
+            xc = min(max(xk, lower[k]), upper[k])  # a particle that hits a bound stops there
+            x[i, k] = xc
+            v[i, k] = vk if xc == xk else 0.0
 
 
 @nb.njit(cache=True)
@@ -148,11 +141,12 @@ def _stage_joints(parents, axis_params, pm_ptr, pm_joint, indices, pts_lo, pts_h
 
 
 @nb.njit(cache=True, fastmath=True, inline="always")
-def _joint_frames(p, joints, count, oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror,
-                  W, Wp, G):
+def _joint_frames(p, sin_p, cos_p, joints, count, oriented, parents, offsets, rest, rest_identity, axes, axis_params,
+                  mirror, W, Wp, G):
     """Camera-frame rotation W (J, 3, 3) (mirror included) and position Wp (J, 3) mm of the
-    listed joints for parameters p (P,), the rotation only where ``oriented``; the other
-    joints' entries are read as fixed. G (3, 3) is scratch space."""
+    listed joints for parameters p (P,) with sines and cosines sin_p, cos_p (P,), the
+    rotation only where ``oriented``; the other joints' entries are read as fixed. G (3, 3) is
+    scratch space."""
     if count and parents[joints[0]] < 0:  # the root moves: the global pose is needed
         quaternion_matrix(p[3], p[4], p[5], p[6], G)
         for r in range(3):
@@ -185,9 +179,8 @@ def _joint_frames(p, joints, count, oriented, parents, offsets, rest, rest_ident
             ax = axes[j, a]
             if ax < 0:
                 break
-            theta = p[axis_params[j, a]]
-            co = np.cos(theta)
-            si = np.sin(theta)
+            co = cos_p[axis_params[j, a]]
+            si = sin_p[axis_params[j, a]]
             if ax == 0:
                 i0, i1 = 1, 2
             elif ax == 1:
@@ -239,6 +232,8 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
     order = np.empty(J, dtype=np.int64)
     all_joints = np.arange(J)
     all_oriented = np.ones(J, dtype=np.bool_)
+    sin_p = np.empty(P)
+    cos_p = np.empty(P)
     frame_loss = np.inf
     committed = 0.0
     used = 0
@@ -259,7 +254,8 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
                 if owned[t] != subset[t]:
                     guided = True
         # fixed joints at the stage's start, then the joints each hypothesis recomputes
-        _joint_frames(base, all_joints, J, all_oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror, W, Wp, G)
+        sincos(base, sin_p, cos_p)
+        _joint_frames(base, sin_p, cos_p, all_joints, J, all_oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror, W, Wp, G)
         count, oriented = _stage_joints(parents, axis_params, pm_ptr, pm_joint, indices, pts_lo, pts_hi, own_lo, own_hi,
                                  par_lo, par_hi, P, order)
         lo = np.empty(d)
@@ -290,6 +286,8 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
                 x[i, k] = min(max(x[i, k], lo[k]), hi[k])
         v = np.zeros((n, d))
         f = np.empty(n)
+        sin_x = np.empty((n, d))
+        cos_x = np.empty((n, d))
         pts = np.zeros((n, Q, 3))
         best_loss = np.inf
         best_owned = np.inf
@@ -309,10 +307,13 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
                 rpos += 2 * m * d
                 pso_step(x, v, pbest_x, pbest_x[g].copy(), r1, r2, chi, c1, c2, vmax, lo, hi, m)
             # score the first m hypotheses
+            sincos(x[:m], sin_x[:m], cos_x[:m])
             for i in range(m):
                 for k in range(d):
                     p[pidx[k]] = x[i, k]
-                _joint_frames(p, order, count, oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror, W, Wp, G)
+                    sin_p[pidx[k]] = sin_x[i, k]
+                    cos_p[pidx[k]] = cos_x[i, k]
+                _joint_frames(p, sin_p, cos_p, order, count, oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror, W, Wp, G)
                 _points(Wp, pm_ptr, pm_joint, pm_weight, indices, pts_lo, pts_hi, pts[i])
             kernel(pts[:m], subset, proposals, weights, consts, f[:m])
             used += m
@@ -325,7 +326,9 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
                 if guided:
                     for k in range(d):
                         p[pidx[k]] = x[i, k]
-                    _joint_frames(p, order, count, oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror, W, Wp, G)
+                        sin_p[pidx[k]] = sin_x[i, k]
+                        cos_p[pidx[k]] = cos_x[i, k]
+                    _joint_frames(p, sin_p, cos_p, order, count, oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror, W, Wp, G)
                     _points(Wp, pm_ptr, pm_joint, pm_weight, indices, own_lo, own_hi, pts[0])
                     kernel(pts[:1], owned, proposals, weights, consts, one)
                     best_owned = one[0]

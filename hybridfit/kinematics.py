@@ -51,47 +51,97 @@ class KinematicTree:
         return np.array([np.allclose(r, np.eye(3)) for r in self.rest])
 
 
+#: fast-math flags without reassociation (the range reduction below relies on evaluation order)
+_NO_REASSOC = {"nnan", "ninf", "nsz", "arcp", "contract", "afn"}
+_PIO2_1, _PIO2_2, _PIO2_3 = 1.5707963267341256, 6.077100506506192e-11, 2.0222662487959506e-21
+
+
+@nb.njit(cache=True, fastmath=_NO_REASSOC)
+def sincos(x, s, c):
+    """Elementwise s = sin(x), c = cos(x) of C-contiguous arrays of the same shape (radians,
+    |x| < 1e6): Cody-Waite reduction to [-pi/4, pi/4] and Taylor polynomials, within a few ulp
+    of libm. Branch-free, so the loop vectorises (numba has no vector sin/cos without SVML)."""
+    xf = x.reshape(-1)
+    sf = s.reshape(-1)
+    cf = c.reshape(-1)
+    for i in range(xf.size):
+        v = xf[i]
+        k = np.floor(v * 0.6366197723675814 + 0.5)
+        r = ((v - k * _PIO2_1) - k * _PIO2_2) - k * _PIO2_3
+        r2 = r * r
+        sr = r + r * r2 * (-0.16666666666666666 + r2 * (0.008333333333333333 + r2 * (-0.0001984126984126984 + r2 * (
+            2.7557319223985893e-06 + r2 * (-2.505210838544172e-08 + r2 * (1.6059043836821613e-10
+                                                                         + r2 * -7.647163731819816e-13))))))
+        cr = 1.0 + r2 * (-0.5 + r2 * (0.041666666666666664 + r2 * (-0.001388888888888889 + r2 * (
+            2.48015873015873e-05 + r2 * (-2.755731922398589e-07 + r2 * (2.08767569878681e-09 + r2 * (
+                -1.1470745597729725e-11 + r2 * 4.779477332387385e-14)))))))
+        q = np.int64(k) & 3
+        swap = (q & 1) == 1
+        a = cr if swap else sr
+        b = sr if swap else cr
+        sf[i] = -a if q >= 2 else a
+        cf[i] = -b if q == 1 or q == 2 else b
+
+
+#: hypotheses per block of :func:`tree_forward` (its loops over a block vectorise)
+BLOCK = 64
+
+
 @nb.njit(cache=True, fastmath=True)
 def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, active, out):
     """params (N, P) -> out (N, J, 3) mm: forward kinematics of a KinematicTree.
 
     Only joints with ``active[j]`` are computed (the others are NaN); the active set must
-    contain the parents of its joints."""
+    contain the parents of its joints. Works on blocks of hypotheses with the hypothesis as
+    the innermost, contiguous axis, so that every step is a vector operation."""
+    N, P = params.shape
     J = parents.shape[0]
     A = axes.shape[1]
-    G = np.empty((3, 3))
-    R = np.empty((J, 3, 3))
-    pos = np.empty((J, 3))
-    for n in range(params.shape[0]):
-        p = params[n]
-        quaternion_matrix(p[3], p[4], p[5], p[6], G)
+    G = np.empty((3, 3, BLOCK))
+    R = np.empty((J, 3, 3, BLOCK))
+    pos = np.empty((J, 3, BLOCK))
+    pT = np.empty((P, BLOCK))
+    sin_p = np.empty((P, BLOCK))
+    cos_p = np.empty((P, BLOCK))
+    for n0 in range(0, N, BLOCK):
+        B = min(BLOCK, N - n0)
+        for i in range(B):
+            for k in range(P):
+                pT[k, i] = params[n0 + i, k]
+            quaternion_matrix(pT[3, i], pT[4, i], pT[5, i], pT[6, i], G[:, :, i])
+        sincos(pT, sin_p, cos_p)  # every angle of the block at once
         for j in range(J):
             if not active[j]:
                 continue
             par = parents[j]
             if par < 0:
                 for r in range(3):
-                    pos[j, r] = offsets[j, r]
+                    for i in range(B):
+                        pos[j, r, i] = offsets[j, r]
                     for c in range(3):
-                        R[j, r, c] = rest[j, r, c]
+                        for i in range(B):
+                            R[j, r, c, i] = rest[j, r, c]
             else:
+                o0, o1, o2 = offsets[j, 0], offsets[j, 1], offsets[j, 2]
                 for r in range(3):
-                    pos[j, r] = pos[par, r] + R[par, r, 0] * offsets[j, 0] + R[par, r, 1] * offsets[j, 1] + R[par, r, 2] * offsets[j, 2]
+                    for i in range(B):
+                        pos[j, r, i] = pos[par, r, i] + R[par, r, 0, i] * o0 + R[par, r, 1, i] * o1 + R[par, r, 2, i] * o2
                 if rest_is_identity[j]:
                     for r in range(3):
                         for c in range(3):
-                            R[j, r, c] = R[par, r, c]
+                            for i in range(B):
+                                R[j, r, c, i] = R[par, r, c, i]
                 else:
                     for r in range(3):
                         for c in range(3):
-                            R[j, r, c] = R[par, r, 0] * rest[j, 0, c] + R[par, r, 1] * rest[j, 1, c] + R[par, r, 2] * rest[j, 2, c]
+                            q0, q1, q2 = rest[j, 0, c], rest[j, 1, c], rest[j, 2, c]
+                            for i in range(B):
+                                R[j, r, c, i] = R[par, r, 0, i] * q0 + R[par, r, 1, i] * q1 + R[par, r, 2, i] * q2
             for a in range(A):
                 ax = axes[j, a]
                 if ax < 0:
                     break
-                theta = p[axis_params[j, a]]
-                co = np.cos(theta)
-                si = np.sin(theta)
+                k = axis_params[j, a]
                 # right-multiplying by a rotation about a local axis mixes two columns
                 if ax == 0:
                     i0, i1 = 1, 2
@@ -100,20 +150,23 @@ def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_pa
                 else:
                     i0, i1 = 0, 1
                 for r in range(3):
-                    a0 = R[j, r, i0]
-                    a1 = R[j, r, i1]
-                    R[j, r, i0] = co * a0 + si * a1
-                    R[j, r, i1] = co * a1 - si * a0
+                    for i in range(B):
+                        a0 = R[j, r, i0, i]
+                        a1 = R[j, r, i1, i]
+                        R[j, r, i0, i] = cos_p[k, i] * a0 + sin_p[k, i] * a1
+                        R[j, r, i1, i] = cos_p[k, i] * a1 - sin_p[k, i] * a0
         for j in range(J):
             if not active[j]:
-                for c in range(3):
-                    out[n, j, c] = np.nan
+                for i in range(B):
+                    for c in range(3):
+                        out[n0 + i, j, c] = np.nan
                 continue
-            lx = mirror * pos[j, 0]
-            ly = pos[j, 1]
-            lz = pos[j, 2]
-            for c in range(3):
-                out[n, j, c] = G[c, 0] * lx + G[c, 1] * ly + G[c, 2] * lz + p[c]
+            for i in range(B):
+                lx = mirror * pos[j, 0, i]
+                ly = pos[j, 1, i]
+                lz = pos[j, 2, i]
+                for c in range(3):
+                    out[n0 + i, j, c] = G[c, 0, i] * lx + G[c, 1, i] * ly + G[c, 2, i] * lz + pT[c, i]
     return out
 
 

@@ -34,28 +34,24 @@ def clamped_confidence_kernel(points, subset, proposals, weights, consts, out):
     N = points.shape[0]
     K = proposals.shape[1]
     inv_d_max_sq = consts[0]
+    best = np.empty(N)
     for n in range(N):
-        total = 0.0
-        for jj in range(subset.shape[0]):
-            j = subset[jj]
-            x = points[n, j, 0]
-            y = points[n, j, 1]
-            z = points[n, j, 2]
-            best = 0.0
-            for r in range(K):
-                w = weights[j, r]
-                if w <= 0.0:
-                    continue
-                dx = proposals[j, r, 0] - x
-                dy = proposals[j, r, 1] - y
-                dz = proposals[j, r, 2] - z
+        out[n] = 0.0
+    for jj in range(subset.shape[0]):  # hypotheses innermost: the loops vectorise
+        j = subset[jj]
+        for n in range(N):
+            best[n] = 0.0
+        for r in range(K):  # branch-free: a weight of 0 or a distance beyond d_max gives 0
+            w = weights[j, r]
+            px, py, pz = proposals[j, r, 0], proposals[j, r, 1], proposals[j, r, 2]
+            for n in range(N):
+                dx = px - points[n, j, 0]
+                dy = py - points[n, j, 1]
+                dz = pz - points[n, j, 2]
                 d2 = (dx * dx + dy * dy + dz * dz) * inv_d_max_sq
-                if d2 < 1.0:
-                    v = w * (1.0 - d2)
-                    if v > best:
-                        best = v
-            total += best
-        out[n] = -total
+                best[n] = max(best[n], w * max(1.0 - d2, 0.0))
+        for n in range(N):
+            out[n] -= best[n]
 
 
 @nb.njit(cache=True)
