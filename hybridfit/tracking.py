@@ -24,9 +24,10 @@ from tqdm.auto import tqdm
 
 from . import registry
 from .errors import HybridfitError
-from .fitting import INLIER_DISTANCE_MM, FitResult, check_fit_options
+from .fitting import INLIER_DISTANCE_MM, FitResult, _first_problem, check_fit_options
 from .io import validate_proposals
 from .metrics import inliers
+from .optimizer import Task
 from .problem import Problem
 
 
@@ -89,6 +90,9 @@ def track(
     names = tuple(str(n) for n in joint_names) if joint_names is not None else tuple(model.joint_names)
     proposals, confidences = validate_proposals(proposals, confidences, names)
     F, P, Q, J = len(proposals), model.n_params, len(names), model.n_joints
+    if objective.observes_depth and observations is None:
+        raise HybridfitError(f"objective {objective.name or type(objective).__name__} compares hypotheses with the "
+                             f"depth image: give the frames' depth (observations)")
     if observations is not None and len(observations) != F:
         raise HybridfitError(f"{len(observations)} observations for {F} frames of proposals")
     if first_params is not None:
@@ -99,6 +103,9 @@ def track(
                          model_joints=np.full((F, J, 3), np.nan), objective=np.full(F, np.nan),
                          evaluations=np.zeros(F, np.int64), joint_names=names, failed=np.ones(F, bool),
                          lost=np.zeros(F, bool), started_from_proposals=np.zeros(F, bool))
+    problem = _first_problem(model, objective, proposals, confidences, names, search_radius_mm, observations)
+    if problem is not None:  # a budget too small would fail every frame: raised at once
+        optimizer.check_budget(Task(problem, budget))
     start = first_params
     t = 0
     try:

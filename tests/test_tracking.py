@@ -43,3 +43,10 @@ def test_a_lost_fit_reinitialises_from_proposals_only_under_reinit(on_lost, rest
 def test_bad_first_params_is_a_clear_error():
     with pytest.raises(HybridfitError, match="first_params"):
         run(TRUTH[:, :, None], first_params=POSES[0][:5])
+
+
+def test_errors_that_would_fail_every_frame_are_raised_at_once():
+    with pytest.raises(HybridfitError, match="budget 3 is too small"):
+        track(TRUTH[:, :, None], CONF, optimizer="pso", budget=3)
+    with pytest.raises(HybridfitError, match="depth"):
+        track(TRUTH[:, :, None], CONF, objective="rendered-depth", optimizer="pso", budget=120)
