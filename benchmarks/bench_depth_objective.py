@@ -5,7 +5,8 @@
 Hypothesis renders per second of ``rendered-depth`` at 64x64 (and 32, 128) pixels over
 the hand box: batches of 64 perturbed test-sequence poses (FORTH's swarm), 8 frames; the
 median over frames of the median of 15 timings, and of the fastest timing (the speed of
-an uncontended core, on a shared machine).
+an uncontended core, on a shared machine). Then seconds per frame of the FORTH-like
+tracker, Proposed and hybrid.
 
 hybrid's depth weight is measured by ``studies/hybrid_weight.toml``.
 """
@@ -21,6 +22,7 @@ import hybridfit
 from hybridfit.objective import Observation
 from hybridfit.render import Renderer
 from hybridfit.synthdata import sequence_poses
+from hybridfit.tracking import track
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
 from _util import median_time, table  # noqa: E402
@@ -44,6 +46,25 @@ def renders_per_second(model, poses, depth, intrinsics, resolution: int) -> tupl
     return float(np.median(rates)), float(np.median(best))
 
 
+def seconds_per_frame(model, poses, depth, intrinsics, frames: int = 8) -> list[list]:
+    """Median seconds per frame of the FORTH-like tracker, Proposed and hybrid on test-sequence
+    frames (proposals: the true joints plus 8 mm noise, k = 3)."""
+    truth = model.forward(poses[:frames])
+    rng = np.random.default_rng(1)
+    props = truth[:, :, None] + rng.normal(0, 8, truth.shape[:2] + (3, 3))
+    conf = np.ones(props.shape[:3])
+    obs = [Observation.from_depth(d, intrinsics) for d in depth[:frames]]
+    runs = {
+        "FORTH-like tracker (rendered-depth, PSO 64x30, 1920)": lambda: track(
+            props, conf, objective="rendered-depth", optimizer="pso", budget=1920, observations=obs,
+            optimizer_config={"particles": 64, "init_share": 1.0}, first_params=poses[0]),
+        "Proposed (clamped-confidence, stepwise PSO, 3400)": lambda: hybridfit.fit(props, conf, budget=3400),
+        "hybrid (stepwise PSO, 3400)": lambda: hybridfit.fit(props, conf, objective="hybrid", budget=3400,
+                                                              observations=obs),
+    }
+    return [[name, median_time(run, repeat=3) / frames] for name, run in runs.items()]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.parse_args()
@@ -54,6 +75,8 @@ def main() -> None:
     rows = [[r, *renders_per_second(model, poses, depth, renderer.intrinsics, r)] for r in (32, 64, 128)]
     print("rendered-depth, hypothesis renders per second (batches of 64):")
     print(table(["resolution (pixels per side)", "renders / s (median)", "renders / s (fastest timing)"], rows))
+    print("\nseconds per frame (median of 3 runs over 8 frames):")
+    print(table(["method", "s / frame"], seconds_per_frame(model, poses, depth, renderer.intrinsics)))
 
 
 if __name__ == "__main__":
