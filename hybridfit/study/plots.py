@@ -41,13 +41,17 @@ def _varying(rows: list[dict], skip: str | None = None) -> list[str]:
 
 
 def _series(rows: list[dict], x: str) -> dict[str, list[dict]]:
-    """Fitted variants grouped by their settings other than ``x``; label from what differs."""
+    """Fitted variants grouped by their settings other than ``x``, labelled with the variant
+    names the study file gives (without the ``x=value`` part the sweep adds)."""
     vary = _varying(rows, x)
     groups: dict[str, list[dict]] = {}
+    labels: dict[str, str] = {}
     for r in rows:
         f = _flat(r["settings"])
-        label = ", ".join(f"{k.split('.')[-1]}={f.get(k, '-')}" for k in vary) or "Optimised"
-        groups.setdefault(label, []).append(r)
+        key = json.dumps([str(f.get(k)) for k in vary])
+        name = ", ".join(p for p in r["variant"].split(", ") if not p.startswith(f"{x}="))
+        labels.setdefault(key, name or "Optimised")
+        groups.setdefault(labels[key], []).append(r)
     return groups
 
 
@@ -99,7 +103,9 @@ def plot_sweep(out: Path, rows: list[dict], x: str, metric: str = "mean_error_mm
         if x in ("budget", "proposal_set"):
             a.set_xscale("log")
             a.minorticks_off()
-        a.set_xticks(ticks, [str(t) for t in ticks], rotation=45 if len(ticks) > 6 else 0)
+        crowded = len(ticks) > 4 or (len(ticks) > 1 and x != "k" and max(ticks) / min(ticks) < 4 * len(ticks))
+        a.set_xticks(ticks, [str(t) for t in ticks], rotation=45 if crowded else 0, ha="right" if crowded else "center",
+                     fontsize=8)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     if panels == 2:
