@@ -19,7 +19,8 @@ from ..errors import HybridfitError
 from ..io import load_npz
 from ..metrics import joint_errors, oracle
 from .cache import Cache, code_versions
-from .spec import DatasetData, ProposalsData, SyntheticDepthData, SyntheticProposalsData, TrialSettings
+from .spec import (DatasetData, ProposalsData, SyntheticDepthData, SyntheticProposalsData, SyntheticStressData,
+                   TrialSettings)
 
 #: the arrays a trial needs: proposals (F, J, k, 3), confidences (F, J, k), joint_names (J,),
 #: ground_truth (F, J, 3) mm, empty (F,) frames without proposals
@@ -81,12 +82,15 @@ class StudyData:
 
     # ------------------------------------------------------------------ proposals
 
-    def proposals(self, k: int, proposal_set: int) -> ProposalSet:
-        """The proposal set for (k, |P~|), from the cache or computed once."""
-        ck = (k, proposal_set if self.uses_proposal_set() else 0)
+    def proposals(self, k: int, proposal_set: int, skeleton: str | None = None) -> ProposalSet:
+        """The proposal set for (k, |P~|) (and the skeleton of stress data), from the cache or
+        computed once."""
+        ck = (k, proposal_set if self.uses_proposal_set() else 0, skeleton)
         if ck not in self._sets:
             d = self.data
-            if isinstance(d, SyntheticProposalsData):
+            if isinstance(d, SyntheticStressData):
+                self._sets[ck] = _top_k(self._stress(skeleton or "icvl")[0], k)
+            elif isinstance(d, SyntheticProposalsData):
                 self._sets[ck] = _top_k(self._synthetic(), k)
             elif isinstance(d, ProposalsData):
                 self._sets[ck] = _top_k(self._file_proposals(), k)
@@ -109,6 +113,47 @@ class StudyData:
         z = load_npz(path)
         z["empty"] = np.zeros(len(z["proposals"]), bool)
         return z
+
+    def _stress(self, skeleton: str) -> tuple[ProposalSet, np.ndarray]:
+        """(the fitted frames, the calibration frames' ground truth (C, Q, 3) mm) of the
+        skeleton's stress sequence (cached)."""
+        from ..stress import stress_proposals
+
+        d = self.data
+        C = d.calibrate.frames if d.calibrate is not None else 0
+        payload = {**d.model_dump(mode="json"), "skeleton": skeleton}
+
+        def make(tmp: Path) -> None:
+            self.log(f"generating {C + d.frames} stress frames, skeleton {skeleton}")
+            z = stress_proposals(C + d.frames, dataset=skeleton, k=d.k, seed=d.seed, **d.stress.model_dump())
+            np.savez(tmp, **{k: z[k] for k in ("proposals", "confidences", "joint_names", "ground_truth")})
+
+        z = load_npz(self.cache.get("synthetic-stress", payload, make, ".npz")[1])
+        fitted = {k: (v if k == "joint_names" else v[C:]) for k, v in z.items()}
+        fitted["empty"] = np.zeros(d.frames, bool)
+        return fitted, z["ground_truth"][:C]
+
+    def _stress_calibration(self, skeleton: str) -> dict[str, Any]:
+        """The model calibrated on the skeleton's calibration frames (cached)."""
+        from ..calibrate import calibrate
+        from ..datasets.skeletons import with_derived_points
+
+        d = self.data
+        fitted, truth = self._stress(skeleton)
+        payload = {**d.model_dump(mode="json"), "skeleton": skeleton, "method": "prior-regularised, held out 20%"}
+
+        def make(tmp: Path) -> None:
+            self.log(f"calibrating on {len(truth)} stress frames, skeleton {skeleton}")
+            c = d.calibrate
+            r = calibrate(truth, [str(n) for n in fitted["joint_names"]], model_config=with_derived_points({}, skeleton),
+                          rounds=c.rounds, budget=c.budget, seed=c.seed, jobs=self.jobs)
+            tmp.write_text(json.dumps({"settings": r.settings, "error_after_mm": r.error_after,
+                                       "error_heldout_mm": r.error_heldout}, indent=1))
+
+        saved = json.loads(self.cache.get("stress-calibration", payload, make, ".json")[1].read_text())
+        self.log(f"calibration ({skeleton}): fit error {saved['error_after_mm']:.2f} mm in-sample, "
+                 f"{saved['error_heldout_mm']:.2f} mm held out")
+        return saved["settings"]
 
     def _file_proposals(self) -> ProposalSet:
         from ..cli.calibrate import frame_slice
@@ -249,6 +294,11 @@ class StudyData:
 
         cfg = dict(settings.model_settings)
         d = self.data
+        if isinstance(d, SyntheticStressData):
+            skeleton = settings.skeleton or "icvl"
+            if d.calibrate is not None:
+                cfg = {**self._stress_calibration(skeleton), **cfg}
+            return dataset_model_config(settings.model, cfg, skeleton)
         if settings.model != "hand26" or not isinstance(d, ProposalsData) or d.dataset is None:
             return cfg
         if d.calibrate is not None:
@@ -265,7 +315,8 @@ class StudyData:
 
             d, c = self.data, self.data.calibrate
             dataset = file_hash(Path(d.dataset)) if _skeleton_file(d) else d.dataset
-            payload = {"ground_truth": file_hash(d.ground_truth), "dataset": dataset, **c.model_dump(mode="json")}
+            payload = {"ground_truth": file_hash(d.ground_truth), "dataset": dataset, **c.model_dump(mode="json"),
+                       "method": "prior-regularised, held out 20%"}  # calibrations made by the earlier code differ
 
             def make(tmp: Path) -> None:
                 sk = skeleton(d.dataset)
@@ -276,10 +327,14 @@ class StudyData:
                               mirror={"auto": None, "right": False, "left": True}[c.hand], rounds=c.rounds,
                               budget=c.budget, seed=c.seed, jobs=self.jobs)
                 tmp.write_text(json.dumps({"settings": r.settings, "error_before_mm": r.error_before,
-                                           "error_after_mm": r.error_after}, indent=1))
+                                           "error_after_mm": r.error_after, "error_heldout_mm": r.error_heldout,
+                                           "heldout_frames": len(r.heldout_frames)}, indent=1))
 
             _, path = self.cache.get("calibration", payload, make, ".json")
-            self._calibrated = json.loads(path.read_text())["settings"]
+            saved = json.loads(path.read_text())
+            self.log(f"calibration: fit error {saved['error_after_mm']:.2f} mm in-sample, "
+                     f"{saved['error_heldout_mm']:.2f} mm on {saved['heldout_frames']} held-out frames")
+            self._calibrated = saved["settings"]
         return self._calibrated
 
 

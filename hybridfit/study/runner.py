@@ -192,17 +192,20 @@ def _baselines(study: Study, data: StudyData, variants, store: Store) -> list[st
         for method in study.baselines:
             k = 1 if method == "top1" else s.k
             cfg = {"method": method, "k": k, "proposal_set": pset}
+            if s.skeleton is not None:
+                cfg["skeleton"] = s.skeleton
             key = digest({"data": data.key, "baseline": cfg})
             if key in seen:
                 continue
             seen[key] = None
             if states.get(key) == "complete":
                 continue
-            z = data.proposals(s.k, s.proposal_set)
+            z = data.proposals(s.k, s.proposal_set, s.skeleton)
             errors = baseline_errors(z, method)
             F = len(errors)
             label = "Oracle" if method == "oracle" else "top-1 proposal"
-            name = f"{label} (k={k}" + (f", |P~|={pset})" if pset else ")")
+            name = f"{label} (k={k}" + (f", |P~|={pset}" if pset else "") + \
+                (f", {s.skeleton})" if s.skeleton is not None else ")")
             store.start(key, name, -1, method, cfg, 0)
             store.complete(key, {"errors": errors, "objective": np.full(F, np.nan), "evaluations": np.zeros(F),
                                  "failed": np.isnan(errors).any(axis=1), "messages": {}, "time_per_frame": np.nan,
@@ -223,9 +226,9 @@ def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: s
     sets = {}
     for t in pending:  # shared steps first, once each, in this process
         s = t.variant.settings
-        if (s.k, s.proposal_set, _needs_depth(s)) not in sets:
-            z = data.proposals(s.k, s.proposal_set)
-            sets[(s.k, s.proposal_set, _needs_depth(s))] = {**z, **data.depth_frames()} if _needs_depth(s) else z
+        if (s.k, s.proposal_set, s.skeleton, _needs_depth(s)) not in sets:
+            z = data.proposals(s.k, s.proposal_set, s.skeleton)
+            sets[(s.k, s.proposal_set, s.skeleton, _needs_depth(s))] = {**z, **data.depth_frames()} if _needs_depth(s) else z
     kwargs = {"processes": dask_processes} if executor == "dask" else {}
     ex = make_executor(executor, jobs, scheduler, **kwargs)
     try:
@@ -233,7 +236,8 @@ def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: s
         tasks = []
         for t in pending:
             s = t.variant.settings
-            tasks.append((s.as_dict(), data.model_config(s), t.seed, shared[(s.k, s.proposal_set, _needs_depth(s))]))
+            tasks.append((s.as_dict(), data.model_config(s), t.seed,
+                          shared[(s.k, s.proposal_set, s.skeleton, _needs_depth(s))]))
             store.start(t.key, t.variant.name, t.variant.index, "fit", s.as_dict(), t.seed)
         bar = tqdm(total=summary.total, initial=summary.skipped, unit="trial", desc="study", disable=not progress)
         try:

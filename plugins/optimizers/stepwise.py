@@ -205,6 +205,11 @@ class Stepwise(Optimizer):
 
 class StepwisePSOSettings(StepwiseSettings):
     optimizer: Literal["pso"] = Field("pso", description="always PSO")
+    refine_share: float = Field(0.25, ge=0, lt=1, description="share of the budget for a final joint refinement "
+                                "of all parameters (0 = the paper)")
+    refine_config: dict[str, Any] = Field(
+        default_factory=lambda: {"init_share": 1.0, "init_sigma": 0.02},
+        description="PSO settings of the refinement: the whole swarm starts near the stepwise result")
 
 
 class StepwisePSO(Stepwise):

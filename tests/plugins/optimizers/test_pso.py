@@ -40,7 +40,9 @@ def test_stepwise_budget_split_is_exact(hand26, clamped, frames):
     opt = hybridfit.create("optimizer", "stepwise-pso")
     result = opt.run(problem(hand26, clamped, frames, 1), 3401, seed=0)
     assert result.evaluations == 3401
-    assert set(result.history_stage) == {"palm", "thumb", "index", "middle", "ring", "little"}
+    assert set(result.history_stage) == {"palm", "thumb", "index", "middle", "ring", "little", "refine"}
+    paper = opt.with_params(refine_share=0.0).run(problem(hand26, clamped, frames, 1), 3401, seed=0)
+    assert set(paper.history_stage) == {"palm", "thumb", "index", "middle", "ring", "little"}
 
 
 def test_a_task_refuses_to_overshoot(hand26, clamped, frames):

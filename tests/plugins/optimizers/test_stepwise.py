@@ -38,7 +38,8 @@ def test_rotation_lever():
 def test_a_well_posed_root_is_scored_on_its_own_points(hand26, clamped, frames):
     p = Problem(hand26, clamped, frames["proposals"][0], frames["confidences"][0])
     plan = hybridfit.create("optimizer", "stepwise-pso").plan(Task(p, 3400))
-    assert [s.name for s in plan] == [s.name for s in hand26.stages()]
+    assert [s.name for s in plan] == [s.name for s in hand26.stages()] + ["refine"]
+    np.testing.assert_array_equal(plan[-1].owned, p.all_points)
     for s, (_, params, points) in zip(plan, p.stage_points()):
         np.testing.assert_array_equal(s.points, points)
         np.testing.assert_array_equal(s.owned, points)
@@ -56,7 +57,8 @@ def test_a_root_with_three_points_is_guided_by_the_fingers(nyu_frames):
     assert sorted(names[i] for i in root.owned) == ["nyu_palm", "nyu_wrist_1", "nyu_wrist_2"]
     guides = {names[i] for i in np.setdiff1d(root.points, root.owned)}
     assert guides == {"index_pip", "middle_pip", "ring_pip", "little_pip", "thumb_mcp"}
-    owned = np.concatenate([s.owned for s in plan])
+    assert plan[-1].name == "refine"
+    owned = np.concatenate([s.owned for s in plan[:-1]])
     np.testing.assert_array_equal(np.sort(owned), np.arange(len(names)))  # a partition
     assert sum(s.budget for s in plan) == 3400
     never = opt.with_params(min_root_points=0, min_root_lever_mm=0).plan(Task(p, 3400))
