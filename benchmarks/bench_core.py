@@ -1,15 +1,18 @@
-"""Speed of the core on one core: objective throughput, stepwise PSO per frame, ours vs pymoo.
+"""Speed of the core on one core: kernel throughput, fitting per frame (compiled and Task
+paths), their accuracy side by side, --jobs scaling and start-up.
 
-    NUMBA_NUM_THREADS=1 python benchmarks/bench_core.py [--frames 200]
+    NUMBA_NUM_THREADS=2 taskset -c 0 python benchmarks/bench_core.py [--frames 200 --seeds 20]
 
-Prints (medians; the machine is shared, so ratios are the robust figures):
-1. batched forward kinematics + clamped-confidence objective, hypotheses per second
-   (21 joints, k = 3);
-2. one frame fitted by stepwise PSO at budget 3400, milliseconds;
-3. our PSO against pymoo's PSO, both run stage by stage by the same stepwise wrapper with
-   the same stage budgets and swarm sizes, on the same synthetic frames: time per frame
-   (ratio) and mean joint error;
-4. start-up: a fresh process's first fit, twice (the second reads numba's cache).
+Prints (medians of CPU time, so other jobs on a shared machine disturb little):
+1. batched forward kinematics + clamped-confidence objective (the Task path's kernel),
+   hypotheses per second at batches of 64 and 1000 (21 joints, k = 3);
+2. stepwise PSO per frame at budgets 1000 and 3400: the compiled path's numba call alone,
+   ``hybridfit.fit`` end to end (problem set-up included) and the Task path
+   (``Optimizer.run`` per frame);
+3. the compiled against the Task path over ``--seeds`` seeds x ``--frames`` frames: mean
+   joint error, and how many fits are identical;
+4. ``hybridfit.fit`` with ``--jobs`` 1 and 2 (numba threads), wall time (without taskset);
+5. start-up: a fresh process's import + first fit, compiling and from numba's cache.
 """
 
 from __future__ import annotations
@@ -24,62 +27,71 @@ import time
 import numpy as np
 
 import hybridfit
+from hybridfit import compiled, fitting
 from hybridfit.metrics import joint_errors
-from hybridfit.optimizer import Optimizer, Task
 from hybridfit.problem import Problem
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
 from _util import median_time, table  # noqa: E402
 
 
-class PymooPSO(Optimizer):
-    """pymoo's PSO on a task: a square swarm, as many whole generations as the budget allows."""
-
-    def minimize(self, task: Task, rng: np.random.Generator) -> None:
-        from pymoo.algorithms.soo.nonconvex.pso import PSO
-        from pymoo.core.problem import Problem as PymooProblem
-        from pymoo.optimize import minimize
-
-        class Wrapped(PymooProblem):
-            def __init__(self):
-                super().__init__(n_var=task.dim, n_obj=1, xl=task.lower, xu=task.upper)
-
-            def _evaluate(self, X, out, *args, **kwargs):
-                out["F"] = task.evaluate(X)[:, None]
-
-        pop = max(2, int(round(np.sqrt(task.budget))))
-        minimize(Wrapped(), PSO(pop_size=pop), ("n_gen", task.budget // pop), seed=int(rng.integers(2**31)),
-                 verbose=False)
-
-
-def throughput(problem: Problem, n: int = 10_000) -> float:
+def throughput(problem: Problem, n: int) -> float:
+    """Hypotheses per CPU second of problem.evaluate on batches of n."""
     rng = np.random.default_rng(0)
     X = problem.x0 + rng.normal(0, 0.05, (n, problem.x0.size))
     problem.evaluate(X)
-    return n / median_time(lambda: problem.evaluate(X), repeat=9)
+    reps = max(1, 20_000 // n)
+    return n * reps / median_time(lambda: [problem.evaluate(X) for _ in range(reps)], repeat=9, clock=time.process_time)
 
 
-def fit_frames(data, optimizer, budget=3400):
+def task_path(data, budget: int, seed: int) -> tuple[np.ndarray, float]:
+    """(params (F, P), median CPU seconds per frame) of Optimizer.run per frame."""
+    model = hybridfit.create("model", "hand26")
+    spec = fitting._Spec(model, hybridfit.create("objective", "clamped-confidence"),
+                         hybridfit.create("optimizer", "stepwise-pso"), budget, seed, tuple(model.joint_names), 60.0)
+    params, times = [], []
+    for f in range(len(data["proposals"])):
+        t = time.process_time()
+        (item,) = fitting._fit_chunk(spec, [f], data["proposals"][f:f + 1], data["confidences"][f:f + 1])
+        times.append(time.process_time() - t)
+        params.append(item[1][0])
+    return np.array(params), float(np.median(times))
+
+
+def compiled_call(data, budget: int) -> float:
+    """CPU seconds per frame of the compiled path's numba call alone (set-up excluded)."""
     model = hybridfit.create("model", "hand26")
     objective = hybridfit.create("objective", "clamped-confidence")
-    times, errors = [], []
-    for f in range(len(data["proposals"])):
-        t = time.process_time()  # CPU time: robust to other jobs on a shared machine
-        problem = Problem(model, objective, data["proposals"][f], data["confidences"][f])
-        result = optimizer.run(problem, budget, np.random.default_rng([0, f]))
-        times.append(time.process_time() - t)
-        errors.append(joint_errors(model.forward(result.params), data["ground_truth"][f]).mean())
-    return float(np.median(times)), float(np.mean(errors))
+    fitter = compiled.CompiledFitter(model, objective, hybridfit.create("optimizer", "stepwise-pso"),
+                                     model.joint_names, budget, 0)
+    problems = [Problem(model, objective, p, c) for p, c in zip(data["proposals"], data["confidences"])]
+    layouts = [fitter.layout(p) for p in problems]
+    at = np.cumsum([0] + [lay.random_count for lay in layouts])
+    random = np.empty(at[-1])
+    for f, lay in enumerate(layouts):
+        compiled.draw(np.random.default_rng([0, f]), lay, random[at[f]:at[f + 1]])
+    args = (data["proposals"], np.stack([p.weights for p in problems]), np.stack([p.x0 for p in problems]),
+            np.stack([p.lower for p in problems]), np.stack([p.upper for p in problems]), layouts, random, at)
+    fitter.fit(*args)
+    return median_time(lambda: fitter.fit(*args), repeat=7, clock=time.process_time) / len(layouts)
+
+
+def fit_time(data, budget: int, jobs: int = 1, clock=time.process_time) -> float:
+    """Seconds per frame of hybridfit.fit (end to end)."""
+    return median_time(lambda: hybridfit.fit(data["proposals"], data["confidences"], budget=budget, jobs=jobs),
+                       repeat=5, clock=clock) / len(data["proposals"])
 
 
 def startup() -> list[float]:
-    """Import + first fit in two fresh processes sharing a new, empty numba cache folder:
-    the first compiles the kernels, the second reads them from the cache."""
-    code = ("import time; t = time.perf_counter(); import hybridfit; "
-            "d = hybridfit.synthetic_proposals(1); hybridfit.fit(d['proposals'], d['confidences']); "
-            "print(time.perf_counter() - t)")
-    with tempfile.TemporaryDirectory() as cache:
-        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+    """Import + first fit of one frame (read from a file) in two fresh processes sharing a new,
+    empty numba cache folder: the first compiles the kernels, the second reads them from the cache."""
+    with tempfile.TemporaryDirectory() as folder:
+        frames = os.path.join(folder, "frames.npz")
+        np.savez(frames, **hybridfit.synthetic_proposals(1))
+        code = ("import time; t = time.perf_counter(); import numpy, hybridfit; "
+                f"d = numpy.load({frames!r}); hybridfit.fit(d['proposals'], d['confidences']); "
+                "print(time.perf_counter() - t)")
+        env = {**os.environ, "NUMBA_CACHE_DIR": os.path.join(folder, "cache")}
         return [float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                                      env=env).stdout) for _ in range(2)]
 
@@ -87,33 +99,45 @@ def startup() -> list[float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=200)
+    parser.add_argument("--seeds", type=int, default=20, help="seeds of the compiled-vs-Task accuracy comparison")
     args = parser.parse_args()
     data = hybridfit.synthetic_proposals(args.frames, k=3, seed=2015)
     model = hybridfit.create("model", "hand26")
     objective = hybridfit.create("objective", "clamped-confidence")
     problem = Problem(model, objective, data["proposals"][0], data["confidences"][0])
+    hybridfit.fit(data["proposals"][:2], data["confidences"][:2])  # compile
 
-    rate = throughput(problem)
-    ours = hybridfit.create("optimizer", "stepwise-pso")
-    fit_frames({k: v[:3] for k, v in data.items()}, ours)  # compile
-    ours_time, ours_error = fit_frames(data, ours)
-    pymoo = hybridfit.create("optimizer", "stepwise").with_params()
-    pymoo.inner = PymooPSO()  # same stepwise wrapper, pymoo's PSO per stage
-    pymoo_time, pymoo_error = fit_frames(data, pymoo)
+    rows = [[f"forward kinematics + objective, batch {n}, hypotheses/s", f"{throughput(problem, n):,.0f}"]
+            for n in (64, 1000)]
+    for budget in (1000, 3400):
+        small = {k: v[:40] for k, v in data.items()}
+        rows += [
+            [f"stepwise PSO @{budget}, compiled path, numba call, CPU ms/frame", f"{compiled_call(small, budget) * 1e3:.3f}"],
+            [f"stepwise PSO @{budget}, hybridfit.fit end to end, CPU ms/frame", f"{fit_time(data, budget) * 1e3:.3f}"],
+            [f"stepwise PSO @{budget}, Task path, CPU ms/frame", f"{task_path(small, budget, 0)[1] * 1e3:.3f}"],
+        ]
+    errors, identical, total = {"compiled": [], "task": []}, 0, 0
+    for seed in range(args.seeds):
+        fast = hybridfit.fit(data["proposals"], data["confidences"], seed=seed)
+        slow, _ = task_path(data, 3400, seed)
+        errors["compiled"].append(joint_errors(model.forward(fast.params), data["ground_truth"]).mean())
+        errors["task"].append(joint_errors(model.forward(slow), data["ground_truth"]).mean())
+        identical += int((np.abs(fast.params - slow).max(axis=1) <= 1e-9).sum())
+        total += len(slow)
+    diff = np.array(errors["compiled"]) - np.array(errors["task"])
+    rows += [
+        [f"mean joint error over {args.seeds} seeds x {args.frames} frames, compiled / Task path (mm)",
+         f"{np.mean(errors['compiled']):.3f} / {np.mean(errors['task']):.3f} (paired difference "
+         f"{diff.mean():+.4f} +- {diff.std():.4f})"],
+        ["fits identical to 1e-9 (compiled vs Task path)", f"{identical} of {total}"],
+    ]
+    one = fit_time(data, 3400, 1, time.perf_counter)
+    two = fit_time(data, 3400, 2, time.perf_counter)
+    rows.append(["hybridfit.fit --jobs 1 / 2, wall ms/frame (speed-up)", f"{one * 1e3:.3f} / {two * 1e3:.3f} ({one / two:.2f}x)"])
     first, second = startup()
-    top1 = joint_errors(data["proposals"][:, :, 0], data["ground_truth"]).mean()
-
-    print(f"## Core speed ({args.frames} synthetic frames, k = 3, budget 3400, one core)\n")
-    print(table(["measure", "value"], [
-        ["forward kinematics + objective, hypotheses/s", f"{rate:,.0f}"],
-        ["stepwise PSO, CPU ms per frame (median)", f"{ours_time * 1e3:.2f}"],
-        ["pymoo PSO in the same stepwise wrapper, CPU ms per frame (median)", f"{pymoo_time * 1e3:.2f}"],
-        ["speed-up of ours over pymoo", f"{pymoo_time / ours_time:.1f}x"],
-        ["mean joint error, ours (mm)", f"{ours_error:.2f}"],
-        ["mean joint error, pymoo (mm)", f"{pymoo_error:.2f}"],
-        ["mean joint error, top-1 proposals (mm)", f"{top1:.2f}"],
-        ["fresh process, import + first fit (s): compiling / from numba's cache", f"{first:.2f} / {second:.2f}"],
-    ]))
+    rows.append(["fresh process, import + first fit (s): compiling / from numba's cache", f"{first:.2f} / {second:.2f}"])
+    print(f"## Core speed (synthetic frames, k = 3, one core unless said)\n")
+    print(table(["measure", "value"], rows))
 
 
 if __name__ == "__main__":
