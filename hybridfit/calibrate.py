@@ -145,10 +145,16 @@ def _least_squares(truth, names, model, free, scale, g, params, noise_mm, max_nf
     sc = geo.scaled[free]
     mean = geo.prior_mean[free]
 
+    last: dict[bytes, HandModel] = {}  # finite differences of the poses reuse the model
+
     def residuals(z):
         bar.update()
         s, full, poses = unpack(z)
-        pts = _configured(model, full).points(poses, names)  # derived-point weights are geometry too
+        key = full.tobytes()
+        if key not in last:
+            last.clear()
+            last[key] = _configured(model, full)
+        pts = last[key].points(poses, names)  # derived-point weights are geometry too
         q = np.linalg.norm(poses[:, 3:7], axis=1) - 1.0
         prior = np.where(sc, (full[free] - s * mean) / (s * sd), (full[free] - mean) / sd)
         return np.concatenate([(pts - truth).ravel() / noise_mm, prior, 10.0 * q])
@@ -255,11 +261,12 @@ def calibrate(
         after, params, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
     if len(held):
         heldout, _, per_held = _fit_error(truth[held], names, current, budget, seed, jobs, progress)
+        per_held = np.nanmean(per_held, axis=0)
         say(f"held-out fit error {heldout:.2f} mm on {len(held)} frames")
     else:
-        heldout, per_held = np.nan, np.full((1, len(names)), np.nan)
+        heldout, per_held = np.nan, np.full(len(names), np.nan)
     return CalibrationResult(current.get_params(), before, after, heldout, cal, held, ls_err, params,
-                             np.nanmean(per, axis=0), np.nanmean(per_held, axis=0), scale, at_prior)
+                             np.nanmean(per, axis=0), per_held, scale, at_prior)
 
 
 def to_toml(settings: Mapping[str, Any]) -> str:

@@ -92,8 +92,8 @@ DEFAULT_POSE_DEG = {
 }
 
 #: calibration prior: std of each bone length as a fraction of it, std of base coordinates (mm, scale 1)
-PRIOR_BONE_REL = 0.08
-PRIOR_BASE_MM = 5.0
+PRIOR_BONE_REL = 0.2
+PRIOR_BASE_MM = 10.0
 #: std of a derived point's weights in the prior; the bound of an offset point's weights
 PRIOR_WEIGHT = 0.15
 OFFSET_WEIGHT_MAX = 0.6
@@ -178,6 +178,9 @@ def _frame(direction, bend) -> np.ndarray:
     return np.stack([np.cross(y, z), y, z], axis=1)
 
 
+_REST_FRAMES = {f: _frame(*REST_DIRECTIONS[f]) for f in FINGERS}
+
+
 class Hand26(TreeHandModel):
     """The paper's 26-DoF (27-parameter) joints-only hand model with anatomical limits."""
 
@@ -203,7 +206,7 @@ class Hand26(TreeHandModel):
         parents[0], offsets[0] = -1, -centre
         for f, finger in enumerate(FINGERS):
             base, first = 1 + 4 * f, 7 + 4 * f
-            parents[base], offsets[base], rest[base] = 0, bases[f], _frame(*REST_DIRECTIONS[finger])
+            parents[base], offsets[base], rest[base] = 0, bases[f], _REST_FRAMES[finger]
             axes[base], axis_params[base] = (Z_AXIS, X_AXIS), (first + 1, first)  # abduction, then flexion
             for k in range(3):
                 j = base + 1 + k

@@ -123,3 +123,51 @@ def test_a_finger_stage_moves_only_its_own_joints(hand26):
         y[list(stage.parameters)] = rng.uniform(LOWER[list(stage.parameters)], UPPER[list(stage.parameters)])
         moved = np.flatnonzero(np.linalg.norm(hand26.forward(y) - hand26.forward(x), axis=1) > 1e-9)
         assert set(moved) <= set(stage.joints)
+
+
+# ------------------------------------------------------------------ calibratable geometry
+
+DERIVED = {"palm": {"wrist": 0.4, "index_mcp": 0.3, "little_mcp": 0.3},
+           "side": {"wrist": 1.0, "index_mcp": 0.4, "little_mcp": -0.4}}
+
+
+def test_geometry_round_trips_through_with_geometry():
+    model = hybridfit.create("model", "hand26", {"scale": 1.1, "mirror": True, "derived_points": DERIVED,
+                                                 "bone_lengths": {"ring_middle": 31.0}})
+    geo = model.geometry()
+    again = hybridfit.create("model", "hand26", model.with_geometry(geo.values))
+    x = random_params(model, 5, np.random.default_rng(2))
+    names = ("palm", "side", "thumb_tip")
+    np.testing.assert_allclose(again.forward(x), model.forward(x), atol=1e-9)
+    np.testing.assert_allclose(again.points(x, names), model.points(x, names), atol=1e-9)
+    np.testing.assert_allclose(again.geometry().values, geo.values, atol=1e-12)
+    assert geo.values[geo.names.index("ring_middle")] == pytest.approx(1.1 * 31.0)
+
+
+def test_geometry_declares_a_prior_bounds_and_model_points():
+    geo = hybridfit.create("model", "hand26", {"derived_points": DERIVED}).geometry()
+    assert len(set(geo.names)) == len(geo) == 15 + 15 + 6 + 5  # bones, base coordinates, weights
+    assert np.all(geo.lower <= geo.prior_mean) and np.all(geo.prior_mean <= geo.upper)
+    assert geo.scaled.sum() == 30 and not geo.scaled[30:].any()  # lengths scale, weights do not
+    points = set(MODEL.point_names) | set(DERIVED)
+    assert all(a in points and b in points for a, b in geo.ends)
+    i = geo.names.index("index_proximal")
+    assert geo.ends[i] == ("index_mcp", "index_pip") and geo.prior_mean[i] == 40.0  # Buchholz et al. 1992
+
+
+@settings(max_examples=40, deadline=None)
+@given(arrays(np.float64, 11, elements=st.floats(0.01, 1.0)))
+def test_with_geometry_keeps_convex_weights_convex_and_offsets_summed(w):
+    model = hybridfit.create("model", "hand26", {"derived_points": DERIVED})
+    values = model.geometry().values.copy()
+    values[30:] = w
+    derived = model.with_geometry(values)["derived_points"]
+    assert sum(derived["palm"].values()) == pytest.approx(1.0) and min(derived["palm"].values()) >= 0
+    assert sum(derived["side"].values()) == pytest.approx(1.0)  # the anchor (wrist) keeps the sum
+
+
+def test_handedness_and_derived_points_are_declared_settings():
+    assert MODEL.mirror_setting in MODEL.Settings.model_fields
+    assert MODEL.derived_points_setting in MODEL.Settings.model_fields
+    left = MODEL.with_params(**{MODEL.mirror_setting: True})
+    assert left.forward(MODEL.default_params())[1, 0] == pytest.approx(-MODEL.forward(MODEL.default_params())[1, 0])
