@@ -9,10 +9,10 @@ import sys
 import numpy as np
 
 from ..calibrate import calibrate, to_toml
-from ..datasets.results import read_xyz
 from ..datasets.skeletons import dataset_model_config, skeleton
 from ..errors import HybridfitError
-from ._common import load_toml, positive_int
+from ..io import check_output
+from ._common import fraction, load_toml, non_negative_int, positive_int, read_results, seed_int
 
 
 def frame_slice(text: str | None, n: int) -> slice:
@@ -35,23 +35,24 @@ def register(sub) -> None:
                    "msra, mediapipe, mano or a skeleton .toml file")
     p.add_argument("--ground-truth", required=True, metavar="LABELS", help="ground truth in the common results format")
     p.add_argument("--frames", metavar="START:STOP", help="frames to use (default: all); the last --holdout of them are held out")
-    p.add_argument("--holdout", type=float, default=0.2, metavar="FRACTION",
+    p.add_argument("--holdout", type=fraction, default=0.2, metavar="FRACTION",
                    help="share of the frames, the last ones, held out to measure the fit error of the calibrated "
                         "model on frames it was not calibrated on (default 0.2; 0: none)")
     p.add_argument("--out", required=True, metavar="MODEL.toml", help="model config to write")
     p.add_argument("--model", default="hand26", help="hand model plugin (default: hand26)")
     p.add_argument("--model-config", metavar="TOML", help="the model's other settings (geometry starts at its prior)")
     p.add_argument("--hand", choices=("auto", "right", "left"), default="auto", help="handedness (default: the better fit)")
-    p.add_argument("--rounds", type=int, default=3, help="pose-fit / geometry alternations (default 3)")
+    p.add_argument("--rounds", type=non_negative_int, default=3, help="pose-fit / geometry alternations (default 3)")
     p.add_argument("--budget", type=positive_int, default=3400, help="evaluations per frame of each pose fit")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed_int, default=0)
     p.add_argument("--jobs", type=positive_int, default=1)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     sk = skeleton(args.dataset)
-    truth = read_xyz(args.ground_truth, sk.dataset)
+    check_output(args.out)
+    truth = read_results(args.ground_truth, sk.dataset)
     frames = np.arange(len(truth))[frame_slice(args.frames, len(truth))]
     truth = truth[frames]
     start = dataset_model_config(args.model, load_toml(args.model_config), sk.dataset)

@@ -10,7 +10,7 @@ from ..estimator import HybridEstimator
 from ..errors import EXIT_INCOMPLETE, EXIT_OK
 from ..io import check_output, save_npz
 from ..metrics import joint_errors, oracle
-from ._common import positive_int
+from ._common import positive_float, positive_int
 from ._forest import frame_indices, ground_truth, open_dataset, report_empty
 
 
@@ -19,7 +19,7 @@ def add_proposal_options(p) -> None:
     g.add_argument("-k", type=positive_int, default=3, help="proposals per joint (default 3)")
     g.add_argument("--proposal-set", type=positive_int, default=200, help="|P~|: most confident votes per joint for mean-shift (default 200)")
     g.add_argument("--stride", type=positive_int, default=2, help="pixel grid step of the dense sampling (default 2)")
-    g.add_argument("--bandwidth", type=float, default=10.0, help="mean-shift bandwidth, mm (default 10)")
+    g.add_argument("--bandwidth", type=positive_float, default=10.0, help="mean-shift bandwidth, mm (default 10)")
     g.add_argument("--foreground", choices=("auto", "labels", "depth", "segment"), default="auto",
                    help="hand pixels: part labels, depth > 0, or nearest-object segmentation (default auto: labels if the data has them)")
     g.add_argument("--frames", type=positive_int, help="the first N frames only")

@@ -30,6 +30,8 @@ def run(args) -> int:
         raise HybridfitError("--scheduler needs --executor dask")
     study = load_spec(args.file, quick=args.quick)
     out = Path(args.out or Path("study_out") / (Path(args.file).stem + ("_quick" if args.quick else "")))
+    if out.exists() and not out.is_dir():
+        raise HybridfitError(f"--out {out}: is a file; a study writes a folder")
     if args.report_only:
         if not (out / "study.db").is_file():
             raise HybridfitError(f"{out}: no study.db to report from")

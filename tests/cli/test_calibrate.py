@@ -43,4 +43,4 @@ def test_bad_holdout_option(tmp_path, capsys):
     gt, _ = write_results(tmp_path, frames=3)
     assert main(["calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--holdout", "1.5",
                  "--out", str(tmp_path / "m.toml")]) == 2
-    assert "holdout must be in [0, 1)" in capsys.readouterr().err
+    assert "--holdout: expected a number in [0, 1), got 1.5" in capsys.readouterr().err
