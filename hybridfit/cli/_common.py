@@ -32,12 +32,17 @@ def load_toml(path: str | None) -> dict[str, Any]:
         raise HybridfitError(f"{p}: not a text file; expected TOML settings") from None
 
 
+#: the plugins a command uses when none is named
+DEFAULT_PLUGINS = {"model": "hand26", "objective": "clamped-confidence", "optimizer": "stepwise-pso"}
+
+
 def add_plugin_options(parser: argparse.ArgumentParser) -> None:
     """--model/--objective/--optimizer with their --*-config TOML settings files."""
     g = parser.add_argument_group("plugins")
     g.add_argument("--model", default="hand26", help="hand model plugin (default: hand26)")
     g.add_argument("--model-config", metavar="TOML", help="hand model settings file")
-    g.add_argument("--objective", default="clamped-confidence", help="objective plugin (default: clamped-confidence)")
+    g.add_argument("--objective", help="objective plugin (default: clamped-confidence; for proposals made from "
+                   "results files, the objective the file names: gaussian-mixture)")
     g.add_argument("--objective-config", metavar="TOML", help="objective settings file")
     g.add_argument("--optimizer", default="stepwise-pso", help="optimizer plugin (default: stepwise-pso)")
     g.add_argument("--optimizer-config", metavar="TOML", help="optimizer settings file")
@@ -58,7 +63,7 @@ def plugin_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     out = {}
     for kind in ("model", "objective", "optimizer"):
         path = getattr(args, f"{kind}_config")
-        out[kind], out[f"{kind}_config"] = getattr(args, kind), load_toml(path)
+        out[kind], out[f"{kind}_config"] = getattr(args, kind) or DEFAULT_PLUGINS[kind], load_toml(path)
         check_plugin(kind, out[kind], out[f"{kind}_config"], path)
     return out
 

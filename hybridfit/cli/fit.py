@@ -45,6 +45,8 @@ def run(args) -> int:
     check_output(args.out)
     data = load_proposals(args.proposals)
     names = data.get("joint_names")
+    if args.objective is None and "objective" in data:  # the objective the file names (other methods' estimates)
+        args.objective = str(data["objective"])
     plugins = plugin_kwargs(args)
     extra = {}
     if args.dataset:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..datasets.results import proposals_from_results
 from ..datasets.skeletons import skeleton
 from ..errors import HybridfitError
 from ..io import check_output, save_npz
@@ -33,16 +34,17 @@ def run_from_results(args) -> int:
     for f, a in zip(args.results[1:], xyz[1:]):
         if len(a) != len(xyz[0]):
             raise HybridfitError(f"{f}: {len(a)} frames, but {args.results[0]} has {len(xyz[0])}")
-    conf = [1.0] * len(xyz) if args.confidences is None else args.confidences
-    if len(conf) != len(xyz) or not all(0 <= c < float("inf") for c in conf) or not any(conf):
-        raise HybridfitError(f"--confidences: need {len(xyz)} finite non-negative values (one per file, "
-                             f"not all 0), got {conf}")
+    if args.confidences is not None and len(args.confidences) != len(xyz):
+        raise HybridfitError(f"--confidences: need {len(xyz)} values (one per file), got {args.confidences}")
+    try:
+        fused = proposals_from_results(xyz, args.confidences)
+    except HybridfitError as err:
+        raise HybridfitError(f"--confidences: {err}") from None
     sel = frame_slice(args.frames, len(xyz[0]))
-    proposals = np.stack(xyz, axis=2)[sel]  # (F, J, k, 3)
-    F, J, k, _ = proposals.shape
+    F, J, k, _ = fused["proposals"][sel].shape
     out = {
-        "proposals": proposals,
-        "confidences": np.broadcast_to(np.asarray(conf, float), (F, J, k)).copy(),
+        **{key: value[sel] for key, value in fused.items() if key != "objective"},
+        "objective": fused["objective"],
         "joint_names": np.asarray(sk.model_names),
         "dataset": np.asarray(sk.dataset),
     }

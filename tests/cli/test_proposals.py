@@ -35,3 +35,31 @@ def test_frame_selection_and_errors(tmp_path, capsys):
     assert "a.txt:1: expected 42 numbers" in err and len(err.strip().splitlines()) == 1
     assert main(["proposals", "from-results", "--dataset", "icvl", str(a), "--confidences", "1", "2",
                  "--out", str(out)]) == 2
+
+
+def test_other_methods_estimates_are_fitted_with_the_mixture_objective(tmp_path):
+    """from-results names gaussian-mixture in the file; fit uses it unless --objective says otherwise."""
+    a, _ = write_results(tmp_path, frames=2, name="a.txt")
+    b, _ = write_results(tmp_path, frames=2, noise=5, seed=1, name="b.txt")
+    p = tmp_path / "p.npz"
+    assert main(["proposals", "from-results", "--dataset", "icvl", str(a), str(b), "--out", str(p)]) == 0
+    assert str(np.load(p)["objective"]) == "gaussian-mixture"
+    args = ["fit", str(p), "--dataset", "icvl", "--budget", "600"]
+    assert main(args + ["--out", str(tmp_path / "mixture.npz")]) == 0
+    assert main(args + ["--objective", "clamped-confidence", "--out", str(tmp_path / "clamped.npz")]) == 0
+    assert (np.load(tmp_path / "mixture.npz")["objective"] > 0).all()  # a negative log-likelihood
+    assert (np.load(tmp_path / "clamped.npz")["objective"] <= 0).all()  # -E
+
+
+def test_proposals_from_results_refuses_mismatched_predictions():
+    import pytest
+
+    from hybridfit.datasets.results import proposals_from_results
+    from hybridfit.errors import HybridfitError
+
+    z = proposals_from_results([np.zeros((2, 16, 3)), np.ones((2, 16, 3))], [2.0, 1.0])
+    assert z["proposals"].shape == (2, 16, 2, 3) and z["confidences"][1, 3].tolist() == [2.0, 1.0]
+    with pytest.raises(HybridfitError, match="one shape"):
+        proposals_from_results([np.zeros((2, 16, 3)), np.zeros((3, 16, 3))])
+    with pytest.raises(HybridfitError, match="confidences"):
+        proposals_from_results([np.zeros((2, 16, 3))], [-1.0])
