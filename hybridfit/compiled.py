@@ -25,6 +25,7 @@ whole stage and computed once.
 from __future__ import annotations
 
 import functools
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numba as nb
@@ -394,7 +395,7 @@ def _fit_batch(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
 def fit_batch():
     """:func:`_fit_batch` compiled for :data:`KERNEL_SIGNATURE` objectives (compiled, or read
     from numba's cache, on first use rather than on import)."""
-    return nb.njit(_SIGNATURE, cache=True, parallel=True)(_fit_batch)
+    return nb.njit(_SIGNATURE, cache=True, parallel=True, nogil=True)(_fit_batch)
 
 
 # ---------------------------------------------------------------- Python side
@@ -484,6 +485,22 @@ def draw(rng: np.random.Generator, plan: Layout, out: np.ndarray) -> None:
             at += n
 
 
+@dataclass
+class Chunk:
+    """Frames prepared for :meth:`CompiledFitter.run`: their indices, the errors of those that
+    cannot be fitted, and for the others (positions ``kept`` in ``frames``) problems, layouts,
+    proposals and random numbers."""
+
+    frames: list
+    errors: list
+    problems: list
+    layouts: list
+    kept: list
+    proposals: np.ndarray | None = None
+    random: np.ndarray | None = None
+    random_at: np.ndarray | None = None
+
+
 class CompiledFitter:
     """Fits batches of frames of one model, objective and PSO schedule with :func:`fit_batch`.
 
@@ -519,37 +536,82 @@ class CompiledFitter:
             found = self._layouts[key] = layout(plan(self.optimizer, Task(problem, self.budget)))
         return found
 
-    def fit_chunk(self, frames, proposals: np.ndarray, confidences: np.ndarray, threads: int = 1):
-        """Fit frames (their indices: the random streams and messages) with proposals (F, Q, K, 3)
-        mm and confidences (F, Q, K), on ``threads`` numba threads. Returns a list of (frame,
-        (params (P,), points (Q, 3), joints (J, 3), loss, evaluations), None), or (frame, None,
-        message) for a frame whose input cannot be fitted, in the order of ``frames``."""
-        out, problems, layouts, kept = [], [], [], []
-        for i, f in enumerate(frames):
+    def prepare(self, frames, proposals: np.ndarray, confidences: np.ndarray) -> "Chunk":
+        """The Python half of fitting frames (their indices: the random streams and messages)
+        with proposals (F, Q, K, 3) mm and confidences (F, Q, K): problems, stages, random
+        numbers; frames whose input cannot be fitted get their message."""
+        chunk = Chunk(list(frames), [], [], [], [])
+        for i, f in enumerate(chunk.frames):
             try:
                 problem = Problem(self.model, self.objective, proposals[i], confidences[i], self.names,
                                   self.search_radius_mm)
-                layouts.append(self.layout(problem))
+                chunk.layouts.append(self.layout(problem))
             except HybridfitError as err:
-                out.append((f, None, str(err)))
+                chunk.errors.append((f, None, str(err)))
                 continue
-            problems.append(problem)
-            kept.append(i)
-        if kept:
-            random_at = np.cumsum([0] + [lay.random_count for lay in layouts]).astype(np.int64)
-            random = np.empty(random_at[-1])
-            for n, (i, lay) in enumerate(zip(kept, layouts)):
-                draw(np.random.default_rng([self.seed, frames[i]]), lay, random[random_at[n]:random_at[n + 1]])
-            params, loss, used = self.fit(
-                proposals[kept], np.stack([p.weights for p in problems]), np.stack([p.x0 for p in problems]),
-                np.stack([p.lower for p in problems]), np.stack([p.upper for p in problems]), layouts, random,
-                random_at, threads)
+            chunk.problems.append(problem)
+            chunk.kept.append(i)
+        chunk.proposals = proposals[chunk.kept]
+        chunk.random_at = np.cumsum([0] + [lay.random_count for lay in chunk.layouts]).astype(np.int64)
+        chunk.random = np.empty(chunk.random_at[-1])
+        for n, (i, lay) in enumerate(zip(chunk.kept, chunk.layouts)):
+            draw(np.random.default_rng([self.seed, chunk.frames[i]]), lay,
+                 chunk.random[chunk.random_at[n]:chunk.random_at[n + 1]])
+        return chunk
+
+    def run(self, chunk: "Chunk", threads: int = 1):
+        """The compiled half: (params (F, P), loss (F,), evaluations (F,)) of the chunk's
+        fittable frames (releases the GIL)."""
+        if not chunk.kept:
+            return np.empty((0, self.model.n_params)), np.empty(0), np.empty(0, dtype=np.int64)
+        p = chunk.problems
+        return self.fit(chunk.proposals, np.stack([q.weights for q in p]), np.stack([q.x0 for q in p]),
+                        np.stack([q.lower for q in p]), np.stack([q.upper for q in p]), chunk.layouts, chunk.random,
+                        chunk.random_at, threads)
+
+    def finish(self, chunk: "Chunk", fitted) -> list:
+        """A list of (frame, (params (P,), points (Q, 3), joints (J, 3), loss, evaluations),
+        None), or (frame, None, message) for a frame whose input cannot be fitted, in the
+        chunk's frame order."""
+        params, loss, used = fitted
+        out = list(chunk.errors)
+        if chunk.kept:
             joints = self.model.forward(params)
             points = joints if self.point_matrix is None else np.einsum("qj,njc->nqc", self.point_matrix, joints)
-            out += [(frames[i], (params[n], points[n], joints[n], float(loss[n]), int(used[n])), None)
-                    for n, i in enumerate(kept)]
-        order = {f: n for n, f in enumerate(frames)}
+            out += [(chunk.frames[i], (params[n], points[n], joints[n], float(loss[n]), int(used[n])), None)
+                    for n, i in enumerate(chunk.kept)]
+        order = {f: n for n, f in enumerate(chunk.frames)}
         return sorted(out, key=lambda item: order[item[0]])
+
+    def fit_chunk(self, frames, proposals: np.ndarray, confidences: np.ndarray, threads: int = 1) -> list:
+        """Fit frames with proposals (F, Q, K, 3) mm and confidences (F, Q, K) on ``threads``
+        numba threads (see :meth:`finish` for what it returns)."""
+        chunk = self.prepare(frames, proposals, confidences)
+        return self.finish(chunk, self.run(chunk, threads))
+
+    def fit_chunks(self, chunks, proposals: np.ndarray, confidences: np.ndarray, jobs: int = 1):
+        """Yield :meth:`fit_chunk`'s result for each chunk of frame indices, in order. With
+        ``jobs`` > 1 the next chunk is prepared while the compiled half of the current one runs
+        on ``jobs - 1`` numba threads; an interrupt while preparing still yields the chunk
+        that was running."""
+        if jobs <= 1:
+            for c in chunks:
+                yield self.fit_chunk(c, proposals[c], confidences[c])
+            return
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            running = None
+            for c in chunks:
+                try:
+                    chunk = self.prepare(c, proposals[c], confidences[c])
+                except BaseException:
+                    if running is not None:
+                        yield self.finish(running[0], running[1].result())
+                    raise
+                if running is not None:
+                    yield self.finish(running[0], running[1].result())
+                running = (chunk, pool.submit(self.run, chunk, jobs - 1))
+            if running is not None:
+                yield self.finish(running[0], running[1].result())
 
     def fit(self, proposals, weights, x0, lower, upper, layouts: list[Layout], random, random_at, threads: int = 1):
         """proposals (F, Q, K, 3) mm, weights (F, Q, K) normalised, x0, lower, upper (F, P), a

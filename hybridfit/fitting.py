@@ -28,8 +28,9 @@ from .optimizer import Task
 from .problem import Problem
 
 
-#: frames per call of the compiled path (progress and Ctrl-C granularity)
-COMPILED_CHUNK = 256
+#: frames per call of the compiled path (progress and Ctrl-C granularity; with jobs > 1
+#: one chunk is prepared while the one before is fitted)
+COMPILED_CHUNK = 64
 
 #: the inlier distance of objectives without a ``d_max_mm`` setting
 INLIER_DISTANCE_MM = 40.0
@@ -228,9 +229,10 @@ def fit(
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
         if fitter is not None:
-            for c in np.array_split(np.arange(F), max(1, -(-F // COMPILED_CHUNK))):
-                store(fitter.fit_chunk([int(f) for f in c], proposals[c], confidences[c], jobs))
-                bar.update(len(c))
+            chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // COMPILED_CHUNK)))]
+            for items in fitter.fit_chunks(chunks, proposals, confidences, jobs):
+                store(items)
+                bar.update(len(items))
         elif jobs <= 1 or F <= 1:
             for f in range(F):
                 store(_fit_chunk(spec, [f], proposals[f : f + 1], confidences[f : f + 1],

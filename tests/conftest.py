@@ -49,7 +49,7 @@ def interrupt_at(monkeypatch):
     from hybridfit import compiled, fitting
 
     real = fitting._fit_chunk
-    real_compiled = compiled.CompiledFitter.fit_chunk
+    real_prepare = compiled.CompiledFitter.prepare
 
     def arm(frame: int) -> None:
         def chunk(spec, frames, *rest):
@@ -57,13 +57,13 @@ def interrupt_at(monkeypatch):
                 raise KeyboardInterrupt
             return real(spec, frames, *rest)
 
-        def compiled_chunk(fitter, frames, *rest):
+        def prepare(fitter, frames, *rest):
             if frames[0] == frame:
                 raise KeyboardInterrupt
-            return real_compiled(fitter, frames, *rest)
+            return real_prepare(fitter, frames, *rest)
 
         monkeypatch.setattr(fitting, "_fit_chunk", chunk)
-        monkeypatch.setattr(compiled.CompiledFitter, "fit_chunk", compiled_chunk)
+        monkeypatch.setattr(compiled.CompiledFitter, "prepare", prepare)
         monkeypatch.setattr(fitting, "COMPILED_CHUNK", 1)  # the compiled path, one frame per call
 
     return arm

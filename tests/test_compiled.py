@@ -142,3 +142,12 @@ def test_other_plugins_take_the_task_path():
     assert not compiled.supports(model, clamped, hybridfit.create("optimizer", "stepwise", {"optimizer": "cmaes"}))
     assert not compiled.supports(model, hybridfit.create("objective", "gaussian-mixture"),
                                  hybridfit.create("optimizer", "pso"))
+
+
+@pytest.mark.parametrize("jobs", [1, 3])
+def test_an_interrupt_keeps_the_frames_fitted_before_it(frames, interrupt_at, jobs):
+    interrupt_at(3)
+    result = hybridfit.fit(frames["proposals"], frames["confidences"], budget=300, jobs=jobs)
+    assert result.interrupted
+    assert not result.failed[:3].any() and result.failed[3:].all()
+    assert (result.evaluations[:3] == 300).all()
