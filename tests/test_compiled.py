@@ -13,17 +13,17 @@ from hybridfit.optimizer import Task
 from hybridfit.problem import Problem
 
 
-def task_path(data, optimizer, budget, seed, frames, names=None):
+def task_path(data, optimizer, budget, seed, frames, names=None, model=None):
     """(params (F, P), loss (F,), evaluations (F,)) fitted through Task and optimizer.run."""
-    model = hybridfit.create("model", "hand26")
+    model = model or hybridfit.create("model", "hand26")
     names = tuple(names or data["joint_names"])
     spec = fitting._Spec(model, hybridfit.create("objective", "clamped-confidence"), optimizer, budget, seed, names, 60.0)
     items = fitting._fit_chunk(spec, frames, data["proposals"][frames], data["confidences"][frames])
     return tuple(np.array([item[1][k] for item in items]) for k in (0, 3, 4))
 
 
-def compiled_path(data, optimizer, budget, seed, frames, names=None, threads=1):
-    model = hybridfit.create("model", "hand26")
+def compiled_path(data, optimizer, budget, seed, frames, names=None, threads=1, model=None):
+    model = model or hybridfit.create("model", "hand26")
     objective = hybridfit.create("objective", "clamped-confidence")
     assert compiled.supports(model, objective, optimizer)
     fitter = compiled.CompiledFitter(model, objective, optimizer, names or data["joint_names"], budget, seed)
@@ -71,6 +71,16 @@ def test_derived_points_are_scored_as_in_the_task_path():
     optimizer = hybridfit.create("optimizer", "stepwise-pso")
     params, loss, _ = compiled_path(data, optimizer, 700, 1, np.arange(3), names)
     ref_params, ref_loss, _ = task_path(data, optimizer, 700, 1, np.arange(3), names)
+    np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)
+
+
+def test_a_left_hand_with_other_bones_is_fitted_as_in_the_task_path():
+    model = hybridfit.create("model", "hand26", {"mirror": True, "scale": 1.1})
+    data = dict(hybridfit.synthetic_proposals(3, k=3, seed=8, model=model))
+    optimizer = hybridfit.create("optimizer", "stepwise-pso")
+    params, loss, _ = compiled_path(data, optimizer, 500, 2, np.arange(3), model=model)
+    ref_params, ref_loss, _ = task_path(data, optimizer, 500, 2, np.arange(3), model=model)
     np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
     np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)
 
