@@ -73,10 +73,13 @@ def main() -> None:
         err_fresh = float(np.nanmean(np.linalg.norm(fresh.joints - truth[a.frames:], axis=-1)))
         bones = np.array(list(r.settings["bone_lengths"].values()))
         bone_err = float(np.abs(bones - np.array(list(true["bone_lengths"].values()))).mean())
-        w = np.concatenate([[np.nan]] + [list(v.values()) for v in r.settings["derived_points"].values()])
+        w = [x for v in r.settings["derived_points"].values() for x in v.values()]
+        weights = f"{min(w):.2f}..{max(w):.2f}" if w else "-"
         print(f"| {dataset} | {r.error_after:.2f} | {r.error_heldout:.2f} | {r.error_heldout / r.error_after:.2f} | "
-              f"{err_fresh:.2f} | {r.ls_error:.2f} | {bone_err:.1f} | {np.nanmin(w):.2f}..{np.nanmax(w):.2f} | {len(r.at_prior)} | {t:.0f} |",
+              f"{err_fresh:.2f} | {r.ls_error:.2f} | {bone_err:.1f} | {weights} | {len(r.at_prior)} | {t:.0f} |",
               flush=True)
+        print(f"|   ({dataset} calibrated bones, mm: " + ", ".join(f"{b} {v:.0f}" for b, v in r.settings["bone_lengths"].items())
+              + ")", flush=True)
 
 
 if __name__ == "__main__":

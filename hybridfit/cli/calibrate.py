@@ -42,7 +42,7 @@ def register(sub) -> None:
     p.add_argument("--model", default="hand26", help="hand model plugin (default: hand26)")
     p.add_argument("--model-config", metavar="TOML", help="the model's other settings (geometry starts at its prior)")
     p.add_argument("--hand", choices=("auto", "right", "left"), default="auto", help="handedness (default: the better fit)")
-    p.add_argument("--rounds", type=non_negative_int, default=3, help="pose-fit / geometry alternations (default 3)")
+    p.add_argument("--rounds", type=non_negative_int, default=2, help="pose-fit / geometry alternations (default 2)")
     p.add_argument("--budget", type=positive_int, default=3400, help="evaluations per frame of each pose fit")
     p.add_argument("--seed", type=seed_int, default=0)
     p.add_argument("--jobs", type=positive_int, default=1)
