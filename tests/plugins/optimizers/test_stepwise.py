@@ -76,12 +76,10 @@ def test_stages_without_observed_points_are_skipped(nyu_frames):
 
 @settings(max_examples=15, deadline=None)
 @given(missing=st.lists(st.integers(0, 13), max_size=10), refine=st.sampled_from([0.0, 0.2]),
-       inner=st.sampled_from(["pso", "random-search"]))
+       inner=st.sampled_from(["pso", "nlopt"]))
 def test_the_loss_adds_up_for_any_point_set(nyu_frames, missing, refine, inner):
     """Whatever points are missing, the reported loss is the full loss of the returned
     parameters and the budget is used exactly, for any inner optimiser."""
-    if inner not in hybridfit.registry.names("optimizer"):
-        inner = "pso"
     c = nyu_frames["confidences"][1].copy()
     c[missing] = 0.0
     if not (c.sum(axis=-1) > 0).any():
