@@ -6,7 +6,8 @@ paths), their accuracy side by side, --jobs scaling and start-up.
 Prints (medians of CPU time, so other jobs on a shared machine disturb little):
 1. batched forward kinematics + clamped-confidence objective (the Task path's kernel),
    hypotheses per second at batches of 64 and 1000 (21 joints, k = 3);
-2. stepwise PSO per frame at budgets 1000 and 3400: the compiled path's numba call alone,
+2. stepwise PSO per frame at budgets 1000 and 3400, with the default schedule (a final joint
+   refinement, ``refine_share`` 0.25) and the paper's (none): the compiled path's numba call alone,
    ``hybridfit.fit`` end to end (problem set-up included) and the Task path
    (``Optimizer.run`` per frame);
 3. the compiled against the Task path over ``--seeds`` seeds x ``--frames`` frames: mean
@@ -44,11 +45,16 @@ def throughput(problem: Problem, n: int) -> float:
     return n * reps / median_time(lambda: [problem.evaluate(X) for _ in range(reps)], repeat=9, clock=time.process_time)
 
 
-def task_path(data, budget: int, seed: int) -> tuple[np.ndarray, float]:
+#: stepwise-pso's default schedule (a final joint refinement) and the paper's (none)
+SCHEDULES = {"default": {}, "paper": {"refine_share": 0.0}}
+
+
+def task_path(data, budget: int, seed: int, schedule: str = "default") -> tuple[np.ndarray, float]:
     """(params (F, P), median CPU seconds per frame) of Optimizer.run per frame."""
     model = hybridfit.create("model", "hand26")
     spec = fitting._Spec(model, hybridfit.create("objective", "clamped-confidence"),
-                         hybridfit.create("optimizer", "stepwise-pso"), budget, seed, tuple(model.joint_names), 60.0)
+                         hybridfit.create("optimizer", "stepwise-pso", SCHEDULES[schedule]), budget, seed,
+                         tuple(model.joint_names), 60.0)
     params, times = [], []
     for f in range(len(data["proposals"])):
         t = time.process_time()
@@ -58,11 +64,11 @@ def task_path(data, budget: int, seed: int) -> tuple[np.ndarray, float]:
     return np.array(params), float(np.median(times))
 
 
-def compiled_call(data, budget: int) -> float:
+def compiled_call(data, budget: int, schedule: str = "default") -> float:
     """CPU seconds per frame of the compiled path's numba call alone (set-up excluded)."""
     model = hybridfit.create("model", "hand26")
     objective = hybridfit.create("objective", "clamped-confidence")
-    fitter = compiled.CompiledFitter(model, objective, hybridfit.create("optimizer", "stepwise-pso"),
+    fitter = compiled.CompiledFitter(model, objective, hybridfit.create("optimizer", "stepwise-pso", SCHEDULES[schedule]),
                                      model.joint_names, budget, 0)
     problems = [Problem(model, objective, p, c) for p, c in zip(data["proposals"], data["confidences"])]
     layouts = [fitter.layout(p) for p in problems]
@@ -76,9 +82,10 @@ def compiled_call(data, budget: int) -> float:
     return median_time(lambda: fitter.fit(*args), repeat=7, clock=time.process_time) / len(layouts)
 
 
-def fit_time(data, budget: int, jobs: int = 1, clock=time.process_time) -> float:
+def fit_time(data, budget: int, jobs: int = 1, clock=time.process_time, schedule: str = "default") -> float:
     """Seconds per frame of hybridfit.fit (end to end)."""
-    return median_time(lambda: hybridfit.fit(data["proposals"], data["confidences"], budget=budget, jobs=jobs),
+    return median_time(lambda: hybridfit.fit(data["proposals"], data["confidences"], budget=budget, jobs=jobs,
+                                             optimizer_config=SCHEDULES[schedule]),
                        repeat=5, clock=clock) / len(data["proposals"])
 
 
@@ -109,13 +116,16 @@ def main() -> None:
 
     rows = [[f"forward kinematics + objective, batch {n}, hypotheses/s", f"{throughput(problem, n):,.0f}"]
             for n in (64, 1000)]
-    for budget in (1000, 3400):
-        small = {k: v[:40] for k, v in data.items()}
-        rows += [
-            [f"stepwise PSO @{budget}, compiled path, numba call, CPU ms/frame", f"{compiled_call(small, budget) * 1e3:.3f}"],
-            [f"stepwise PSO @{budget}, hybridfit.fit end to end, CPU ms/frame", f"{fit_time(data, budget) * 1e3:.3f}"],
-            [f"stepwise PSO @{budget}, Task path, CPU ms/frame", f"{task_path(small, budget, 0)[1] * 1e3:.3f}"],
-        ]
+    small = {k: v[:40] for k, v in data.items()}
+    for schedule in SCHEDULES:
+        for budget in (1000, 3400):
+            name = f"stepwise PSO @{budget}, {schedule} schedule"
+            rows += [
+                [f"{name}, compiled path, numba call, CPU ms/frame", f"{compiled_call(small, budget, schedule) * 1e3:.3f}"],
+                [f"{name}, hybridfit.fit end to end, CPU ms/frame",
+                 f"{fit_time(data, budget, schedule=schedule) * 1e3:.3f}"],
+                [f"{name}, Task path, CPU ms/frame", f"{task_path(small, budget, 0, schedule)[1] * 1e3:.3f}"],
+            ]
     errors, identical, total = {"compiled": [], "task": []}, 0, 0
     for seed in range(args.seeds):
         fast = hybridfit.fit(data["proposals"], data["confidences"], seed=seed)
