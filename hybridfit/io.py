@@ -7,9 +7,10 @@ problem is reported as one line naming the file, the key and, where it applies, 
 
 from __future__ import annotations
 
+import contextlib
 import os
-import tempfile
 import struct
+import tempfile
 import zipfile
 import zlib
 from pathlib import Path
@@ -111,6 +112,23 @@ def check_output(path: str | os.PathLike, option: str = "--out") -> Path:
     if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
         raise HybridfitError(f"{option} {path}: not writable")
     return path
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike):
+    """Yield a hidden temporary path in ``path``'s folder; on success it replaces ``path``,
+    on failure it is removed (an existing ``path`` is never left half-written)."""
+    path = check_output(path, "output")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".hybridfit-", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~_UMASK)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def save_npz(path: str | os.PathLike, **arrays) -> None:

@@ -7,7 +7,7 @@ import numpy as np
 from ..datasets.results import write_xyz
 from ..datasets.skeletons import skeleton
 from ..errors import HybridfitError
-from ..io import load_npz
+from ..io import atomic_path, check_output, load_npz
 
 
 def in_skeleton_order(joints: np.ndarray, names, dataset: str, where: str) -> np.ndarray:
@@ -35,6 +35,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    check_output(args.out)
     data = load_npz(args.fits)
     if "joints" not in data:
         raise HybridfitError(f"{args.fits}: missing key 'joints' (is it a fit result?)")
@@ -43,6 +44,7 @@ def run(args) -> int:
     if failed.any():
         raise HybridfitError(f"{args.fits}: {int(failed.sum())} failed frames (first {int(np.argmax(failed))}) "
                              "cannot be written in the results format")
-    write_xyz(args.out, joints, args.dataset)
+    with atomic_path(args.out) as tmp:
+        write_xyz(tmp, joints, args.dataset)
     print(f"wrote {len(joints)} frames -> {args.out}")
     return 0

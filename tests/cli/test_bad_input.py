@@ -278,3 +278,57 @@ def test_fit_records_inliers_and_evaluate_flags_far_frames(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "1 frames whose fit is far from the proposals" in printed and printed.rstrip().endswith(": 2")
     assert "index_tip" in printed  # per-point errors
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["train", "DATA", "--seed", "-1"], "--seed"),
+    (["propose", "FOREST", "DATA", "--bandwidth", "-1"], "--bandwidth"),
+    (["estimate", "FOREST", "DATA", "--seed", "-3"], "--seed"),
+    (["estimate", "FOREST", "DATA", "--search-radius", "0"], "--search-radius"),
+    (["calibrate", "--dataset", "icvl", "--ground-truth", "GT", "--seed", "-1"], "--seed"),
+    (["calibrate", "--dataset", "icvl", "--ground-truth", "GT", "--rounds", "-2"], "--rounds"),
+    (["export-results", "FITS", "--dataset", "icvl"], "is a folder"),
+])
+def test_every_command_checks_its_options_before_reading_anything(tmp_path, capsys, argv, option):
+    """The inputs do not exist: the option (or the output) must be what is reported."""
+    existing = tmp_path / "existing.out"
+    existing.write_bytes(b"keep me")
+    out = tmp_path if option == "is a folder" else existing
+    argv = [str(tmp_path / a) if a.isupper() else a for a in argv] + ["--out", str(out)]
+    err = one_line_error(capsys, main(argv))
+    assert option in err and existing.read_bytes() == b"keep me"
+
+
+def test_study_out_must_be_a_folder(tiny_study, tmp_path, capsys):
+    taken = tmp_path / "taken"
+    taken.write_text("a file")
+    err = one_line_error(capsys, main(["study", str(tiny_study), "--out", str(taken)]))
+    assert "is a file; a study writes a folder" in err and taken.read_text() == "a file"
+
+
+@pytest.fixture
+def tiny_study(tmp_path):
+    from ..study.conftest import TINY
+
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY)
+    return path
+
+
+def test_export_results_writes_atomically(tmp_path, capsys, monkeypatch):
+    from hybridfit.cli import export_results
+
+    fits, out = tmp_path / "fits.npz", tmp_path / "fitted.txt"
+    _, truth = write_results(tmp_path, name="gt.txt")
+    np.savez(fits, joints=truth, joint_names=np.asarray(hybridfit.datasets.skeletons.skeleton("icvl").model_names))
+    out.write_text("an earlier export\n")
+
+    def broken(path, joints, dataset):
+        path.write_text("half")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(export_results, "write_xyz", broken)
+    with pytest.raises(OSError):
+        export_results.run(type("A", (), {"fits": str(fits), "out": str(out), "dataset": "icvl"}))
+    assert out.read_text() == "an earlier export\n"
+    assert {p.name for p in tmp_path.iterdir()} == {"fitted.txt", "fits.npz", "gt.txt"}  # no temporary file left
