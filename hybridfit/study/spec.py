@@ -16,10 +16,12 @@ are compared on common random numbers. The trial key hashes the data, settings a
 from __future__ import annotations
 
 import copy
+import difflib
 import hashlib
 import itertools
 import json
 import tomllib
+import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
@@ -304,11 +306,30 @@ def _errors(where: str, err: ValidationError, prefix: str = "") -> HybridfitErro
         path = [str(p) for p in (prefix, *e["loc"]) if p != ""]
         path = [p for i, p in enumerate(path) if not (i and path[i - 1] == "data" and p in _KINDS.split(", "))]
         loc = ".".join(path) or "(study)"
-        msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"].removeprefix("Value error, ")
+        msg = _unknown_key(e["loc"]) if e["type"] == "extra_forbidden" else e["msg"].removeprefix("Value error, ")
         if e["type"] in ("union_tag_invalid", "union_tag_not_found"):
             msg = f"kind must be one of {_KINDS}"
         parts.append(f"{loc}: {msg}")
     return HybridfitError(f"{where}: " + "; ".join(parts))
+
+
+def _models(annotation) -> list[type[BaseModel]]:
+    """The pydantic models inside a type annotation (through Optional, Union, Annotated, list)."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    return [m for arg in typing.get_args(annotation) for m in _models(arg)]
+
+
+def _unknown_key(loc) -> str:
+    """'unknown key' with the closest valid key of the table it is in."""
+    models: list[type[BaseModel]] = [Study]
+    for part in loc[:-1]:
+        fields = [f for m in models for n, f in m.model_fields.items() if part in (n, f.alias)]
+        tagged = [m for m in models if typing.get_args(m.model_fields.get("kind", Field()).annotation) == (part,)]
+        models = tagged or [m for f in fields for m in _models(f.annotation)]
+    names = [f.alias or n for m in models for n, f in m.model_fields.items()]
+    close = difflib.get_close_matches(str(loc[-1]), names, n=1) if loc else []
+    return f"unknown key (did you mean {close[0]!r}?)" if close else "unknown key"
 
 
 _KINDS = "synthetic-proposals, synthetic-depth, dataset, proposals"

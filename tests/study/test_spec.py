@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from hybridfit.errors import HybridfitError
-from hybridfit.study.spec import expand, load_spec, trials
+from hybridfit.study.spec import expand, load_spec, parse_spec, trials
 
 from .conftest import TINY, write
 
@@ -93,3 +95,14 @@ def test_shipped_studies_validate():
     for path in sorted((Path(__file__).parents[2] / "studies").glob("*.toml")):
         for quick in (False, True):
             assert expand(load_spec(path, quick=quick)), path
+
+
+@pytest.mark.parametrize("raw, expected", [
+    ({"data": {"kind": "synthetic-proposals", "framez": 3}}, "data.framez: unknown key (did you mean 'frames'?)"),
+    ({"data": {"kind": "synthetic-depth", "forest": {"max_dept": 3}}},
+     "data.forest.max_dept: unknown key (did you mean 'max_depth'?)"),
+    ({"data": {"kind": "synthetic-proposals"}, "base": {"budgett": 3}}, "base.budgett: unknown key (did you mean 'budget'?)"),
+])
+def test_a_typo_names_the_closest_valid_key(raw, expected):
+    with pytest.raises(HybridfitError, match=re.escape(expected)):
+        parse_spec({"name": "typo", **raw}, "typo.toml")
