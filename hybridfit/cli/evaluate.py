@@ -30,12 +30,15 @@ REPORTED = (20, 40, 80)
 
 def points_array(path: str, data: dict, key: str, allow_nan=None) -> np.ndarray:
     """data[key] as (F, J, 3) float mm; refuses other shapes and NaN/inf, naming the key and
-    the first bad frame (frames where ``allow_nan`` (F,) is True may be NaN: failed fits)."""
+    the first bad frame (frames where ``allow_nan`` (F,) is True may be NaN: failed fits;
+    ``allow_nan=True``: any frame)."""
     a = np.asarray(data[key])
     if a.ndim != 3 or a.shape[-1] != 3 or a.dtype.kind not in "iuf":
         raise HybridfitError(f"{path}: {key!r} must be numbers of shape (frames, points, 3), got {a.dtype} {a.shape}")
     a = a.astype(float)
     bad = ~np.isfinite(a).all(axis=(1, 2))
+    if allow_nan is True:
+        return a
     if allow_nan is not None and np.shape(allow_nan) == bad.shape:
         bad &= ~np.asarray(allow_nan, bool)
     if bad.any():

@@ -36,10 +36,14 @@ def register(sub) -> None:
 
 def run(args) -> int:
     check_output(args.out)
+    from .evaluate import point_names, points_array
+
     data = load_npz(args.fits)
     if "joints" not in data:
         raise HybridfitError(f"{args.fits}: missing key 'joints' (is it a fit result?)")
-    joints = in_skeleton_order(data["joints"], data.get("joint_names"), args.dataset, args.fits)
+    joints = points_array(args.fits, data, "joints", allow_nan=True)  # failed frames: refused below
+    names = point_names(args.fits, data, joints.shape[1])
+    joints = in_skeleton_order(joints, names, args.dataset, args.fits)
     failed = ~np.isfinite(joints).all(axis=(1, 2))
     if failed.any():
         raise HybridfitError(f"{args.fits}: {int(failed.sum())} failed frames (first {int(np.argmax(failed))}) "

@@ -1,6 +1,7 @@
 """Fuzzing the command line: hypothesis derives bad inputs from valid ones (truncated and
 byte-flipped files; wrong keys, dtypes and shapes; NaN, inf and extreme values; malformed
-TOML and results lines) and runs them through ``hybridfit.cli.main`` in-process.
+TOML and results lines) and runs them through ``hybridfit.cli.main`` in-process: ``fit``,
+``evaluate``, ``export-results``, ``show``, ``proposals from-results``, ``study`` and ``propose``.
 
 Every run must end with a documented exit code (0, 2 or 3), never an exception; a user error
 (2) is one line on stderr; an existing output file is never touched by a failed run, and no
@@ -244,20 +245,29 @@ def test_fit_on_generated_bad_proposals(valid, tmp_path_factory, capsys, example
     check()
 
 
-def test_evaluate_on_generated_bad_fits(valid, tmp_path_factory, capsys, examples):
+def test_evaluate_export_and_show_on_generated_bad_fits(valid, tmp_path_factory, capsys, examples):
     good = load(valid["fits"])
 
     @fuzz(examples)
-    @given(st.lists(array_mutation(sorted(good)), min_size=1, max_size=3), st.one_of(st.none(), byte_mutation()))
-    def check(mutations, flip):
+    @given(st.lists(array_mutation(sorted(good)), min_size=1, max_size=3), st.one_of(st.none(), byte_mutation()),
+           st.sampled_from(["evaluate", "export-results", "show"]))
+    def check(mutations, flip, command):
         d = good
         for m in mutations:
             d = m(d)
         work = tmp_path_factory.mktemp("eval")
-        src, plot = work / "fits.npz", work / "curve.png"
+        src = work / "fits.npz"
         raw = npz_bytes(d)
         src.write_bytes(flip(raw) if flip else raw)
-        run_cli(["evaluate", str(src), "--plot", str(plot)], plot, capsys)
+        if command == "evaluate":
+            out = work / "curve.png"
+            run_cli(["evaluate", str(src), "--plot", str(out)], out, capsys)
+        elif command == "export-results":  # hand26 points are not ICVL's: most runs end in exit 2 by design
+            out = work / "fitted.txt"
+            run_cli(["export-results", str(src), "--dataset", "msra", "--out", str(out)], out, capsys)
+        else:
+            out = work / "frame.png"
+            run_cli(["show", str(valid["data"]), "--frame", "1", "--fits", str(src), "--out", str(out)], out, capsys)
 
     check()
 
