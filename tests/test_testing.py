@@ -13,6 +13,8 @@ from hybridfit.plugin import Settings
 KNOWN_FAILURES: dict[tuple[str, str], str] = {
     ("cmaes", "check_optimizer_improves"): "CMA-ES never evaluates its start; within 150 evaluations its samples "
     "(sigma 15% of a 120 mm position box) are all worse than the start",
+    ("pymoo", "check_optimizer_improves"): "pymoo's default DE population of 100 leaves half a generation in 150 "
+    "evaluations (with pop_size 20 it passes: tests/plugins/optimizers/test_pymoo.py)",
 }
 
 

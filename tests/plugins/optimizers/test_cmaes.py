@@ -35,7 +35,8 @@ def test_population_is_batched_and_bounded():
 
 def test_settings_and_min_budget():
     cmaes = registry.create("optimizer", "cmaes")
-    assert cmaes.min_budget(Task(testing.check_problem(), 100)) == 4 + int(3 * np.log(27))
+    problem = testing.check_problem()
+    assert cmaes.min_budget(Task(problem, 100)) == 4 + int(3 * np.log(problem.model.n_params))
     with pytest.raises(HybridfitError, match="popsize"):
         registry.create("optimizer", "cmaes", {"popsize": 1})
     with pytest.raises(HybridfitError, match="budget 5 is too small"):
