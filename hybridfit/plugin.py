@@ -20,12 +20,22 @@ class Settings(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+class _RegisteredName:
+    """``cls.name``: the entry-point name the class itself is registered under ('' if none),
+    asked of the registry, which writes nothing onto classes. A class may set its own."""
+
+    def __get__(self, obj, cls) -> str:
+        from .registry import name_of
+
+        return name_of(cls)
+
+
 class Plugin:
-    """A configurable plugin. Subclasses set ``Settings`` and ``name``."""
+    """A configurable plugin. Subclasses set ``Settings``."""
 
     Settings: ClassVar[type[Settings]] = Settings
-    #: the entry-point name the plugin is registered under (set by the registry on load)
-    name: ClassVar[str] = ""
+    #: the entry-point name the plugin class is registered under ('' for an unregistered class)
+    name: ClassVar[str] = _RegisteredName()  # type: ignore[assignment]
 
     def __init__(self, **params: Any) -> None:
         try:

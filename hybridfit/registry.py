@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import functools
 import importlib.metadata as metadata
+import sys
 import warnings
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -63,6 +64,7 @@ def _entry_points(kind: str) -> dict[str, metadata.EntryPoint]:
 def refresh() -> None:
     """Forget the entry points read so far (after installing a plugin package at run time)."""
     _entry_points.cache_clear()
+    _NAMES.clear()
 
 
 def names(kind: str) -> list[str]:
@@ -71,11 +73,32 @@ def names(kind: str) -> list[str]:
 
 
 def _load(kind: str, ep: metadata.EntryPoint) -> type:
-    cls = ep.load()
-    # the registry tells the class the name it is registered under
-    if not cls.__dict__.get("name"):  # its own name, not one inherited from a registered base
-        cls.name = ep.name
-    return cls
+    return ep.load()
+
+
+#: classes found registered, by class: their entry-point name (see name_of)
+_NAMES: dict[type, str] = {}
+
+
+def name_of(cls: type) -> str:
+    """The name ``cls`` itself is registered under, '' if it is not (a subclass of a
+    registered plugin is not registered by inheritance). Writes nothing onto the class and
+    imports nothing: only entry points whose module is already imported can name it."""
+    name = _NAMES.get(cls)
+    if name is not None:
+        return name
+    for kind in GROUPS:
+        for ep in _entry_points(kind).values():
+            module = sys.modules.get(ep.module)
+            if module is None:
+                continue
+            obj = module
+            for part in (ep.attr or "").split("."):
+                obj = getattr(obj, part, None)
+            if obj is cls:
+                _NAMES[cls] = ep.name
+                return ep.name
+    return ""
 
 
 def get(kind: str, name: str) -> type:

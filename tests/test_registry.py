@@ -73,3 +73,20 @@ def test_a_broken_plugin_warns_and_the_others_keep_working(broken_distribution):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert registry.create("optimizer", "fine-opt").settings.particles is None
+
+
+def test_the_registry_writes_no_names_onto_classes():
+    pso = registry.get("optimizer", "pso")
+    assert pso.name == "pso" and "name" not in pso.__dict__
+
+    class MyPSO(pso):
+        """An unregistered subclass."""
+
+    assert MyPSO.name == "" and MyPSO().name == ""
+    assert registry.create("optimizer", "pso").name == "pso"  # the registered class keeps its name
+    assert registry.create("optimizer", "stepwise-pso").name == "stepwise-pso"  # a registered subclass has its own
+
+
+def test_a_registered_subclass_of_a_registered_plugin_has_its_own_name(broken_distribution):
+    fine = registry.get("optimizer", "fine-opt")
+    assert fine.name == "fine-opt" and registry.get("optimizer", "pso").name == "pso"
