@@ -3,11 +3,17 @@
 The model's forward kinematics are built symbolically from its own kinematic description
 (``model.kinematic_tree()``, see :mod:`hybridfit.kinematics_casadi`), for the task's free
 parameters only (the others frozen at ``task.base``), scaled to the unit cube. IPOPT
-(limited-memory BFGS Hessian, the box as bounds) minimises a smooth surrogate of the
-task's objective: the negative log-likelihood of each of the task's points under a
+(limited-memory BFGS Hessian, the box as bounds) minimises the task's own objective when
+that objective offers CasADi symbols: a method ``casadi_loss(points, proposals, weights,
+subset)`` returning its loss as a CasADi scalar for ``points`` a (Q, 3) CasADi matrix of the
+problem's points, summed over the point indices ``subset``. Otherwise it minimises a
+surrogate, and says so (a warning naming the objective and the surrogate; see
+:func:`optimised_loss`): the negative log-likelihood of each of the task's points under a
 Gaussian mixture of its proposals (standard deviation ``sigma_mm``, the confidences as
-mixture weights), plus ``(|q|^2 - 1)^2`` when the quaternion is free (the model normalises
-it, so its length is otherwise undetermined).
+mixture weights; the ``gaussian-mixture`` objective up to a constant). Either way it adds
+``(|q|^2 - 1)^2`` when the quaternion is free (the model normalises it, so its length is
+otherwise undetermined), and every hypothesis is scored, and the best one kept, by the
+task's own objective.
 
 It starts from the best of ``candidates`` cheap hypotheses (the initial guess and
 perturbations of it, evaluated as one batch), and restarts from the best point so far
@@ -37,6 +43,7 @@ Failures: an IPOPT run ending in a failure status (e.g. ``Invalid_Number_Detecte
 from __future__ import annotations
 
 import functools
+import warnings
 from typing import Literal
 
 import numpy as np
@@ -68,8 +75,20 @@ class CasadiIKSettings(Settings):
     on_failure: Literal["restart", "raise"] = Field("restart", description="after an IPOPT failure: restart or raise")
 
 
+def optimised_loss(objective, sigma_mm: float) -> str | None:
+    """None when IPOPT minimises the objective itself (it offers ``casadi_loss``), else a
+    sentence naming the surrogate it minimises instead."""
+    if callable(getattr(objective, "casadi_loss", None)):
+        return None
+    name = objective.name or type(objective).__name__
+    return (f"casadi-ik: objective {name!r} offers no CasADi symbols (casadi_loss), so IPOPT minimises a "
+            f"surrogate: the Gaussian-mixture negative log-likelihood of the proposals (sigma_mm={sigma_mm:g}); "
+            f"every hypothesis is still scored, and the best kept, by {name!r}")
+
+
 def surrogate(task: Task, sigma_mm: float, span: np.ndarray):
-    """CasADi SX (z, f): z (dim,) in the unit cube, f the smooth loss over the task's points."""
+    """CasADi SX (z, f): z (dim,) in the unit cube, f the loss over the task's points (the
+    objective's own ``casadi_loss`` when it has one, else the Gaussian-mixture surrogate)."""
     import casadi as ca
 
     from hybridfit.kinematics_casadi import casadi_forward
@@ -84,9 +103,24 @@ def surrogate(task: Task, sigma_mm: float, span: np.ndarray):
         full[int(i)] = task.lower[k] + z[k] * span[k]
     joints = casadi_forward(model.kinematic_tree(), full)
     points = joints if problem.point_matrix is None else ca.mtimes(ca.DM(problem.point_matrix), joints)
+    if optimised_loss(problem.objective, sigma_mm) is None:
+        f = problem.objective.casadi_loss(points, problem.proposals, problem.weights, task.points)
+    else:
+        f = _mixture_nll(points, problem, task.points, sigma_mm)
+    if set(range(3, 7)) <= set(int(i) for i in task.parameters):
+        q = ca.vertcat(*(full[i] for i in range(3, 7)))
+        f += (ca.sumsqr(q) - 1.0) ** 2
+    return z, f
+
+
+def _mixture_nll(points, problem, subset: np.ndarray, sigma_mm: float):
+    """CasADi SX: the Gaussian-mixture negative log-likelihood of ``points`` (Q, 3) over the
+    point indices ``subset`` (constants dropped)."""
+    import casadi as ca
+
     inv_two_var = 0.5 / sigma_mm**2
     f = ca.SX(0.0)
-    for q in task.points:
+    for q in subset:
         w = problem.weights[q]
         use = np.flatnonzero(w > 0)
         if not len(use):
@@ -95,10 +129,7 @@ def surrogate(task: Task, sigma_mm: float, span: np.ndarray):
         smallest = functools.reduce(ca.fmin, d2)
         mix = sum(float(w[r]) * ca.exp(-(d - smallest) * inv_two_var) for r, d in zip(use, d2))
         f += smallest * inv_two_var - ca.log(mix)
-    if set(range(3, 7)) <= set(int(i) for i in task.parameters):
-        q = ca.vertcat(*(full[i] for i in range(3, 7)))
-        f += (ca.sumsqr(q) - 1.0) ** 2
-    return z, f
+    return f
 
 
 class _Oracle:
@@ -253,6 +284,9 @@ class CasadiIK(Optimizer):
         if not (np.isfinite(lower).all() and np.isfinite(upper).all()):
             raise HybridfitError(f"{self.name}: needs finite bounds on every parameter of task {task.name}")
         span = np.where(upper > lower, upper - lower, 1.0)
+        note = optimised_loss(task.problem.objective, s.sigma_mm)
+        if note is not None:
+            warnings.warn(note, stacklevel=2)
         z, f = surrogate(task, s.sigma_mm, span)
         oracle = _Oracle(task, z, f, span, s.gradient_cost)
         Objective, Stop = _callback_classes()

@@ -86,3 +86,38 @@ def test_a_model_without_a_kinematic_tree_is_refused():
     problem.model = type("Opaque", (), {"name": "opaque"})()
     with pytest.raises(HybridfitError, match="no kinematic_tree"):
         surrogate(task, 15.0, np.ones(27))
+
+
+def test_names_the_surrogate_it_optimises_when_the_objective_has_no_symbols():
+    problem = testing.check_problem()  # clamped-confidence: not smooth, no CasADi symbols
+    with pytest.warns(UserWarning, match=r"objective 'clamped-confidence' offers no CasADi symbols .* surrogate: "
+                                          r"the Gaussian-mixture negative log-likelihood .*sigma_mm=15"):
+        registry.create("optimizer", "casadi-ik").run(problem, 100)
+
+
+def test_optimises_the_objective_itself_when_it_offers_casadi_symbols():
+    import warnings
+
+    import casadi as ca
+
+    base = type(registry.create("objective", "least-squares"))
+    calls = []
+
+    class SymbolicLeastSquares(base):
+        def casadi_loss(self, points, proposals, weights, subset):
+            calls.append(len(subset))
+            f = ca.SX(0.0)
+            for q in subset:
+                if weights[q].max() > 0:
+                    f += ca.sumsqr(points[int(q), :] - ca.DM(proposals[q, weights[q].argmax()]).T)
+            return f
+
+    data = _exact()
+    model = registry.create("model", "hand26")
+    from hybridfit.problem import Problem
+
+    problem = Problem(model, SymbolicLeastSquares(), data["proposals"][0], data["confidences"][0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        result = registry.create("optimizer", "casadi-ik").run(problem, 1000)
+    assert calls and result.loss < 1e-3  # the least-squares optimum (0 at the exact pose)
