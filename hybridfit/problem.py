@@ -8,7 +8,7 @@ from typing import Sequence
 import numpy as np
 
 from .errors import HybridfitError
-from .geometry import kabsch, matrix_to_quaternion
+from .geometry import matrix_to_quaternion
 from .model import ORIENTATION, POSITION, HandModel
 from .objective import Objective, Observation, normalise_confidences
 
@@ -120,6 +120,40 @@ class Problem:
         ]
 
 
+#: a root stage with fewer observed points than this cannot determine the global rotation
+#: robustly (one wrong proposal of three moves it freely) ...
+MIN_ROOT_POINTS = 4
+#: ... nor one whose observed points are nearly collinear (``rotation_lever_mm`` below this, mm)
+MIN_ROOT_LEVER_MM = 10.0
+
+
+def rotation_lever_mm(points: np.ndarray) -> float:
+    """How well (Q, 3) points determine a rotation: the root-mean-square distance of the points
+    from the axis (through their centroid) about which they constrain a rotation least, mm.
+    0 for collinear points; a rotation error is about noise / (lever * sqrt(Q)) radians."""
+    if len(points) < 3:
+        return 0.0
+    c = points - points.mean(axis=0)
+    inertia = np.eye(3) * (c * c).sum() - c.T @ c
+    return float(np.sqrt(max(np.linalg.eigvalsh(inertia)[0], 0.0) / len(points)))
+
+
+def guide_points(problem: "Problem", root_points: np.ndarray, later: list[np.ndarray],
+                 min_points: int = MIN_ROOT_POINTS, min_lever_mm: float = MIN_ROOT_LEVER_MM) -> np.ndarray:
+    """The points that guide an ill-posed root stage: each later stage's observed points
+    nearest to the root in the kinematic tree (``later``: each stage's points); none when
+    the root's own observed points (fewer than ``min_points``, or nearly collinear) suffice."""
+    observed = problem.weights.sum(axis=-1) > 0
+    own = root_points[observed[root_points]]
+    canonical = problem.points(problem.model.default_params()[None])[0]
+    if len(own) >= min_points and rotation_lever_mm(canonical[own]) >= min_lever_mm:
+        return np.zeros(0, dtype=np.int64)
+    M = np.eye(problem.model.n_joints) if problem.point_matrix is None else problem.point_matrix
+    depth = point_depths(problem.model.parents, M)
+    later = [p[observed[p]] for p in later]
+    return np.concatenate([p[depth[p] == depth[p].min()] for p in later if len(p)] + [np.zeros(0)]).astype(np.int64)
+
+
 def point_depths(parents: np.ndarray, point_matrix: np.ndarray) -> np.ndarray:
     """(Q,) each point's depth in the kinematic tree (root joint 0): that of the deepest joint
     it depends on. parents (J,), point_matrix (Q, J) as ``HandModel.point_matrix``."""
@@ -136,27 +170,85 @@ def top_proposals(proposals: np.ndarray, weights: np.ndarray) -> tuple[np.ndarra
     return proposals[q, best], weights[q, best]
 
 
-def initial_guess(problem: Problem) -> np.ndarray:
-    """Default articulation with the global pose from a weighted rigid alignment (Kabsch)
-    of the model's root-stage points onto their most confident proposals.
+#: a root point is consistent with an alignment when one of its proposals lies this close, mm
+INLIER_MM = 20.0
 
+
+def initial_guess(problem: Problem) -> np.ndarray:
+    """Default articulation with the global pose from a weighted rigid alignment (Kabsch) of
+    the model's root-stage points onto their proposals.
+
+    The alignment is robust to one wrong top proposal: besides the most confident proposal
+    of every point, each alternative proposal of each point is tried in its place, and the
+    alignment that puts the most points within ``INLIER_MM`` of one of their proposals wins
+    (ties: the smaller summed distance). One decoy on the point that alone fixes the palm's
+    tilt (ICVL's palm point beside its row of knuckles) otherwise flips the hand. An
+    ill-posed root (``guide_points``) is aligned together with its guide points.
     Falls back to all points, then to a translation only, when too few root points have
     proposals.
     """
     model = problem.model
     x = model.default_params().astype(float).copy()
     canonical = problem.points(x[None])[0]
-    target, w = top_proposals(problem.proposals, problem.weights)
-    root_points = problem.stage_points()[0][2]
+    stages = problem.stage_points()
+    root_points = stages[0][2]
+    root_points = np.union1d(root_points, guide_points(problem, root_points, [s[2] for s in stages[1:]]))
+    observed = problem.weights.sum(axis=-1) > 0
     for candidates in (root_points, problem.all_points):
-        use = candidates[w[candidates] > 0]
+        use = candidates[observed[candidates]]
         if len(use) >= 3:
-            R, t = kabsch(canonical[use], target[use], w[use])
+            R, t = robust_alignment(canonical[use], problem.proposals[use], problem.weights[use])
             x[POSITION] = t
             x[ORIENTATION] = matrix_to_quaternion(R)
             return x
+    target, w = top_proposals(problem.proposals, problem.weights)
     use = np.flatnonzero(w > 0)
     if len(use) == 0:
         raise HybridfitError("the frame has no proposals with positive confidence")
     x[POSITION] = np.average(target[use] - canonical[use], axis=0, weights=w[use])
     return x
+
+
+def robust_alignment(source: np.ndarray, proposals: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R (3, 3), t (3,) aligning source (n, 3) onto one proposal per point, proposals (n, k, 3)
+    with weights (n, k): the most confident ones, or with one point's choice swapped for an
+    alternative, whichever puts the most points within ``INLIER_MM`` of a proposal."""
+    n, k, _ = proposals.shape
+    best = weights.argmax(axis=1)
+    choices = [best]
+    for q in range(n):
+        for r in np.flatnonzero(weights[q] > 0):
+            if r != best[q]:
+                c = best.copy()
+                c[q] = r
+                choices.append(c)
+    choices = np.array(choices)  # (H, n)
+    rows = np.arange(n)
+    targets = proposals[rows, choices]  # (H, n, 3)
+    w = weights[rows, choices]
+    R, t = kabsch_batch(source, targets, w)
+    aligned = np.einsum("hij,nj->hni", R, source) + t[:, None]
+    d = np.linalg.norm(aligned[:, :, None] - proposals[None], axis=-1)  # (H, n, k)
+    d = np.where(weights[None] > 0, d, np.inf).min(axis=-1)
+    inliers = (d < INLIER_MM).sum(axis=1)
+    order = np.lexsort((np.minimum(d, 2 * INLIER_MM).sum(axis=1), -inliers))
+    return R[order[0]], t[order[0]]
+
+
+def kabsch_batch(source: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted rigid alignments of source (n, 3) onto each of targets (H, n, 3) with weights
+    (H, n): rotations (H, 3, 3) (proper, never reflections) and translations (H, 3)."""
+    w = weights / weights.sum(axis=1, keepdims=True)
+    mu_s = w @ source  # (H, 3)
+    mu_t = np.einsum("hn,hnc->hc", w, targets)
+    S = source[None] - mu_s[:, None]
+    T = targets - mu_t[:, None]
+    H = np.einsum("hni,hn,hnj->hij", S, w, T)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("hji,hkj->hik", Vt, U)))
+    d[d == 0] = 1.0
+    D = np.zeros_like(H)
+    D[:, 0, 0] = D[:, 1, 1] = 1.0
+    D[:, 2, 2] = d
+    R = np.einsum("hji,hjk,hlk->hil", Vt, D, U)
+    return R, mu_t - np.einsum("hij,hj->hi", R, mu_s)

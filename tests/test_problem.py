@@ -41,3 +41,28 @@ def test_points_can_be_derived_points(hand26, clamped):
 def test_frame_without_any_proposal_is_an_error(hand26, clamped):
     with pytest.raises(HybridfitError, match="no proposals with positive confidence"):
         Problem(hand26, clamped, np.zeros((21, 2, 3)), np.zeros((21, 2)))
+
+
+def test_the_initial_alignment_survives_one_decoy_on_the_palm_point():
+    """ICVL's palm stage: a row of knuckles and one palm point that alone fixes the tilt. A
+    decoy as that point's top proposal flips a plain alignment; the robust one tries the
+    alternative and keeps the hand the right way round."""
+    import hybridfit
+    from hybridfit.datasets.skeletons import dataset_model_config, skeleton
+    from hybridfit.geometry import kabsch
+    from hybridfit.problem import robust_alignment
+
+    model = hybridfit.create("model", "hand26", dataset_model_config("hand26", {}, "icvl"))
+    names = list(skeleton("icvl").model_names)
+    root = [names.index(n) for n in ("icvl_palm", "index_mcp", "middle_mcp", "ring_mcp", "little_mcp")]
+    source = model.points(model.default_params(), names)[0][root]
+    R_true = np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]])
+    truth = source @ R_true.T + [0, 0, 400]
+    proposals = np.repeat(truth[:, None], 2, axis=1)
+    decoy = truth[0] + 3.0 * (truth[0] - truth[1:].mean(axis=0))  # the palm point pulled far past the knuckles
+    proposals[0] = [decoy, truth[0]]
+    weights = np.tile([0.6, 0.4], (5, 1))
+    R, t = robust_alignment(source, proposals, weights)
+    np.testing.assert_allclose(source @ R.T + t, truth, atol=1e-6)
+    R_plain, t_plain = kabsch(source, proposals[:, 0], weights[:, 0])
+    assert np.linalg.norm(source @ R_plain.T + t_plain - truth, axis=-1).max() > 10.0

@@ -33,7 +33,7 @@ from hybridfit import registry
 from hybridfit.errors import HybridfitError, UnknownPluginError
 from hybridfit.optimizer import Optimizer, Task
 from hybridfit.plugin import Settings
-from hybridfit.problem import point_depths
+from hybridfit.problem import MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, guide_points
 
 
 class StepwiseSettings(Settings):
@@ -49,10 +49,10 @@ class StepwiseSettings(Settings):
         default_factory=dict, description="the inner optimiser's settings overridden for the refinement stage"
     )
     min_root_points: int = Field(
-        4, ge=0, description="with fewer observed points of its own, the root stage is also scored on guide points"
+        MIN_ROOT_POINTS, ge=0, description="with fewer observed points of its own, the root stage is also scored on guide points"
     )
     min_root_lever_mm: float = Field(
-        10.0, ge=0, description="likewise below this rotation lever (mm) of its own observed points (nearly collinear)"
+        MIN_ROOT_LEVER_MM, ge=0, description="likewise below this rotation lever (mm) of its own observed points (nearly collinear)"
     )
 
     @field_validator("optimizer")
@@ -91,24 +91,13 @@ class StagePlan:
     budget: int
 
 
-def rotation_lever_mm(points: np.ndarray) -> float:
-    """How well (Q, 3) points determine a rotation: the root-mean-square distance of the points
-    from the axis (through their centroid) about which they constrain a rotation least, mm.
-    0 for collinear points; a rotation error is about noise / (lever * sqrt(Q)) radians."""
-    if len(points) < 3:
-        return 0.0
-    c = points - points.mean(axis=0)
-    inertia = np.eye(3) * (c * c).sum() - c.T @ c
-    return float(np.sqrt(max(np.linalg.eigvalsh(inertia)[0], 0.0) / len(points)))
-
-
 class Stepwise(Optimizer):
     """Runs any registered optimiser stage by stage (palm first, then fingers) or jointly.
 
     The schedule adapts to the frame's points (``plan``): stages without free parameters or
     without any point that has proposals are skipped (their budget goes to the others), and
     when the root stage's own observed points cannot determine the global rotation (fewer than
-    3, or collinear: ``rotation_lever_mm`` below ``min_root_lever_mm``), the root stage is also
+    4, or collinear: ``problem.rotation_lever_mm`` below ``min_root_lever_mm``), the root stage is also
     scored on guide points: each later stage's observed points nearest to the root, with the
     fingers at their starting articulation. Guide points stay owned by their own stage.
     """
@@ -161,14 +150,7 @@ class Stepwise(Optimizer):
     def _guide_points(self, problem, root_points: np.ndarray, later: list[np.ndarray]) -> np.ndarray:
         """Points of later stages to score the root stage on when its own observed points
         cannot determine the rotation (none when they can)."""
-        observed = root_points[problem.weights[root_points].sum(axis=-1) > 0]
-        canonical = problem.points(problem.x0[None])[0]
-        s = self.settings
-        if len(observed) >= s.min_root_points and rotation_lever_mm(canonical[observed]) >= s.min_root_lever_mm:
-            return np.zeros(0, dtype=np.int64)
-        M = np.eye(problem.model.n_joints) if problem.point_matrix is None else problem.point_matrix
-        depth = point_depths(problem.model.parents, M)
-        return np.concatenate([p[depth[p] == depth[p].min()] for p in later]).astype(np.int64)
+        return guide_points(problem, root_points, later, self.settings.min_root_points, self.settings.min_root_lever_mm)
 
     def plan(self, task: Task) -> list[StagePlan]:
         """The frame's schedule: stages with exact budgets adding up to ``task.budget``."""

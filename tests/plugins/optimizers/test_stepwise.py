@@ -10,7 +10,7 @@ import hybridfit
 from hybridfit.datasets.skeletons import dataset_model_config, skeleton
 from hybridfit.optimizer import Task
 from hybridfit.problem import Problem
-from hybridfit_plugins.optimizers.stepwise import rotation_lever_mm
+from hybridfit.problem import rotation_lever_mm
 
 
 def nyu_problem(frames_data, f=0, confidences=None):
@@ -93,15 +93,15 @@ def test_the_loss_adds_up_for_any_point_set(nyu_frames, missing, refine, inner):
 
 def test_guided_stepwise_beats_unguided_on_a_three_point_palm():
     """On NYU-like stress frames the guided root fits better than the paper's palm stage alone
-    (measured on 150 frames: 16.7 vs 20.0 mm; here 24 frames, a margin)."""
+    (measured on 2 x 60 frames: 12.2 / 12.4 vs 14.4 / 15.2 mm; here the first of them)."""
     from hybridfit.metrics import joint_errors
     from hybridfit.stress import stress_proposals
 
-    z = stress_proposals(24, dataset="nyu", seed=5, scale_range=(1, 1), proportion_sd=0.0)
+    z = stress_proposals(60, dataset="nyu", seed=7, scale_range=(1, 1), proportion_sd=0.0, weight_sd=0.0, offset_mm=2.0)
     cfg = dataset_model_config("hand26", {}, "nyu")
     errors = {}
     for label, config in (("guided", {}), ("unguided", {"min_root_points": 0, "min_root_lever_mm": 0})):
         r = hybridfit.fit(z["proposals"], z["confidences"], joint_names=list(z["joint_names"]), model_config=cfg,
-                          optimizer_config=config, budget=1500, seed=0)
+                          optimizer_config=config, budget=3400, seed=0)
         errors[label] = np.nanmean(joint_errors(r.joints, z["ground_truth"]))
     assert errors["guided"] < errors["unguided"] - 1.0, errors
