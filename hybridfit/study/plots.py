@@ -12,12 +12,10 @@ import json
 from pathlib import Path
 
 import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from .report import THRESHOLDS  # noqa: E402
+from .report import THRESHOLDS
 
 SWEEP_AXES = {"k": "proposals per joint k", "proposal_set": "|P~|: votes per joint into mean-shift",
               "budget": "budget (objective evaluations per frame)"}
@@ -55,16 +53,22 @@ def _series(rows: list[dict], x: str) -> dict[str, list[dict]]:
     return groups
 
 
+def _subplots(*grid, figsize, **kwargs):
+    """(figure, axes) of a standalone Figure: no pyplot state, and matplotlib's backend for
+    the rest of the process is left alone (PNGs are written by the Agg canvas savefig picks)."""
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(*grid, **kwargs)
+
+
 def _save(fig, out: Path, name: str) -> str:
     fig.tight_layout()
     fig.savefig(out / name, dpi=110)
-    plt.close(fig)
     return name
 
 
 def plot_success(out: Path, rows: list[dict]) -> str:
-    fig, ax = plt.subplots(figsize=(10, 5))
-    colors = plt.get_cmap("tab20" if len(rows) > 10 else "tab10").colors
+    fig, ax = _subplots(figsize=(10, 5))
+    colors = matplotlib.colormaps["tab20" if len(rows) > 10 else "tab10"].colors
     for i, r in enumerate(rows):
         style = {"oracle": "--", "top1": ":"}.get(r["method"], "-")
         ax.plot(THRESHOLDS, r["curve"], style, color=colors[i % len(colors)], lw=1.8, label=r["variant"])
@@ -80,7 +84,7 @@ def plot_sweep(out: Path, rows: list[dict], x: str, metric: str = "mean_error_mm
     """Error (and for budgets time) against a swept setting; baselines as their own lines."""
     fits = [r for r in rows if r["method"] == "fit"]
     panels = 2 if x == "budget" else 1
-    fig, axes = plt.subplots(1, panels, figsize=(6.5 * panels, 4.8), squeeze=False)
+    fig, axes = _subplots(1, panels, figsize=(6.5 * panels, 4.8), squeeze=False)
     ax = axes[0, 0]
     for method, label, style in (("oracle", "Oracle (closest proposal)", "s--"),
                                  ("top1", "top-1 proposal (plain regression)", "^:")):
@@ -122,7 +126,7 @@ def plot_sweep(out: Path, rows: list[dict], x: str, metric: str = "mean_error_mm
 
 def plot_variants(out: Path, rows: list[dict]) -> str:
     """Horizontal bars: mean error per variant, success @40 mm written beside each bar."""
-    fig, ax = plt.subplots(figsize=(8, 0.45 * len(rows) + 1.6))
+    fig, ax = _subplots(figsize=(8, 0.45 * len(rows) + 1.6))
     y = np.arange(len(rows))[::-1]
     colors = ["tab:blue" if r["method"] == "fit" else "tab:grey" for r in rows]
     means = [r["mean_error_mm_mean"] for r in rows]
@@ -140,7 +144,7 @@ def plot_variants(out: Path, rows: list[dict]) -> str:
 def plot_per_joint(out: Path, rows: list[dict], limit: int) -> str:
     shown = [r for r in rows if r["method"] != "oracle"][:limit]
     names = shown[0]["joint_names"]
-    fig, ax = plt.subplots(figsize=(max(8, 0.45 * len(names) + 2), 4.8))
+    fig, ax = _subplots(figsize=(max(8, 0.45 * len(names) + 2), 4.8))
     width = 0.8 / len(shown)
     for i, r in enumerate(shown):
         ax.bar(np.arange(len(names)) + (i - (len(shown) - 1) / 2) * width, r["per_joint"], width, label=r["variant"])
