@@ -42,6 +42,8 @@ def run(args) -> int:
     if "joints" not in data:
         raise HybridfitError(f"{args.fits}: missing key 'joints' (is it a fit result?)")
     joints = points_array(args.fits, data, "joints", allow_nan=True)  # failed frames: refused below
+    if not len(joints):
+        raise HybridfitError(f"{args.fits}: 'joints' has no frames")
     names = point_names(args.fits, data, joints.shape[1])
     joints = in_skeleton_order(joints, names, args.dataset, args.fits)
     failed = ~np.isfinite(joints).all(axis=(1, 2))
