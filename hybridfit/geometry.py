@@ -1,13 +1,18 @@
 """Rotations and rigid alignment shared by models, optimisers and data generators.
 
+The numba kernels here run in hot loops; everything else is scipy's ``Rotation``.
+
 Quaternions are (w, x, y, z) and need not be unit length: they are normalised here, so
 any non-zero 4-vector is a valid orientation (a zero vector means the identity).
 """
 
 from __future__ import annotations
 
+import warnings
+
 import numba as nb
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 @nb.njit(cache=True, inline="always")
@@ -39,32 +44,24 @@ def quaternions_to_matrices(q):
 
 def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
     """(3, 3) rotation matrix -> unit quaternion (w, x, y, z) with w >= 0."""
-    R = np.asarray(R, dtype=float)
-    tr = np.trace(R)
-    if tr > 0:
-        s = 2.0 * np.sqrt(tr + 1.0)
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
-    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
-    elif R[1, 1] > R[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
-    else:
-        s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
-    q = np.array(q)
-    q /= np.linalg.norm(q)
+    q = Rotation.from_matrix(np.asarray(R, dtype=float)).as_quat()[[3, 0, 1, 2]]
     return q if q[0] >= 0 else -q
 
 
 def axis_angle_matrix(axis, angle: float) -> np.ndarray:
     """(3, 3) rotation by ``angle`` radians about ``axis`` (any length)."""
     axis = np.asarray(axis, dtype=float)
-    axis = axis / np.linalg.norm(axis)
-    half = 0.5 * angle
-    q = np.concatenate([[np.cos(half)], np.sin(half) * axis])
-    return quaternions_to_matrices(q[None])[0]
+    return Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(n, 4) unit quaternions (w, x, y, z) a share w (n,) of the way from q0 (n, 4) to q1
+    (n, 4) along the shorter arc, in q0's hemisphere (spherical linear interpolation)."""
+    q0, q1 = np.atleast_2d(q0), np.atleast_2d(q1)
+    r0 = Rotation.from_quat(q0[:, [1, 2, 3, 0]])
+    step = (r0.inv() * Rotation.from_quat(q1[:, [1, 2, 3, 0]])).as_rotvec()
+    q = (r0 * Rotation.from_rotvec(step * np.asarray(w, dtype=float)[:, None])).as_quat()[:, [3, 0, 1, 2]]
+    return np.where(((q * q0).sum(-1) < 0)[:, None], -q, q)
 
 
 def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None):
@@ -77,8 +74,8 @@ def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = 
     w = w / w.sum()
     mu_s = w @ source
     mu_t = w @ target
-    H = ((source - mu_s) * w[:, None]).T @ (target - mu_t)
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    with warnings.catch_warnings():  # degenerate point sets: any of the optimal rotations will do
+        warnings.filterwarnings("ignore", message="Optimal rotation is not uniquely or poorly defined")
+        rotation, _ = Rotation.align_vectors(target - mu_t, source - mu_s, weights=w)
+    R = rotation.as_matrix()
     return R, mu_t - R @ mu_s

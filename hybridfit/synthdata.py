@@ -46,7 +46,7 @@ from . import registry
 from .camera import Intrinsics, xyz_to_uvd
 from .dataset import write_dataset
 from .errors import HybridfitError
-from .geometry import axis_angle_matrix, matrix_to_quaternion
+from .geometry import axis_angle_matrix, matrix_to_quaternion, slerp
 from .noise import SensorNoise, apply_noise
 from .plugin import format_validation_error
 from .render import HandSurface, Renderer
@@ -253,17 +253,6 @@ def _smooth(times: np.ndarray, key_t: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return i, s * s * (3.0 - 2.0 * s)
 
 
-def _slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """(n, 4) spherical interpolation between unit quaternions q0, q1 (n, 4) by w (n,)."""
-    dot = (q0 * q1).sum(-1)
-    q1 = np.where(dot[:, None] < 0, -q1, q1)
-    theta = np.arccos(np.clip(np.abs(dot), -1.0, 1.0))
-    sin = np.sin(theta)
-    small = sin < 1e-6
-    a = np.where(small, 1 - w, np.sin((1 - w) * theta) / np.where(small, 1, sin))
-    b = np.where(small, w, np.sin(w * theta) / np.where(small, 1, sin))
-    q = a[:, None] * q0 + b[:, None] * q1
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
 def sequence_poses(config: SequenceConfig | Mapping | None = None, model=None) -> np.ndarray:
@@ -307,7 +296,7 @@ def sequence_poses(config: SequenceConfig | Mapping | None = None, model=None) -
     glob_t, glob_q, glob_p = np.array(glob_t, float), np.array(glob_q), np.array(glob_p)
     i, w = _smooth(times, glob_t)
     X[:, 0:3] = glob_p[i] + w[:, None] * (glob_p[i + 1] - glob_p[i])
-    X[:, 3:7] = _slerp(glob_q[i], glob_q[i + 1], w)
+    X[:, 3:7] = slerp(glob_q[i], glob_q[i + 1], w)
     return X
 
 
