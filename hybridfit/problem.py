@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
+import numba as nb
 import numpy as np
 
 from .errors import HybridfitError
@@ -110,14 +111,38 @@ class Problem:
         A point is scored in the latest stage that moves any joint it depends on, so the
         stages' point sets partition the points.
         """
-        stages = self.model.stages()
-        owner = self.model.stage_of_joint()
-        M = np.eye(self.model.n_joints) if self.point_matrix is None else self.point_matrix
+        return self._structure().stages
+
+    def _structure(self) -> "_Structure":
+        """What depends only on the model and the point names (shared by every frame)."""
+        key = (id(self.model), self.point_names)
+        found = _STRUCTURES.get(key)
+        if found is None or found.model is not self.model:
+            if len(_STRUCTURES) >= 32:
+                _STRUCTURES.clear()
+            found = _STRUCTURES[key] = _Structure(self.model, self.point_matrix)
+        return found
+
+
+class _Structure:
+    """A model's stages over a set of points, the points' depths in the kinematic tree and
+    their positions in the model's neutral pose (mm), computed once per model and points."""
+
+    def __init__(self, model: HandModel, point_matrix: np.ndarray | None) -> None:
+        self.model = model
+        owner = model.stage_of_joint()
+        M = np.eye(model.n_joints) if point_matrix is None else point_matrix
         point_stage = np.array([owner[np.flatnonzero(row)].max() for row in M])
-        return [
+        self.stages = [
             (st.name, np.asarray(st.parameters, dtype=np.int64), np.flatnonzero(point_stage == s).astype(np.int64))
-            for s, st in enumerate(stages)
+            for s, st in enumerate(model.stages())
         ]
+        self.depths = point_depths(model.parents, M)
+        self.neutral = np.einsum("qj,jc->qc", M, model.forward(model.default_params()))
+        self.guides: dict[tuple, np.ndarray] = {}
+
+
+_STRUCTURES: dict[tuple, _Structure] = {}
 
 
 #: a root stage with fewer observed points than this cannot determine the global rotation
@@ -144,14 +169,18 @@ def guide_points(problem: "Problem", root_points: np.ndarray, later: list[np.nda
     nearest to the root in the kinematic tree (``later``: each stage's points); none when
     the root's own observed points (fewer than ``min_points``, or nearly collinear) suffice."""
     observed = problem.weights.sum(axis=-1) > 0
-    own = root_points[observed[root_points]]
-    canonical = problem.points(problem.model.default_params()[None])[0]
-    if len(own) >= min_points and rotation_lever_mm(canonical[own]) >= min_lever_mm:
-        return np.zeros(0, dtype=np.int64)
-    M = np.eye(problem.model.n_joints) if problem.point_matrix is None else problem.point_matrix
-    depth = point_depths(problem.model.parents, M)
-    later = [p[observed[p]] for p in later]
-    return np.concatenate([p[depth[p] == depth[p].min()] for p in later if len(p)] + [np.zeros(0)]).astype(np.int64)
+    structure = problem._structure()
+    key = (observed.tobytes(), root_points.tobytes(), tuple(p.tobytes() for p in later), min_points, min_lever_mm)
+    if key not in structure.guides:
+        own = root_points[observed[root_points]]
+        if len(own) >= min_points and rotation_lever_mm(structure.neutral[own]) >= min_lever_mm:
+            structure.guides[key] = np.zeros(0, dtype=np.int64)
+        else:
+            depth = structure.depths
+            later = [p[observed[p]] for p in later]
+            structure.guides[key] = np.concatenate(
+                [p[depth[p] == depth[p].min()] for p in later if len(p)] + [np.zeros(0)]).astype(np.int64)
+    return structure.guides[key]
 
 
 def point_depths(parents: np.ndarray, point_matrix: np.ndarray) -> np.ndarray:
@@ -212,43 +241,77 @@ def initial_guess(problem: Problem) -> np.ndarray:
 def robust_alignment(source: np.ndarray, proposals: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """R (3, 3), t (3,) aligning source (n, 3) onto one proposal per point, proposals (n, k, 3)
     with weights (n, k): the most confident ones, or with one point's choice swapped for an
-    alternative, whichever puts the most points within ``INLIER_MM`` of a proposal."""
-    n, k, _ = proposals.shape
-    best = weights.argmax(axis=1)
-    choices = [best]
-    for q in range(n):
-        for r in np.flatnonzero(weights[q] > 0):
-            if r != best[q]:
-                c = best.copy()
-                c[q] = r
-                choices.append(c)
-    choices = np.array(choices)  # (H, n)
-    rows = np.arange(n)
-    targets = proposals[rows, choices]  # (H, n, 3)
-    w = weights[rows, choices]
-    R, t = kabsch_batch(source, targets, w)
-    aligned = np.einsum("hij,nj->hni", R, source) + t[:, None]
-    d = np.linalg.norm(aligned[:, :, None] - proposals[None], axis=-1)  # (H, n, k)
-    d = np.where(weights[None] > 0, d, np.inf).min(axis=-1)
-    inliers = (d < INLIER_MM).sum(axis=1)
-    order = np.lexsort((np.minimum(d, 2 * INLIER_MM).sum(axis=1), -inliers))
-    return R[order[0]], t[order[0]]
+    alternative, whichever puts the most points within ``INLIER_MM`` of a proposal (ties:
+    the smaller sum of distances, each capped at twice that)."""
+    R, t = np.empty((3, 3)), np.empty(3)
+    _robust_alignment(np.ascontiguousarray(source, dtype=np.float64), np.ascontiguousarray(proposals, dtype=np.float64),
+                      np.ascontiguousarray(weights, dtype=np.float64), INLIER_MM, R, t)
+    return R, t
 
 
-def kabsch_batch(source: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted rigid alignments of source (n, 3) onto each of targets (H, n, 3) with weights
-    (H, n): rotations (H, 3, 3) (proper, never reflections) and translations (H, 3)."""
-    w = weights / weights.sum(axis=1, keepdims=True)
-    mu_s = w @ source  # (H, 3)
-    mu_t = np.einsum("hn,hnc->hc", w, targets)
-    S = source[None] - mu_s[:, None]
-    T = targets - mu_t[:, None]
-    H = np.einsum("hni,hn,hnj->hij", S, w, T)
+@nb.njit(cache=True)
+def _weighted_kabsch(source, target, w, R, t):
+    """Weighted Kabsch of source (n, 3) onto target (n, 3), w (n,) >= 0 (not all 0), into R, t."""
+    n = source.shape[0]
+    total = w.sum()
+    ms, mt = np.zeros(3), np.zeros(3)
+    for i in range(n):
+        ms += w[i] * source[i]
+        mt += w[i] * target[i]
+    ms /= total
+    mt /= total
+    H = np.zeros((3, 3))
+    for i in range(n):
+        for a in range(3):
+            for b in range(3):
+                H[a, b] += w[i] * (source[i, a] - ms[a]) * (target[i, b] - mt[b])
     U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.einsum("hji,hkj->hik", Vt, U)))
-    d[d == 0] = 1.0
-    D = np.zeros_like(H)
-    D[:, 0, 0] = D[:, 1, 1] = 1.0
-    D[:, 2, 2] = d
-    R = np.einsum("hji,hjk,hlk->hil", Vt, D, U)
-    return R, mu_t - np.einsum("hij,hj->hi", R, mu_s)
+    M = Vt.T @ U.T
+    if np.linalg.det(M) < 0:
+        Vt[2] *= -1.0
+        M = Vt.T @ U.T
+    R[:] = M
+    t[:] = mt - M @ ms
+
+
+@nb.njit(cache=True)
+def _robust_alignment(source, proposals, weights, inlier_mm, R_out, t_out):
+    n, k = weights.shape
+    best = np.empty(n, np.int64)
+    for q in range(n):
+        best[q] = np.argmax(weights[q])
+    choice = best.copy()
+    target, w = np.empty((n, 3)), np.empty(n)
+    R, t = np.empty((3, 3)), np.empty(3)
+    best_inliers, best_cost = -1, np.inf
+    for h in range(1 + n * k):  # h = 0: the top proposals; then point (h-1)//k takes proposal (h-1)%k
+        if h > 0:
+            q, r = (h - 1) // k, (h - 1) % k
+            if r == best[q] or weights[q, r] <= 0.0:
+                continue
+            choice[:] = best
+            choice[q] = r
+        for i in range(n):
+            target[i] = proposals[i, choice[i]]
+            w[i] = weights[i, choice[i]]
+        _weighted_kabsch(source, target, w, R, t)
+        inliers, cost, agree = 0, 0.0, True
+        for i in range(n):
+            p = R @ source[i] + t
+            nearest = np.inf
+            for r2 in range(k):
+                if weights[i, r2] > 0.0:
+                    d = np.sqrt(((p - proposals[i, r2]) ** 2).sum())
+                    nearest = min(nearest, d)
+            if np.sqrt(((p - target[i]) ** 2).sum()) >= 0.5 * inlier_mm:
+                agree = False
+            inliers += nearest < inlier_mm
+            cost += min(nearest, 2.0 * inlier_mm)
+        if inliers > best_inliers or (inliers == best_inliers and cost < best_cost):
+            best_inliers, best_cost = inliers, cost
+            R_out[:] = R
+            t_out[:] = t
+        if h == 0 and agree:  # every top proposal agrees closely: nothing to try
+            return
+
+
