@@ -14,7 +14,7 @@ from pydantic import ValidationError
 
 from .. import registry
 from ..errors import HybridfitError
-from ..plugin import format_validation_error
+from ..io import read_results  # noqa: F401  (the commands read results files through it)
 
 
 def load_toml(path: str | None) -> dict[str, Any]:
@@ -107,15 +107,6 @@ def check_image_format(path: str, option: str = "--out") -> None:
                              f"images; use .png (or {', '.join('.' + f for f in sorted(formats) if f != 'png')})")
 
 
-def read_results(path: str, dataset: str):
-    """A results text file -> (F, J, 3) xyz mm; a binary file is named, not decoded."""
-    from ..datasets.results import read_xyz
-
-    try:
-        return read_xyz(path, dataset)
-    except UnicodeDecodeError:
-        raise HybridfitError(f"{path}: not a text file; expected a results file (one line per frame, "
-                             f"J x u v d)") from None
 
 
 def non_negative_int(text: str) -> int:

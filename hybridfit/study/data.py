@@ -157,7 +157,7 @@ class StudyData:
 
     def _file_proposals(self) -> ProposalSet:
         from ..cli.calibrate import frame_slice
-        from ..datasets.results import read_xyz
+        from ..io import read_results as read_xyz  # a binary file is named, not decoded
         from ..datasets.skeletons import skeleton
         from ..io import load_proposals
 
@@ -310,7 +310,7 @@ class StudyData:
         if self._calibrated is None:
             from ..calibrate import calibrate
             from ..cli.calibrate import frame_slice
-            from ..datasets.results import read_xyz
+            from ..io import read_results as read_xyz
             from ..datasets.skeletons import skeleton, with_derived_points
 
             d, c = self.data, self.data.calibrate

@@ -126,3 +126,13 @@ def test_budget_plot_legend_uses_variant_names():
     rows = [{"variant": f"{name}, budget={b}", "settings": {"budget": b, "optimizer_config": {"schedule": s}},
              "method": "fit"} for name, s in (("stepwise", "stepwise"), ("joint PSO", "joint")) for b in (400, 800)]
     assert sorted(_series(rows, "budget")) == ["joint PSO", "stepwise"]
+
+
+def test_a_binary_results_file_in_a_study_is_named(tmp_path):
+    binary = tmp_path / "predictions.txt"
+    binary.write_bytes(bytes(range(256)) * 4)
+    study = parse_spec({"name": "b", "data": {"kind": "proposals", "file": "predictions.txt", "dataset": "icvl",
+                                               "ground_truth": "predictions.txt"}}, root=tmp_path)
+    data = StudyData(study.data, Cache(tmp_path / "cache"), log=lambda m: None)
+    with pytest.raises(HybridfitError, match="predictions.txt: not a text file"):
+        data.proposals(1, 0)
