@@ -372,7 +372,7 @@ _SIGNATURE = T.void(
 def _fit_batch(kernel, parents, offsets, rest, rest_identity, axes, axis_params, mirror,
               pm_ptr, pm_joint, pm_weight, proposals, weights, consts, x0, lower, upper,
               frame_stages, stages, indices, pso, random, frame_random, out_params, out_loss, out_evaluations):
-    """Stepwise PSO of F frames, in parallel over frames (numba threads).
+    """Stepwise PSO of F frames (releases the GIL: threads may fit other frames meanwhile).
 
     proposals (F, Q, K, 3) mm, weights (F, Q, K); x0, lower, upper, out_params (F, P);
     frame f's stages are rows ``frame_stages[f]:frame_stages[f + 1]`` of ``stages`` (S, 9)
@@ -381,7 +381,7 @@ def _fit_batch(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
     init_sigma, max_velocity), its random numbers ``random[frame_random[f]:frame_random[f + 1]]``;
     the point map (Q, J) in CSR form
     (pm_ptr, pm_joint, pm_weight)."""
-    for f in nb.prange(x0.shape[0]):
+    for f in range(x0.shape[0]):
         loss, used = _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params, mirror,
                                 pm_ptr, pm_joint, pm_weight, proposals[f], weights[f], consts, x0[f], lower[f],
                                 upper[f], stages[frame_stages[f]:frame_stages[f + 1]], indices,
@@ -395,7 +395,7 @@ def _fit_batch(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
 def fit_batch():
     """:func:`_fit_batch` compiled for :data:`KERNEL_SIGNATURE` objectives (compiled, or read
     from numba's cache, on first use rather than on import)."""
-    return nb.njit(_SIGNATURE, cache=True, parallel=True, nogil=True)(_fit_batch)
+    return nb.njit(_SIGNATURE, cache=True, nogil=True)(_fit_batch)
 
 
 # ---------------------------------------------------------------- Python side
@@ -561,13 +561,23 @@ class CompiledFitter:
 
     def run(self, chunk: "Chunk", threads: int = 1):
         """The compiled half: (params (F, P), loss (F,), evaluations (F,)) of the chunk's
-        fittable frames (releases the GIL)."""
-        if not chunk.kept:
+        fittable frames, split over ``threads`` threads (the compiled call releases the GIL)."""
+        parts = np.array_split(np.arange(len(chunk.kept)), max(1, min(threads, len(chunk.kept))))
+        if len(parts) == 1:
+            return self._run_part(chunk, parts[0])
+        with ThreadPoolExecutor(max_workers=len(parts)) as pool:
+            fitted = list(pool.map(lambda part: self._run_part(chunk, part), parts))
+        return tuple(np.concatenate(a) for a in zip(*fitted))
+
+    def _run_part(self, chunk: "Chunk", part: np.ndarray):
+        """:meth:`run` on the chunk's fittable frames ``part`` (consecutive positions)."""
+        if not len(part):
             return np.empty((0, self.model.n_params)), np.empty(0), np.empty(0, dtype=np.int64)
-        p = chunk.problems
-        return self.fit(chunk.proposals, np.stack([q.weights for q in p]), np.stack([q.x0 for q in p]),
-                        np.stack([q.lower for q in p]), np.stack([q.upper for q in p]), chunk.layouts, chunk.random,
-                        chunk.random_at, threads)
+        p = [chunk.problems[i] for i in part]
+        at = chunk.random_at[part[0]:part[-1] + 2]
+        return self.fit(chunk.proposals[part], np.stack([q.weights for q in p]), np.stack([q.x0 for q in p]),
+                        np.stack([q.lower for q in p]), np.stack([q.upper for q in p]),
+                        [chunk.layouts[i] for i in part], chunk.random[at[0]:at[-1]], at - at[0])
 
     def finish(self, chunk: "Chunk", fitted) -> list:
         """A list of (frame, (params (P,), points (Q, 3), joints (J, 3), loss, evaluations),
@@ -585,15 +595,15 @@ class CompiledFitter:
 
     def fit_chunk(self, frames, proposals: np.ndarray, confidences: np.ndarray, threads: int = 1) -> list:
         """Fit frames with proposals (F, Q, K, 3) mm and confidences (F, Q, K) on ``threads``
-        numba threads (see :meth:`finish` for what it returns)."""
+        threads (see :meth:`finish` for what it returns)."""
         chunk = self.prepare(frames, proposals, confidences)
         return self.finish(chunk, self.run(chunk, threads))
 
     def fit_chunks(self, chunks, proposals: np.ndarray, confidences: np.ndarray, jobs: int = 1):
         """Yield :meth:`fit_chunk`'s result for each chunk of frame indices, in order. With
         ``jobs`` > 1 the next chunk is prepared while the compiled half of the current one runs
-        on ``jobs - 1`` numba threads; an interrupt while preparing still yields the chunk
-        that was running."""
+        on ``jobs - 1`` threads; an interrupt while preparing still yields the chunk that was
+        running."""
         if jobs <= 1:
             for c in chunks:
                 yield self.fit_chunk(c, proposals[c], confidences[c])
@@ -613,7 +623,7 @@ class CompiledFitter:
             if running is not None:
                 yield self.finish(running[0], running[1].result())
 
-    def fit(self, proposals, weights, x0, lower, upper, layouts: list[Layout], random, random_at, threads: int = 1):
+    def fit(self, proposals, weights, x0, lower, upper, layouts: list[Layout], random, random_at):
         """proposals (F, Q, K, 3) mm, weights (F, Q, K) normalised, x0, lower, upper (F, P), a
         layout per frame, frame f's random numbers ``random[random_at[f]:random_at[f + 1]]``
         -> params (F, P), loss (F,), evaluations (F,)."""
@@ -630,15 +640,9 @@ class CompiledFitter:
         params = np.empty((F, x0.shape[1]))
         loss = np.empty(F)
         evaluations = np.empty(F, dtype=np.int64)
-        kernel = fit_batch()
-        previous = nb.get_num_threads()
-        nb.set_num_threads(max(1, min(int(threads), nb.config.NUMBA_NUM_THREADS)))
-        try:
-            kernel(self.kernel, *self.tree, *self.point_map, _require(proposals, np.float64),
-                   _require(weights, np.float64), self.consts, _require(x0, np.float64), _require(lower, np.float64),
-                   _require(upper, np.float64), frame_stages, _require(stages, np.int64), _require(indices, np.int64),
-                   np.concatenate([lay.coefficients for lay in layouts]), _require(random, np.float64), _require(random_at, np.int64), params, loss,
-                   evaluations)
-        finally:
-            nb.set_num_threads(previous)
+        fit_batch()(self.kernel, *self.tree, *self.point_map, _require(proposals, np.float64),
+                    _require(weights, np.float64), self.consts, _require(x0, np.float64), _require(lower, np.float64),
+                    _require(upper, np.float64), frame_stages, _require(stages, np.int64), _require(indices, np.int64),
+                    np.concatenate([lay.coefficients for lay in layouts]), _require(random, np.float64),
+                    _require(random_at, np.int64), params, loss, evaluations)
         return params, loss, evaluations
