@@ -270,25 +270,14 @@ def calibrate(
 
 
 def to_toml(settings: Mapping[str, Any]) -> str:
-    """Model settings as TOML (scalars first, then one table per dict setting)."""
+    """Model settings as TOML (scalars first, then one table per dict setting; tomli_w)."""
+    import tomli_w
 
-    def value(v):
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, (list, tuple)):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        if isinstance(v, str):
-            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-        return repr(float(v)) if isinstance(v, float) else str(v)
+    def plain(v):
+        if isinstance(v, Mapping):
+            return {str(k): plain(w) for k, w in v.items()}
+        if isinstance(v, (list, tuple, np.ndarray)):
+            return [plain(w) for w in v]
+        return v.item() if isinstance(v, np.generic) else v
 
-    lines = [f"{k} = {value(v)}" for k, v in settings.items() if not isinstance(v, dict)]
-    for k, v in settings.items():
-        if not isinstance(v, dict):
-            continue
-        nested = {n: w for n, w in v.items() if isinstance(w, dict)}
-        flat = {n: w for n, w in v.items() if not isinstance(w, dict)}
-        if flat or not nested:
-            lines += ["", f"[{k}]"] + [f"{n} = {value(w)}" for n, w in flat.items()]
-        for n, w in nested.items():
-            lines += ["", f"[{k}.{n}]"] + [f"{j} = {value(x)}" for j, x in w.items()]
-    return "\n".join(lines) + "\n"
+    return tomli_w.dumps(plain(settings))

@@ -238,16 +238,16 @@ def skeleton(dataset: str) -> Skeleton:
 def to_toml(sk: Skeleton) -> str:
     """A skeleton as the text of a skeleton file (a start for one's own: ``load_skeleton``
     reads it back equal, its ``name`` included)."""
-    q = json.dumps  # a JSON string is a TOML basic string
+    import tomli_w
 
-    lines = [f"name = {q(sk.dataset)}", f"model = {q(sk.model)}"]
+    doc: dict[str, Any] = {"name": sk.dataset, "model": sk.model}
     if sk.convention is not None:
-        lines.append(f"convention = {q(sk.convention)}")
-    lines += [f"fingertips = [{', '.join(q(sk.names[i]) for i in sk.fingertips)}]", "", "[points]"]
-    lines += [f"{_key(n)} = {q(m)}" for n, m in zip(sk.names, sk.model_names)]
-    for dname, weights in sk.derived_weights.items():
-        lines += ["", f"[derived.{_key(dname)}]"] + [f"{_key(j)} = {w!r}" for j, w in weights.items()]
-    return "\n".join(lines) + "\n"
+        doc["convention"] = sk.convention
+    doc["fingertips"] = [sk.names[i] for i in sk.fingertips]
+    doc["points"] = dict(zip(sk.names, sk.model_names))
+    if sk.derived_weights:
+        doc["derived"] = {d: {j: float(w) for j, w in weights.items()} for d, weights in sk.derived_weights.items()}
+    return tomli_w.dumps(doc)
 
 
 def with_derived_points(model_config: dict, dataset: str) -> dict:
