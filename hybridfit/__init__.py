@@ -15,12 +15,14 @@ from .optimizer import OptimizeResult, Optimizer, Task
 from .plugin import Plugin, Settings
 from .problem import Problem
 from .registry import available, create
+from .stress import stress_proposals
 from .synthetic import synthetic_proposals
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 __all__ = [
     "FitResult", "HandModel", "HybridEstimator", "HybridfitError", "Objective", "OptimizeResult", "Optimizer",
-    "Plugin", "Problem", "Settings", "Stage", "Task", "available", "create", "fit", "synthetic_proposals",
+    "Plugin", "Problem", "Settings", "Stage", "Task", "available", "create", "fit", "stress_proposals",
+    "synthetic_proposals",
     "__version__",
 ]
