@@ -12,7 +12,7 @@ Prints (medians of CPU time, so other jobs on a shared machine disturb little):
    (``Optimizer.run`` per frame);
 3. the compiled against the Task path over ``--seeds`` seeds x ``--frames`` frames: mean
    joint error, and how many fits are identical;
-4. ``hybridfit.fit`` with ``--jobs`` 1 and 2 (numba threads), wall time (without taskset);
+4. ``hybridfit.fit`` with ``--jobs`` 1 and 2 (threads), wall time (without taskset);
 5. start-up: a fresh process's import + first fit, compiling and from numba's cache.
 """
 
