@@ -70,7 +70,8 @@ def main() -> None:
         data / "poier2015_proposals.npz"
     objective = out / "objective.toml"
     objective.write_text(f"d_max_mm = {a.d_max}\n")
-    fit = ["--dataset", "icvl", "--model-config", str(out / "model.toml"), "--objective-config", str(objective),
+    # d_max is clamped-confidence's (the paper's proposals); fits of results files use the objective the file names
+    fit = ["--dataset", "icvl", "--model-config", str(out / "model.toml"),
            "--budget", a.budget, "--jobs", a.jobs]
 
     sh("calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--frames", CALIB, "--out", str(out / "model.toml"),
@@ -83,7 +84,7 @@ def main() -> None:
     sh("proposals", "from-results", "--dataset", "icvl", str(lrf), "--ground-truth", str(gt), "--out", str(out / "lrf.npz"))
     sh("fit", str(out / "lrf.npz"), *fit, "--out", str(out / "fit_lrf.npz"))
     sh("export-results", str(out / "fit_lrf.npz"), "--dataset", "icvl", "--out", str(out / "lrf_fitted.txt"))
-    sh("fit", str(poier), *fit, "--out", str(out / "fit_poier.npz"))
+    sh("fit", str(poier), *fit, "--objective-config", str(objective), "--out", str(out / "fit_poier.npz"))
     sh("export-results", str(out / "fit_poier.npz"), "--dataset", "icvl", "--out", str(out / "poier_fitted.txt"))
     sh("evaluate", str(out / "poier_fitted.txt"), "--dataset", "icvl", "--ground-truth", str(gt),
        "--compare", str(poier), str(out / "lrf_fitted.txt"), str(lrf), "--plot", str(out / "success_icvl.png"))
