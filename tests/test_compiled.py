@@ -161,3 +161,14 @@ def test_an_interrupt_keeps_the_frames_fitted_before_it(frames, interrupt_at, jo
     assert result.interrupted
     assert not result.failed[:3].any() and result.failed[3:].all()
     assert (result.evaluations[:3] == 300).all()
+
+
+def test_jobs_split_chunks_with_failed_frames_alike(frames, monkeypatch):
+    c = frames["confidences"].copy()
+    c[[2, 5]] = 0.0  # no proposals: these frames fail, the others are fitted
+    monkeypatch.setattr(fitting, "COMPILED_CHUNK", 3)
+    one = hybridfit.fit(frames["proposals"], c, budget=300, seed=1)
+    three = hybridfit.fit(frames["proposals"], c, budget=300, seed=1, jobs=3)
+    assert sorted(one.errors) == sorted(three.errors) == [2, 5]
+    assert np.array_equal(one.params, three.params, equal_nan=True)
+    assert np.array_equal(one.objective, three.objective, equal_nan=True)
