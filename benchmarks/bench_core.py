@@ -1,7 +1,7 @@
 """Speed of the core on one core: kernel throughput, fitting per frame (compiled and Task
 paths), their accuracy side by side, --jobs scaling and start-up.
 
-    NUMBA_NUM_THREADS=2 taskset -c 0 python benchmarks/bench_core.py [--frames 200 --seeds 20]
+    python benchmarks/bench_core.py [--frames 200 --seeds 20]
 
 Prints (medians of CPU time, so other jobs on a shared machine disturb little):
 1. batched forward kinematics + clamped-confidence objective (the Task path's kernel),
