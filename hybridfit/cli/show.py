@@ -88,7 +88,10 @@ def run(args) -> int:
         data = load_npz(args.fits)
         if "joints" not in data:
             raise HybridfitError(f"{args.fits}: missing key 'joints' (keys present: {', '.join(sorted(data)) or 'none'})")
-        est = _frame_array(args.fits, data, "joints", ds.frames, J, f)
+        from .evaluate import points_array
+
+        joints = {"joints": points_array(args.fits, data, "joints", allow_nan=True)}  # NaN: a failed fit
+        est = _frame_array(args.fits, joints, "joints", ds.frames, J, f)
         uv = xyz_to_uvd(est, ds.intrinsics)
         _skeleton(ax, uv, parents, color="tab:blue", marker="s", ls="--", label="estimate")
         points.append(uv[:, :2])
