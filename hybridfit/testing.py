@@ -414,13 +414,15 @@ def check_problem(seed: int = 0) -> Problem:
 
 def known_optimum_problem(seed: int = 0) -> tuple[Problem, np.ndarray]:
     """(problem, truth (P,)): ToyHand with one exact proposal per joint at a random pose and
-    least squares, so the optimum is the pose itself, loss 0. The initial guess has the true
-    global pose (a rigid alignment of the palm) and the default finger angles."""
+    least squares, so the optimum is the pose itself, loss 0. The initial guess (given, not
+    estimated) has the true global pose and the default finger angles."""
     model = ToyHand()
     truth = synthetic_proposals(1, k=1, seed=seed, model=model, p_missing=0.0)["params"][0]
+    start = truth.copy()
+    start[7:] = model.default_params()[7:]
     proposals = model.forward(truth)[:, None]
     return Problem(model, registry.create("objective", "least-squares"), proposals,
-                   np.ones((model.n_joints, 1))), truth
+                   np.ones((model.n_joints, 1)), x0=start), truth
 
 
 def _budget(optimizer: Optimizer, task: Task) -> int:
