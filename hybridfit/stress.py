@@ -29,11 +29,13 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from . import registry
 from .datasets.skeletons import dataset_model_config, skeleton
 from .errors import HybridfitError
 from .geometry import quaternions_to_matrices
+from .plugin import format_validation_error
 from .problem import point_depths
 from .synthetic import proposals_around, random_poses
 
@@ -71,61 +73,77 @@ def _near_points(points: np.ndarray, radius_mm: float) -> list[list[int]]:
     return [[int(i) for i in np.flatnonzero((d[q] < radius_mm) & (d[q] > 0))] for q in range(len(points))]
 
 
+class StressSettings(BaseModel):
+    """How stress frames differ from the model's own (lengths in mm)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    noise_mm: float = Field(2.0, ge=0, description="proposal noise per axis at the root")
+    noise_per_depth_mm: float = Field(1.5, ge=0, description="added per joint along a finger")
+    frame_offset_mm: float = Field(2.0, ge=0, description="noise shared by a frame's points, per axis")
+    p_heavy: float = Field(0.05, ge=0, le=1, description="probability of a 3x larger noise (a heavy tail)")
+    p_missing: float = Field(0.05, ge=0, le=1, description="probability that a point has no true proposal")
+    p_true_top: float = Field(0.92, ge=0, le=1, description="probability that the true proposal is the top one")
+    scale_range: tuple[float, float] = Field((0.9, 1.1), description="the subject's hand scale, drawn once")
+    proportion_sd: float = Field(0.05, ge=0, description="the subject's per-bone proportions, relative sd")
+    bone_jitter_mm: float = Field(3.0, ge=0, description="per-frame bone-length jitter, sd")
+    weight_sd: float = Field(0.1, ge=0, description="perturbation of the derived points' weights")
+    offset_mm: float = Field(4.0, ge=0, description="annotated points' offsets in the hand frame, sd")
+    distance_mm: float = Field(400.0, gt=0, description="the hand's distance from the camera")
+
+    @model_validator(mode="after")
+    def _scale(self):
+        if not 0 < self.scale_range[0] <= self.scale_range[1]:
+            raise ValueError(f"scale_range must satisfy 0 < low <= high, got {self.scale_range}")
+        return self
+
+
 def stress_proposals(
     frames: int,
     *,
     dataset: str = "icvl",
     k: int = 3,
     seed: int = 0,
-    noise_mm: float = 2.0,
-    noise_per_depth_mm: float = 1.5,
-    frame_offset_mm: float = 2.0,
-    p_heavy: float = 0.05,
-    p_missing: float = 0.05,
-    p_true_top: float = 0.92,
-    scale_range: tuple[float, float] = (0.9, 1.1),
-    proportion_sd: float = 0.05,
-    bone_jitter_mm: float = 3.0,
-    weight_sd: float = 0.1,
-    offset_mm: float = 4.0,
-    distance_mm: float = 400.0,
     model: Any = "hand26",
     model_config: Mapping[str, Any] | None = None,
+    **settings: Any,
 ) -> dict[str, np.ndarray]:
     """Stress frames for a dataset's skeleton: a dict with ``proposals`` (F, Q, k, 3) mm,
     ``confidences`` (F, Q, k), ``joint_names`` (Q,) the model points the dataset's points map
     onto, ``ground_truth`` (F, Q, 3) mm (the annotations), ``params`` (F, P) the poses before
     the subject's geometry and jitter, and ``dataset``; ready for ``np.savez`` and ``hybridfit fit``.
-
-    The subject (scale, proportions, annotation offsets) is fixed by ``seed``; so is every frame.
+    ``settings``: ``StressSettings`` fields. The subject (scale, proportions, annotation
+    offsets) is fixed by ``seed``; so is every frame.
     """
-    if frames < 0 or k < 1 or min(noise_mm, bone_jitter_mm, weight_sd, offset_mm, proportion_sd) < 0 \
-            or not 0 < scale_range[0] <= scale_range[1]:
-        raise HybridfitError("stress_proposals: need frames >= 0, k >= 1, non-negative noise settings and "
-                             f"0 < scale_range[0] <= scale_range[1] (got frames={frames}, k={k})")
+    try:
+        st = StressSettings(**settings)
+    except ValidationError as err:
+        raise HybridfitError(f"stress_proposals: {format_validation_error(err)}") from None
+    if frames < 0 or k < 1:
+        raise HybridfitError(f"stress_proposals: need frames >= 0 and k >= 1 (got frames={frames}, k={k})")
     sk = skeleton(dataset)
     model = registry.create("model", model, model_config)
     model = model.with_params(**dataset_model_config(model.name, model.get_params(), sk.dataset))
     rng = np.random.default_rng(seed)
     # the subject, fixed for the sequence
     J = model.n_joints
-    factors = rng.uniform(*scale_range) * (1.0 + rng.normal(0.0, proportion_sd, J))
+    factors = rng.uniform(*st.scale_range) * (1.0 + rng.normal(0.0, st.proportion_sd, J))
     names = list(sk.model_names)
     M = model.point_matrix(names)
     is_joint = np.array([n in model.joint_names for n in names])
-    M_true = _annotation_matrix(M, is_joint, rng, weight_sd)
-    offsets = rng.normal(0.0, offset_mm, (len(names), 3))  # hand frame, mm
+    M_true = _annotation_matrix(M, is_joint, rng, st.weight_sd)
+    offsets = rng.normal(0.0, st.offset_mm, (len(names), 3))  # hand frame, mm
     # the frames
-    params = random_poses(model, frames, rng, distance_mm=distance_mm)
+    params = random_poses(model, frames, rng, distance_mm=st.distance_mm)
     joints = model.forward(params) if frames else np.zeros((0, J, 3))
-    joints = jitter_bones(joints, model.parents, factors, rng.normal(0.0, bone_jitter_mm, (frames, J)))
+    joints = jitter_bones(joints, model.parents, factors, rng.normal(0.0, st.bone_jitter_mm, (frames, J)))
     rotations = quaternions_to_matrices(np.ascontiguousarray(params[:, 3:7])) if frames else np.zeros((0, 3, 3))
     truth = np.einsum("qj,fjc->fqc", M_true, joints) + np.einsum("fcd,qd->fqc", rotations, offsets)
     rest = np.einsum("qj,jc->qc", M, model.forward(model.default_params()))
-    noise = noise_mm + noise_per_depth_mm * point_depths(model.parents, M)
+    noise = st.noise_mm + st.noise_per_depth_mm * point_depths(model.parents, M)
     proposals, confidences = proposals_around(truth, _near_points(rest, 50.0), rng, k=k, noise_mm=noise,
-                                              p_missing=p_missing, p_true_top=p_true_top, p_heavy=p_heavy,
-                                              frame_offset_mm=frame_offset_mm)
+                                              p_missing=st.p_missing, p_true_top=st.p_true_top, p_heavy=st.p_heavy,
+                                              frame_offset_mm=st.frame_offset_mm)
     return {
         "proposals": proposals,
         "confidences": confidences,

@@ -33,6 +33,7 @@ from .. import registry
 from ..datasets.skeletons import is_skeleton_file, skeleton
 from ..errors import HybridfitError
 from ..forest import ForestConfig
+from ..stress import StressSettings
 from ..synthdata import GridConfig, SequenceConfig
 from ..tracking import TrackingSettings
 
@@ -178,22 +179,6 @@ class ProposalsData(_Strict):
         if self.calibrate is not None and (self.ground_truth is None or self.dataset is None):
             raise ValueError("calibrate needs ground_truth and dataset")
         return self
-
-
-class StressSettings(_Strict):
-    """``hybridfit.stress.stress_proposals`` settings: how the frames differ from the model's."""
-
-    noise_mm: float = Field(2.0, ge=0, description="proposal noise per axis at the root, mm")
-    noise_per_depth_mm: float = Field(1.5, ge=0, description="added per joint along a finger, mm")
-    frame_offset_mm: float = Field(2.0, ge=0, description="noise shared by a frame's points, per axis, mm")
-    p_heavy: float = Field(0.05, ge=0, le=1)
-    p_missing: float = Field(0.05, ge=0, le=1)
-    p_true_top: float = Field(0.92, ge=0, le=1)
-    scale_range: tuple[float, float] = Field((0.9, 1.1), description="the subject's hand scale, drawn once")
-    proportion_sd: float = Field(0.05, ge=0, description="the subject's per-bone proportions, relative sd")
-    bone_jitter_mm: float = Field(3.0, ge=0, description="per-frame bone-length jitter, sd in mm")
-    weight_sd: float = Field(0.1, ge=0, description="perturbation of the derived points' weights")
-    offset_mm: float = Field(4.0, ge=0, description="annotated points' offsets in the hand frame, sd in mm")
 
 
 class StressCalibration(_Strict):
