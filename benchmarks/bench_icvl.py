@@ -9,6 +9,8 @@ Runs exactly these commands (printed as they run) and prints the tables:
     ground truth of every other frame as k = 1 proposals;
 (b) LRF's predictions refined by fitting them (k = 1) with the calibrated model;
 (c) the paper's own proposals (poier2015_proposals.npz, k = 3) fitted with it;
+(d) LRF fused with the paper's top-1 proposals (written as a results file): `proposals
+    from-results` of both, fitted with the objective the file names;
 with per-joint errors beside the paper's fitted model. Errors are over all 1596 frames
 (as in the data README) and over the 1496 frames not used for calibration.
 """
@@ -24,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybridfit.datasets.results import read_xyz
+from hybridfit.datasets.results import read_xyz, write_xyz
 from hybridfit.datasets.skeletons import skeleton
 from hybridfit.metrics import joint_errors, success_rate
 
@@ -86,6 +88,10 @@ def main() -> None:
     sh("export-results", str(out / "fit_lrf.npz"), "--dataset", "icvl", "--out", str(out / "lrf_fitted.txt"))
     sh("fit", str(poier), *fit, "--objective-config", str(objective), "--out", str(out / "fit_poier.npz"))
     sh("export-results", str(out / "fit_poier.npz"), "--dataset", "icvl", "--out", str(out / "poier_fitted.txt"))
+    write_xyz(out / "poier_top1.txt", np.load(poier)["proposals"][:, :, 0].astype(float), "icvl")
+    sh("proposals", "from-results", "--dataset", "icvl", str(lrf), str(out / "poier_top1.txt"), "--ground-truth",
+       str(gt), "--out", str(out / "fused.npz"))
+    sh("fit", str(out / "fused.npz"), *fit, "--out", str(out / "fit_fused.npz"))
     sh("evaluate", str(out / "poier_fitted.txt"), "--dataset", "icvl", "--ground-truth", str(gt),
        "--compare", str(poier), str(out / "lrf_fitted.txt"), str(lrf), "--plot", str(out / "success_icvl.png"))
 
@@ -96,6 +102,7 @@ def main() -> None:
     fit_gt = np.load(out / "fit_gt.npz")["joints"]
     fit_lrf, fit_poier = read_xyz(out / "lrf_fitted.txt", "icvl"), read_xyz(out / "poier_fitted.txt", "icvl")
     raw_lrf = read_xyz(lrf, "icvl")
+    fused = np.load(out / "fit_fused.npz")["joints"]
 
     table("(a) model-fit floor: calibrated model fitted to the ground truth (k = 1), frames 100-1595",
           [row("fit of the ground truth", fit_gt, truth[TEST])])
@@ -106,6 +113,10 @@ def main() -> None:
             row("top-1 proposals", top1[sel], truth[sel]),
             row("paper's fit (optimized)", paper[sel], truth[sel]),
             row("our fit of the proposals (k = 3)", fit_poier[sel], truth[sel])])
+        table(f"(d) LRF fused with the paper's top-1, {name}", [
+            row("LRF (published)", raw_lrf[sel], truth[sel]), row("top-1 proposals", top1[sel], truth[sel]),
+            row("their per-joint mean (not anatomically constrained)", (raw_lrf[sel] + top1[sel]) / 2, truth[sel]),
+            row("the two fused by fitting (ours)", fused[sel], truth[sel])])
     names = skeleton("icvl").names
     cols = {"paper's fit": paper, "our fit (c)": fit_poier, "top-1": top1, "LRF": raw_lrf, "LRF fitted (b)": fit_lrf}
     print("\nper-joint mean error (mm), all 1596 frames\n")
