@@ -42,7 +42,7 @@ def _truth(frames=10, seed=1):
 
 @pytest.fixture(scope="module")
 def result():
-    return calibrate(_truth(), NAMES, model_config=START, rounds=1, budget=800)
+    return calibrate(_truth(), NAMES, model_config=START, rounds=1, budget=800, max_nfev=25)
 
 
 def test_calibration_chooses_the_hand_and_reduces_the_error(result):
