@@ -105,8 +105,14 @@ def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:
     if names is not None:
         data["joint_names"] = np.asarray([str(n) for n in names])
     gt = data.get("ground_truth")
-    if gt is not None and gt.shape != (data["proposals"].shape[0], data["proposals"].shape[1], 3):
-        raise HybridfitError(f"{path}: 'ground_truth' must have shape (frames, joints, 3), got {gt.shape}")
+    if gt is not None:
+        if gt.shape != (data["proposals"].shape[0], data["proposals"].shape[1], 3) or gt.dtype.kind not in "iuf":
+            raise HybridfitError(f"{path}: 'ground_truth' must be numbers of shape (frames, joints, 3), "
+                                 f"got {gt.dtype} {gt.shape}")
+        bad = ~np.isfinite(gt).all(axis=(1, 2))
+        if bad.any():
+            raise HybridfitError(f"{path}: 'ground_truth' has NaN or inf values (first in frame {int(np.argmax(bad))})")
+        data["ground_truth"] = gt.astype(np.float64)
     return data
 
 
