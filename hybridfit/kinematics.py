@@ -103,13 +103,21 @@ def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_pa
     pT = np.empty((P, BLOCK))
     sin_p = np.empty((P, BLOCK))
     cos_p = np.empty((P, BLOCK))
+    world = np.empty((3, BLOCK))
+    angle = np.zeros(P, dtype=np.bool_)  # the parameters that are angles of active joints
+    for j in range(J):
+        for a in range(A):
+            if active[j] and axes[j, a] >= 0:
+                angle[axis_params[j, a]] = True
     for n0 in range(0, N, BLOCK):
         B = min(BLOCK, N - n0)
         for i in range(B):
             for k in range(P):
                 pT[k, i] = params[n0 + i, k]
             quaternion_matrix(pT[3, i], pT[4, i], pT[5, i], pT[6, i], G[:, :, i])
-        sincos(pT, sin_p, cos_p)  # every angle of the block at once
+        for k in range(P):  # every angle of the block at once
+            if angle[k]:
+                sincos(pT[k], sin_p[k], cos_p[k])
         for j in range(J):
             if not active[j]:
                 continue
@@ -161,12 +169,13 @@ def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_pa
                     for c in range(3):
                         out[n0 + i, j, c] = np.nan
                 continue
+            for c in range(3):  # to camera coordinates, vectorised, then stored per hypothesis
+                for i in range(B):
+                    world[c, i] = G[c, 0, i] * (mirror * pos[j, 0, i]) + G[c, 1, i] * pos[j, 1, i] \
+                        + G[c, 2, i] * pos[j, 2, i] + pT[c, i]
             for i in range(B):
-                lx = mirror * pos[j, 0, i]
-                ly = pos[j, 1, i]
-                lz = pos[j, 2, i]
                 for c in range(3):
-                    out[n0 + i, j, c] = G[c, 0, i] * lx + G[c, 1, i] * ly + G[c, 2, i] * lz + pT[c, i]
+                    out[n0 + i, j, c] = world[c, i]
     return out
 
 
