@@ -52,10 +52,10 @@ def register(sub) -> None:
 def run(args) -> int:
     sk = skeleton(args.dataset)
     check_output(args.out)
-    truth = read_results(args.ground_truth, sk.dataset)
+    truth = read_results(args.ground_truth, args.dataset)
     frames = np.arange(len(truth))[frame_slice(args.frames, len(truth))]
     truth = truth[frames]
-    start = dataset_model_config(args.model, load_toml(args.model_config), sk.dataset)
+    start = dataset_model_config(args.model, load_toml(args.model_config), args.dataset)
     mirror = {"auto": None, "right": False, "left": True}[args.hand]
     result = calibrate(truth, sk.model_names, model=args.model, model_config=start, mirror=mirror,
                        holdout=args.holdout, rounds=args.rounds, budget=args.budget, seed=args.seed, jobs=args.jobs,

@@ -56,7 +56,7 @@ def run(args) -> int:
                 raise HybridfitError(f"{args.proposals}: {data['proposals'].shape[1]} points, "
                                      f"but the {sk.dataset} skeleton has {len(sk)}")
             names = sk.model_names
-        plugins["model_config"] = dataset_model_config(plugins["model"], plugins["model_config"], sk.dataset)
+        plugins["model_config"] = dataset_model_config(plugins["model"], plugins["model_config"], args.dataset)
         extra["dataset"] = np.asarray(sk.dataset)
     names = None if names is None else [str(n) for n in names]
     if names is not None:

@@ -30,7 +30,7 @@ def register(sub) -> None:
 def run_from_results(args) -> int:
     check_output(args.out)
     sk = skeleton(args.dataset)
-    xyz = [read_results(f, sk.dataset) for f in args.results]
+    xyz = [read_results(f, args.dataset) for f in args.results]
     for f, a in zip(args.results[1:], xyz[1:]):
         if len(a) != len(xyz[0]):
             raise HybridfitError(f"{f}: {len(a)} frames, but {args.results[0]} has {len(xyz[0])}")
@@ -49,7 +49,7 @@ def run_from_results(args) -> int:
         "dataset": np.asarray(sk.dataset),
     }
     if args.ground_truth:
-        gt = read_results(args.ground_truth, sk.dataset)
+        gt = read_results(args.ground_truth, args.dataset)
         if len(gt) != len(xyz[0]):
             raise HybridfitError(f"{args.ground_truth}: {len(gt)} frames, but the results have {len(xyz[0])}")
         out["ground_truth"] = gt[sel]

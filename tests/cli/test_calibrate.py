@@ -44,3 +44,21 @@ def test_bad_holdout_option(tmp_path, capsys):
     assert main(["calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--holdout", "1.5",
                  "--out", str(tmp_path / "m.toml")]) == 2
     assert "--holdout: expected a number in [0, 1), got 1.5" in capsys.readouterr().err
+
+
+def test_a_users_skeleton_file_goes_through_calibrate_from_results_and_fit(tmp_path):
+    """--dataset takes a skeleton file wherever it takes a name (the file, not its name, is looked up)."""
+    from pathlib import Path
+
+    import hybridfit.datasets.skeletons as skeletons
+
+    mine = tmp_path / "mine.toml"
+    mine.write_text((Path(skeletons.__file__).parent / "skeleton_files" / "icvl.toml").read_text())
+    gt, _ = write_results(tmp_path, frames=5)
+    model, p = tmp_path / "model.toml", tmp_path / "p.npz"
+    assert main(["calibrate", "--dataset", str(mine), "--ground-truth", str(gt), "--frames", "0:4", "--out",
+                 str(model), "--rounds", "0", "--budget", "600", "--hand", "right"]) == 0
+    assert main(["proposals", "from-results", "--dataset", str(mine), str(gt), "--ground-truth", str(gt),
+                 "--out", str(p)]) == 0
+    assert main(["fit", str(p), "--dataset", str(mine), "--model-config", str(model), "--budget", "600",
+                 "--out", str(tmp_path / "f.npz")]) == 0
