@@ -78,7 +78,7 @@ class StressSettings(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    noise_mm: float = Field(2.0, ge=0, description="proposal noise per axis at the root")
+    noise_mm: float = Field(1.0, ge=0, description="proposal noise per axis at the root")
     noise_per_depth_mm: float = Field(1.5, ge=0, description="added per joint along a finger")
     frame_offset_mm: float = Field(2.0, ge=0, description="noise shared by a frame's points, per axis")
     p_heavy: float = Field(0.05, ge=0, le=1, description="probability of a 3x larger noise (a heavy tail)")
