@@ -81,6 +81,7 @@ class PymooPSO(Optimizer):
         from pymoo.core.evaluator import Evaluator
         from pymoo.core.problem import Problem as PymooProblem
         from pymoo.core.termination import NoTermination
+        from pymoo.problems.static import StaticProblem
 
         n, score = swarm(task), Scaled(task)
         problem = PymooProblem(n_var=task.dim, n_obj=1, xl=0.0, xu=1.0)
@@ -88,8 +89,9 @@ class PymooPSO(Optimizer):
         algorithm.setup(problem, termination=NoTermination(), seed=int(rng.integers(2**31)), verbose=False)
         while task.remaining > 0:
             pop = algorithm.ask()
-            pop.set("F", score(pop.get("X"))[:, None])
-            Evaluator().eval(problem, pop, skip_already_evaluated=True)
+            # the losses go in through a StaticProblem: Evaluator on the plain problem would
+            # overwrite them with inf (pymoo's PSO then learns nothing)
+            Evaluator().eval(StaticProblem(problem, F=score(pop.get("X"))[:, None]), pop)
             algorithm.tell(infills=pop)
 
 
