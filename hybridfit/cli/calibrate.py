@@ -11,7 +11,7 @@ import numpy as np
 from ..calibrate import calibrate, to_toml
 from ..datasets.skeletons import dataset_model_config, skeleton
 from ..errors import HybridfitError
-from ..io import check_output
+from ..io import atomic_path, check_output
 from ._common import fraction, load_toml, non_negative_int, positive_int, read_results, seed_int
 
 
@@ -69,7 +69,8 @@ def run(args) -> int:
               f"{args.ground_truth} ({where})\n"
               f"# fit error {result.error_before:.2f} mm before, {result.error_after:.2f} mm after (in-sample), "
               f"{heldout}\n")
-    out.write_text(header + to_toml(result.settings))
+    with atomic_path(out) as tmp:  # an existing model file is replaced only by a complete one
+        tmp.write_text(header + to_toml(result.settings))
     hand = _hand(result.settings, args.model)
     print(f"calibrated on {len(cal)} frames{hand}: mean fit error {result.error_before:.2f} mm before, "
           f"{result.error_after:.2f} mm after (in-sample); {heldout} -> {out}")
