@@ -86,13 +86,14 @@ def remove_stale(root: Path) -> int:
     removed = 0
     for entry in root.glob("*/.*") if root.is_dir() else []:
         m = _TEMPORARY.search(entry.name)
-        if m and not _alive(int(m.group(1) or m.group(2))):
+        if m and not process_alive(int(m.group(1) or m.group(2))):
             _remove(entry)
             removed += 1
     return removed
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether a process with this id runs on this machine (this process counts)."""
     if pid == os.getpid():
         return True
     try:

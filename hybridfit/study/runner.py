@@ -24,7 +24,7 @@ from ..errors import HybridfitError
 from ..fitting import fit
 from ..metrics import joint_errors
 from ..tracking import TrackingSettings, track
-from .cache import Cache
+from .cache import Cache, process_alive
 from .data import StudyData, baseline_errors
 from .executors import make_executor
 from .spec import Study, Trial, digest, expand, trials
@@ -70,13 +70,7 @@ def _lock_alive(path: Path) -> bool:
         return False  # unreadable or half-written: treat as stale
     if host != socket.gethostname():
         return True  # another machine's run: cannot check, so respect it
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+    return process_alive(pid)
 
 
 _WARM: set[str] = set()
