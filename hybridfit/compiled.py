@@ -36,7 +36,7 @@ from .errors import HybridfitError
 from .geometry import quaternion_matrix
 from .kinematics import sincos
 from .objective import normalise_confidences
-from .optimizer import Task
+from .optimizer import StagePlan, Task
 from .problem import Problem
 
 #: an objective's compiled kernel: (points (N, Q, 3) mm, subset (m,) point indices,
@@ -49,19 +49,6 @@ KERNEL_SIGNATURE = T.void(T.float64[:, :, ::1], T.int64[::1], T.float64[:, :, ::
 BUDGET, SWARM, NEAR, PARAMS, POINTS, OWNED = 0, 1, 2, 3, 5, 7
 #: the tree's first parameters: position x, y, z (mm) and the quaternion w, x, y, z
 GLOBAL_PARAMS = 7
-
-
-@dataclass(frozen=True)
-class StagePlan:
-    """One stage of a frame's fit: the parameter indices it optimises, the point indices it
-    minimises over, the points whose loss it contributes to the frame's loss (the owned
-    sets of a frame's stages partition its points), and its evaluation budget."""
-
-    name: str
-    parameters: np.ndarray
-    points: np.ndarray
-    owned: np.ndarray
-    budget: int
 
 
 # ---------------------------------------------------------------- PSO update (shared with the `pso` plugin)
@@ -426,13 +413,12 @@ def supports(model, objective, optimizer) -> bool:
 
 def plan(optimizer, task) -> list[tuple[StagePlan, object]]:
     """The stages the optimiser runs on a frame's task (budgets add up to the task's), each
-    with the PSO that runs it (a stepwise optimiser's ``refiner`` runs its ``refine`` stage)."""
+    with the PSO that runs it (each stage of a stepwise plan names its optimiser)."""
     own = _compiled(optimizer)
     if own is not None:
         return [(StagePlan("all", task.parameters, task.points, task.points, task.budget), own)]
-    inner, refiner = _compiled(optimizer.inner), _compiled(optimizer.refiner)
     return [(StagePlan(s.name, np.asarray(s.parameters, dtype=np.int64), np.asarray(s.points, dtype=np.int64),
-                       np.asarray(s.owned, dtype=np.int64), int(s.budget)), refiner if s.name == "refine" else inner)
+                       np.asarray(s.owned, dtype=np.int64), int(s.budget)), _compiled(s.optimizer))
             for s in optimizer.plan(task)]
 
 

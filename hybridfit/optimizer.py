@@ -36,6 +36,23 @@ class OptimizeResult:
     history_stage: tuple[str, ...] = field(default=())
 
 
+@dataclass(frozen=True)
+class StagePlan:
+    """One stage of a frame's schedule: optimise ``parameters`` (int64 indices) over ``points``
+    (the point indices minimised over) with ``budget`` evaluations; ``owned`` (a subset of
+    ``points``) are the points whose loss the stage contributes to the frame's loss. The
+    owned sets of a plan partition the task's points, except a final refinement, which owns
+    them all. Each stage starts from the parameters the stages before it left, and is run by
+    ``optimizer`` (None: whoever runs the plan)."""
+
+    name: str
+    parameters: np.ndarray
+    points: np.ndarray
+    owned: np.ndarray
+    budget: int
+    optimizer: "Optimizer | None" = None
+
+
 class Task:
     """A box-bounded minimisation over ``dim`` of the problem's parameters, with a budget.
 

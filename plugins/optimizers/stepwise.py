@@ -15,14 +15,14 @@ its default 3400 open. Measured with ``benchmarks/bench_stepwise.py`` (200 synth
 budget 3400), root shares 0.3, 0.5 and 0.7 are equally good (mean joint error 10.95, 11.00
 and 10.96 mm; success rate at 40 mm 0.87, 0.86, 0.87): the default, 0.3, leaves the most
 budget to the fingers.
-``refine_share`` (an extension, 0 by default as in the paper) keeps a share of the
-budget for a final joint refinement of all parameters starting from the stepwise result;
-``benchmarks/bench_stepwise.py`` measures the alternatives.
+``refine_share`` (an extension; 0 for ``stepwise``, 0.25 for ``stepwise-pso``, chosen by
+measurement: README, "Fitting real data robustly") keeps a share of the budget for a final
+joint refinement of all parameters starting from the stepwise result, run with the inner
+optimiser's settings overridden by ``refine_config``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, Literal
 
@@ -31,7 +31,7 @@ from pydantic import Field, field_validator
 
 from hybridfit import registry
 from hybridfit.errors import HybridfitError, UnknownPluginError
-from hybridfit.optimizer import Optimizer, Task
+from hybridfit.optimizer import Optimizer, StagePlan, Task
 from hybridfit.plugin import Settings
 from hybridfit.problem import MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, guide_points
 
@@ -74,21 +74,6 @@ def split_budget(budget: int, weights) -> list[int]:
     for i in np.argsort(-(ideal - out), kind="stable")[: budget - out.sum()]:
         out[i] += 1
     return [int(b) for b in out]
-
-
-@dataclass(frozen=True)
-class StagePlan:
-    """One stage of a frame's schedule: optimise ``parameters`` (int64 indices) over ``points``
-    (the point indices minimised over) with ``budget`` evaluations; ``owned`` (a subset of
-    ``points``) are the points whose loss the stage contributes to the frame's loss. The
-    owned sets of a plan partition the task's points, except a final ``refine`` stage, which
-    owns them all. Each stage starts from the parameters the stages before it left."""
-
-    name: str
-    parameters: np.ndarray
-    points: np.ndarray
-    owned: np.ndarray
-    budget: int
 
 
 class Stepwise(Optimizer):
@@ -144,22 +129,19 @@ class Stepwise(Optimizer):
         first = kept[0]
         first[2], first[3] = np.union1d(first[2], left), np.union1d(first[3], left)
         if stages[0][0] == first[0] and len(kept) > 1:
-            first[2] = np.union1d(first[2], self._guide_points(problem, first[3], [k[3] for k in kept[1:]]))
+            guides = guide_points(problem, first[3], [k[3] for k in kept[1:]], self.settings.min_root_points,
+                                  self.settings.min_root_lever_mm)
+            first[2] = np.union1d(first[2], guides)
         return [tuple(k) for k in kept], weights
-
-    def _guide_points(self, problem, root_points: np.ndarray, later: list[np.ndarray]) -> np.ndarray:
-        """Points of later stages to score the root stage on when its own observed points
-        cannot determine the rotation (none when they can)."""
-        return guide_points(problem, root_points, later, self.settings.min_root_points, self.settings.min_root_lever_mm)
 
     def plan(self, task: Task) -> list[StagePlan]:
         """The frame's schedule: stages with exact budgets adding up to ``task.budget``."""
         stages, w = self._stages(task)
         refine = int(round(self.settings.refine_share * task.budget)) if self.settings.schedule == "stepwise" else 0
-        plan = [StagePlan(name, params, points, owned, budget)
+        plan = [StagePlan(name, params, points, owned, budget, self.inner)
                 for (name, params, points, owned), budget in zip(stages, split_budget(task.budget - refine, w))]
         if refine:
-            plan.append(StagePlan("refine", task.parameters, task.points, task.points, refine))
+            plan.append(StagePlan("refine", task.parameters, task.points, task.points, refine, self.refiner))
         return plan
 
     def min_budget(self, task: Task) -> int:
@@ -181,7 +163,7 @@ class Stepwise(Optimizer):
     def minimize(self, task: Task, rng: np.random.Generator) -> None:
         for st in self.plan(task):
             stage = task.stage(st.name, st.parameters, st.points, st.budget, st.owned)
-            (self.refiner if st.name == "refine" else self.inner).minimize(stage, rng)
+            st.optimizer.minimize(stage, rng)
             task.commit(stage)
 
 
