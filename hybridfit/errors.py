@@ -32,4 +32,9 @@ class BudgetExceeded(RuntimeError):
 
 
 class PluginError(RuntimeError):
-    """A plugin failed in a way no input explains (a bug); the message names the plugin."""
+    """A plugin failed in a way no input explains (a bug); the message names the plugin.
+
+    Raised by :func:`hybridfit.fit` with ``result``: the frames finished before it (the
+    others marked failed), so that no finished work is lost."""
+
+    result = None

@@ -258,8 +258,18 @@ def fit(
         result.interrupted = True
         for f in np.flatnonzero(~done):
             result.errors[int(f)] = "interrupted"
+    except PluginError as err:  # a bug: it propagates, carrying the frames finished before it
+        for f in np.flatnonzero(~done):
+            result.errors[int(f)] = "not fitted: a plugin error stopped the run"
+        err.result = _with_inliers(result, objective, proposals, confidences)
+        raise
     finally:
         bar.close()
+    return _with_inliers(result, objective, proposals, confidences)
+
+
+def _with_inliers(result: FitResult, objective, proposals, confidences) -> FitResult:
+    """The result with each frame's inlier count at the objective's d_max (or 40 mm)."""
     result.inlier_distance_mm = float(objective.get_params().get("d_max_mm", INLIER_DISTANCE_MM))
     result.inliers = inliers(result.joints, proposals, confidences, result.inlier_distance_mm)
     return result

@@ -9,7 +9,7 @@ import numpy as np
 from .. import fit as fit_frames
 from ..datasets.skeletons import dataset_model_config, skeleton
 from .. import registry
-from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK, HybridfitError
+from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK, HybridfitError, PluginError
 from ..io import check_output, load_proposals, save_npz
 from ..dataset import load_dataset
 from ..metrics import summary
@@ -71,7 +71,14 @@ def run(args) -> int:
                        settings={"on_lost": args.on_lost}, **common)
         extra["lost"] = result.lost
     else:
-        result = fit_frames(data["proposals"], data["confidences"], jobs=args.jobs, **common)
+        try:
+            result = fit_frames(data["proposals"], data["confidences"], jobs=args.jobs, **common)
+        except PluginError as err:  # a bug, not the user's: keep the finished frames, then let it propagate
+            if err.result is not None and (~err.result.failed).any():
+                save_npz(args.out, **err.result.to_npz(), **extra)
+                print(f"{int((~err.result.failed).sum())} frames fitted before the plugin error saved to {args.out}",
+                      file=sys.stderr)
+            raise
     save_npz(args.out, **result.to_npz(), **extra)
     F, done = len(result.failed), ~result.failed
     print(f"fitted {int(done.sum())}/{F} frames -> {args.out}")

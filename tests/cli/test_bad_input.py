@@ -332,3 +332,37 @@ def test_export_results_writes_atomically(tmp_path, capsys, monkeypatch):
         export_results.run(type("A", (), {"fits": str(fits), "out": str(out), "dataset": "icvl"}))
     assert out.read_text() == "an earlier export\n"
     assert {p.name for p in tmp_path.iterdir()} == {"fitted.txt", "fits.npz", "gt.txt"}  # no temporary file left
+
+
+class _BreaksAtThirdFrame(Optimizer):
+    """Fits two frames with PSO, then overshoots its budget (a plugin bug)."""
+
+    def __init__(self, **params) -> None:
+        super().__init__(**params)
+        self.frames = 0
+
+    def minimize(self, task, rng) -> None:
+        self.frames += 1
+        if self.frames > 2:
+            task.evaluate(np.tile(task.x0, (task.remaining + 1, 1)))
+        hybridfit.create("optimizer", "pso").minimize(task, rng)
+
+
+def test_a_plugin_bug_keeps_the_frames_finished_before_it(exact_frames, frames_file, tmp_path, monkeypatch):
+    """The error carries the finished frames, and `fit` writes them before it propagates."""
+    with pytest.raises(errors.PluginError) as err:
+        hybridfit.fit(exact_frames["proposals"], exact_frames["confidences"], optimizer=_BreaksAtThirdFrame(),
+                      budget=200)
+    partial = err.value.result
+    assert partial.failed.tolist() == [False, False, True, True]
+    assert np.isfinite(partial.joints[:2]).all() and "plugin error" in partial.errors[2]
+
+    import hybridfit.cli.fit as cli_fit
+
+    real = cli_fit.fit_frames
+    monkeypatch.setattr(cli_fit, "fit_frames", lambda *a, **k: real(*a, **{**k, "optimizer": _BreaksAtThirdFrame()}))
+    out = tmp_path / "partial.npz"
+    with pytest.raises(errors.PluginError):
+        main(["fit", str(frames_file), "--out", str(out), "--budget", "200"])
+    with np.load(out) as fits:
+        assert fits["failed"][:2].tolist() == [False, False] and fits["failed"][2:].all()
