@@ -77,15 +77,11 @@ def load_npz(path: str | os.PathLike, kind: str = "") -> dict[str, np.ndarray]:
 
 
 def read_results(path: str | os.PathLike, dataset: str) -> np.ndarray:
-    """A results text file -> (F, J, 3) xyz mm (``datasets.results.read_xyz``); a binary
-    file is named, not decoded."""
+    """A results text file -> (F, J, 3) xyz mm (``datasets.results.read_xyz``; a binary file
+    is named, not decoded)."""
     from .datasets.results import read_xyz
 
-    try:
-        return read_xyz(path, dataset)
-    except UnicodeDecodeError:
-        raise HybridfitError(f"{path}: not a text file; expected a results file (one line per frame, "
-                             f"J x u v d)") from None
+    return read_xyz(path, dataset)
 
 
 def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:

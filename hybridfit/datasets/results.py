@@ -22,6 +22,17 @@ def read_uvd(path: str | os.PathLike, dataset: str) -> np.ndarray:
     path, J = Path(path), len(skeleton(dataset))
     if not path.is_file():
         raise HybridfitError(f"{path}: no such file")
+    try:
+        rows = _read_rows(path, dataset, J)
+    except UnicodeDecodeError:
+        raise HybridfitError(f"{path}: not a text file; expected a results file (one line per frame, "
+                             f"{J} {dataset} points x u v d)") from None
+    if not rows:
+        raise HybridfitError(f"{path}: no frames")
+    return np.stack(rows)
+
+
+def _read_rows(path: Path, dataset: str, J: int) -> list[np.ndarray]:
     rows = []
     with open(path) as fh:
         for n, line in enumerate(fh, start=1):
@@ -39,9 +50,7 @@ def read_uvd(path: str | os.PathLike, dataset: str) -> np.ndarray:
             if not np.isfinite(values).all():
                 raise HybridfitError(f"{path}:{n}: NaN or inf value")
             rows.append(values.reshape(J, 3))
-    if not rows:
-        raise HybridfitError(f"{path}: no frames")
-    return np.stack(rows)
+    return rows
 
 
 def read_xyz(path: str | os.PathLike, dataset: str) -> np.ndarray:

@@ -36,3 +36,15 @@ def test_bad_values_and_shapes(tmp_path):
         write_uvd(tmp_path / "w.txt", np.zeros((2, 14, 3)), "icvl")
     with pytest.raises(HybridfitError, match="unknown dataset 'foo'"):
         read_uvd(tmp_path / "r.txt", "foo")
+
+
+def test_a_binary_file_is_named_not_decoded(tmp_path):
+    import pytest
+
+    from hybridfit.datasets.results import read_xyz
+    from hybridfit.errors import HybridfitError
+
+    path = tmp_path / "results.txt"
+    path.write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(HybridfitError, match="results.txt: not a text file"):
+        read_xyz(path, "icvl")
