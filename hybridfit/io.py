@@ -160,3 +160,18 @@ def save_npz(path: str | os.PathLike, **arrays) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def frame_slice(text: str | None, n: int, option: str = "--frames") -> slice:
+    """'START:STOP' (either may be empty) -> a slice within n frames; errors name ``option``
+    (the CLI option or the study field the text came from)."""
+    if not text:
+        return slice(0, n)
+    try:
+        start, stop = (int(t) if t else None for t in text.split(":"))
+    except ValueError:
+        raise HybridfitError(f"{option}: expected START:STOP, got {text!r}") from None
+    s = slice(start, stop)
+    if len(range(n)[s]) == 0:
+        raise HybridfitError(f"{option} {text}: no frames selected out of {n}")
+    return s

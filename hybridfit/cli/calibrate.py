@@ -11,22 +11,8 @@ import numpy as np
 from ..calibrate import calibrate, to_toml
 from ..datasets.skeletons import dataset_model_config, skeleton
 from ..errors import HybridfitError
-from ..io import atomic_path, check_output
+from ..io import atomic_path, check_output, frame_slice
 from ._common import fraction, load_toml, non_negative_int, positive_int, read_results, seed_int
-
-
-def frame_slice(text: str | None, n: int) -> slice:
-    """'START:STOP' (either may be empty) -> a slice within n frames; errors name the option."""
-    if not text:
-        return slice(0, n)
-    try:
-        start, stop = (int(t) if t else None for t in text.split(":"))
-    except ValueError:
-        raise HybridfitError(f"--frames: expected START:STOP, got {text!r}") from None
-    s = slice(start, stop)
-    if len(range(n)[s]) == 0:
-        raise HybridfitError(f"--frames {text}: no frames selected out of {n}")
-    return s
 
 
 def register(sub) -> None:

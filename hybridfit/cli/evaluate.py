@@ -179,7 +179,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from .calibrate import frame_slice
+    from ..io import frame_slice
 
     if args.plot:
         check_output(args.plot, "--plot")

@@ -7,9 +7,8 @@ import numpy as np
 from ..datasets.results import proposals_from_results
 from ..datasets.skeletons import skeleton
 from ..errors import HybridfitError
-from ..io import check_output, save_npz
+from ..io import check_output, frame_slice, save_npz
 from ._common import read_results
-from .calibrate import frame_slice
 
 
 def register(sub) -> None:

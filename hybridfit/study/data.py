@@ -16,7 +16,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import HybridfitError
-from ..io import load_npz
+from ..io import frame_slice, load_npz
 from ..metrics import joint_errors, oracle
 from .cache import Cache, code_versions
 from .spec import (DatasetData, ProposalsData, SyntheticDepthData, SyntheticProposalsData, SyntheticStressData,
@@ -156,7 +156,6 @@ class StudyData:
         return saved["settings"]
 
     def _file_proposals(self) -> ProposalSet:
-        from ..cli.calibrate import frame_slice
         from ..io import read_results as read_xyz  # a binary file is named, not decoded
         from ..datasets.skeletons import skeleton
         from ..io import load_proposals
@@ -183,7 +182,7 @@ class StudyData:
         if truth.shape != props.shape[:2] + (3,):
             raise HybridfitError(f"data.ground_truth: shape {truth.shape} does not match the proposals' "
                                  f"{props.shape[:2] + (3,)}")
-        sel = frame_slice(d.frames, len(props))
+        sel = frame_slice(d.frames, len(props), "data.frames")
         order = np.argsort(-conf, axis=-1, kind="stable")  # most confident first
         props = np.take_along_axis(props, order[..., None], axis=2)
         conf = np.take_along_axis(conf, order, axis=2)
@@ -309,7 +308,6 @@ class StudyData:
         """hand26 settings calibrated on the ground truth's frames (cached)."""
         if self._calibrated is None:
             from ..calibrate import calibrate
-            from ..cli.calibrate import frame_slice
             from ..io import read_results as read_xyz
             from ..datasets.skeletons import skeleton, with_derived_points
 
@@ -321,7 +319,7 @@ class StudyData:
             def make(tmp: Path) -> None:
                 sk = skeleton(d.dataset)
                 truth = read_xyz(d.ground_truth, d.dataset)
-                truth = truth[frame_slice(c.frames, len(truth))]
+                truth = truth[frame_slice(c.frames, len(truth), "data.calibrate.frames")]
                 self.log(f"calibrating hand26 on {len(truth)} frames of {d.ground_truth.name}")
                 r = calibrate(truth, sk.model_names, model_config=with_derived_points({}, d.dataset),
                               mirror={"auto": None, "right": False, "left": True}[c.hand], rounds=c.rounds,
