@@ -156,6 +156,7 @@ class StudyData:
         return saved["settings"]
 
     def _file_proposals(self) -> ProposalSet:
+        from ..datasets.results import proposals_from_results
         from ..io import read_results as read_xyz  # a binary file is named, not decoded
         from ..datasets.skeletons import skeleton
         from ..io import load_proposals
@@ -168,8 +169,8 @@ class StudyData:
             names = z.get("joint_names")
             truth = z.get("ground_truth")
         else:
-            props = np.stack([read_xyz(f, d.dataset) for f in files], axis=2)
-            conf = np.ones(props.shape[:3])
+            fused = proposals_from_results([read_xyz(f, d.dataset) for f in files])  # equal confidences
+            props, conf = fused["proposals"], fused["confidences"]
             names, truth = None, None
         if names is None:
             if d.dataset is None:
