@@ -5,7 +5,7 @@
 Synthetic annotations that behave like real ones: a hand whose proportions differ from the
 prior (each bone +-8 %, base positions +-4 mm, scale 1.05), the skeleton's derived points
 with weights moved from the defaults, and per-frame bone-length jitter (each bone's std
-drawn from 2-4 mm, as real annotations vary within a sequence). ``hybridfit.calibrate``
+drawn from 2-4 mm, as real annotations vary within a sequence). ``hybridfit.fitting.calibrate``
 with its defaults calibrates on ``--frames`` (holding out the last 20 %); the calibrated
 model then fits the ground truth of ``--fresh`` new frames. Prints per skeleton the errors
 (mm), the held-out / in-sample ratio, the calibration's own least-squares error (poses
@@ -22,10 +22,10 @@ import time
 import numpy as np
 
 import hybridfit
-from hybridfit.calibrate import calibrate
+from hybridfit.fitting.calibrate import calibrate
 from hybridfit.datasets.skeletons import skeleton, with_derived_points
-from hybridfit.fitting import fit
-from hybridfit.synthetic import random_poses
+from hybridfit.fitting.frames import fit
+from hybridfit.synthetic.proposals import random_poses
 
 
 def annotations(dataset: str, frames: int, seed: int):

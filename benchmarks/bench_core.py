@@ -28,9 +28,9 @@ import time
 import numpy as np
 
 import hybridfit
-from hybridfit import compiled, fitting
+from hybridfit.fitting import compiled, frames as fitting
 from hybridfit.metrics import joint_errors
-from hybridfit.problem import Problem
+from hybridfit.fitting.problem import Problem
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
 from _util import median_time, table  # noqa: E402

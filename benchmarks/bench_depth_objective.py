@@ -20,9 +20,9 @@ import numpy as np
 
 import hybridfit
 from hybridfit.objective import Observation
-from hybridfit.render import Renderer
-from hybridfit.synthdata import sequence_poses
-from hybridfit.tracking import track
+from hybridfit.model.render import Renderer
+from hybridfit.synthetic.poses import sequence_poses
+from hybridfit.fitting.tracking import track
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
 from _util import median_time, table  # noqa: E402

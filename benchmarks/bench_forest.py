@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _util import table  # noqa: E402
 
 import hybridfit  # noqa: E402
-from hybridfit.dataset import load_dataset  # noqa: E402
+from hybridfit.datasets.folder import load_dataset  # noqa: E402
 from hybridfit.forest import Forest, ForestConfig, dataset_masks, train_forest_dataset  # noqa: E402
 from hybridfit.metrics import fingertips, joint_errors, oracle, success_rate  # noqa: E402
 

@@ -21,12 +21,14 @@ import time
 import numpy as np
 
 import hybridfit
-from hybridfit.camera import Intrinsics
-from hybridfit.dataset import load_dataset
-from hybridfit.noise import SensorNoise, apply_noise
-from hybridfit.render import Renderer
-from hybridfit.synthdata import GridConfig, grid_poses, make_train, sequence_poses
-from hybridfit.synthetic import random_poses
+from hybridfit.datasets.camera import Intrinsics
+from hybridfit.datasets.folder import load_dataset
+from hybridfit.synthetic.noise import SensorNoise, apply_noise
+from hybridfit.model.render import Renderer
+from hybridfit.synthetic.config import GridConfig
+from hybridfit.synthetic.poses import grid_poses, sequence_poses
+from hybridfit.synthetic.sets import make_train
+from hybridfit.synthetic.proposals import random_poses
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
 from _util import median_time, table  # noqa: E402

@@ -7,16 +7,16 @@ optimisers (entry-point groups ``hybridfit.models``, ``hybridfit.objectives``,
 """
 
 from .errors import HybridfitError
-from .estimator import HybridEstimator
-from .fitting import FitResult, fit
-from .model import HandModel, Stage
+from .fitting.estimator import HybridEstimator
+from .fitting.frames import FitResult, fit
+from .model.base import HandModel, Stage
 from .objective import Objective
 from .optimizer import OptimizeResult, Optimizer, Task
 from .plugin import Plugin, Settings
-from .problem import Problem
+from .fitting.problem import Problem
 from .registry import available, create
-from .stress import stress_proposals
-from .synthetic import synthetic_proposals
+from .synthetic.stress import stress_proposals
+from .synthetic.proposals import synthetic_proposals
 
 __version__ = "0.2.0"
 

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+#: the error thresholds of success curves: 0, 1, ..., 80 mm
+SUCCESS_THRESHOLDS_MM = np.arange(0, 81)
+
 
 def joint_errors(predicted: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """(F, J, 3), (F, J, 3) -> (F, J) Euclidean error per frame and joint, mm."""

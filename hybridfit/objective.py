@@ -24,7 +24,7 @@ from typing import Any, Callable, ClassVar
 
 import numpy as np
 
-from .camera import Intrinsics
+from .datasets.camera import Intrinsics
 from .errors import HybridfitError
 from .plugin import Plugin
 
@@ -70,7 +70,7 @@ class Observation:
 
 def dataset_observations(ds, indices, where: str = "data") -> list[Observation | None]:
     """Observations of frames ``indices`` of a data set in camera coordinates (a
-    ``hybridfit.dataset`` folder): the hand masked as the forest masks it
+    ``hybridfit.datasets.folder`` folder): the hand masked as the forest masks it
     (``hybridfit.forest.dataset_masks``); None for a frame without hand pixels."""
     from .forest.segment import dataset_masks
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from .errors import BudgetExceeded, HybridfitError
 from .plugin import Plugin
-from .problem import Problem
+from .fitting.problem import Problem
 
 
 @dataclass(frozen=True)

@@ -30,13 +30,13 @@ from pydantic import Field
 
 from . import registry
 from .errors import HybridfitError
-from .kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
-from .model import HandModel, Stage
+from .model.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
+from .model.base import HandModel, Stage
 from .objective import Objective, normalise_confidences
 from .optimizer import Optimizer, Task
 from .plugin import Settings
-from .problem import Problem
-from .synthetic import synthetic_proposals
+from .fitting.problem import Problem
+from .synthetic.proposals import synthetic_proposals
 
 __all__ = [
     "ToyHand", "RecordingTask", "check_config_round_trip", "check_pickle", "check_unknown_setting", "checks",
@@ -270,11 +270,11 @@ def _observed_frame(seed: int = 0, K: int = 3):
     """For objectives that observe depth: hand26, the depth Observation of a pose 400 mm in
     front of the camera, proposals (J, K, 3) around its joints, weights (J, K), and the joints
     (5, J, 3) of that pose perturbed (row 0 unperturbed)."""
-    from .camera import Intrinsics
+    from .datasets.camera import Intrinsics
     from .objective import Observation
-    from .render import Renderer
-    from .synthetic import PALM_TO_CAMERA
-    from .geometry import matrix_to_quaternion
+    from .model.render import Renderer
+    from .synthetic.proposals import PALM_TO_CAMERA
+    from .model.rotations import matrix_to_quaternion
 
     rng = np.random.default_rng(seed)
     model = registry.create("model", "hand26")

@@ -46,7 +46,7 @@ def random_params(model, n, rng):
 @pytest.fixture
 def interrupt_at(monkeypatch):
     """interrupt_at(frame): make hybridfit.fit raise KeyboardInterrupt when it reaches that frame."""
-    from hybridfit import compiled, fitting
+    from hybridfit.fitting import compiled, frames as fitting
 
     real = fitting._fit_chunk
     real_prepare = compiled.CompiledFitter.prepare

@@ -138,7 +138,7 @@ class LeakyStages(testing.ToyHand):
     and b's stage gets a's flexion, which moves joints of an earlier stage."""
 
     def stages(self):
-        from hybridfit.model import Stage
+        from hybridfit.model.base import Stage
         return (Stage("palm", tuple(range(7)), (0, 1, 4)), Stage("a", (7, 9), (2, 3)), Stage("b", (8, 10, 11, 12), (5, 6)))
 
 
@@ -146,7 +146,7 @@ class IdleParameter(testing.ToyHand):
     """The palm stage holds a's abduction, which moves none of the palm's joints."""
 
     def stages(self):
-        from hybridfit.model import Stage
+        from hybridfit.model.base import Stage
         return (Stage("palm", tuple(range(8)), (0, 1, 4)), Stage("a", (8, 9), (2, 3)), Stage("b", (10, 11, 12), (5, 6)))
 
 

@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import hybridfit
-from hybridfit.calibrate import to_toml
+from hybridfit.fitting.calibrate import to_toml
 from hybridfit.datasets import skeletons
 
 names = st.text(st.characters(codec="utf-8", exclude_categories=("Cs", "Cc")), min_size=1, max_size=12)

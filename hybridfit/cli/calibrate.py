@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from ..calibrate import calibrate, to_toml
+from ..fitting.calibrate import calibrate, to_toml
 from ..datasets.skeletons import dataset_model_config, skeleton
 from ..errors import HybridfitError
 from ..io import atomic_path, check_output, frame_slice

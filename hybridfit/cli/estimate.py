@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK
-from ..estimator import EMPTY_FRAME, HybridEstimator
+from ..fitting.estimator import EMPTY_FRAME, HybridEstimator
 from ..io import check_output, save_npz
 from ..metrics import summary
 from ._common import add_fit_options, add_plugin_options, plugin_kwargs

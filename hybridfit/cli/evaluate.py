@@ -19,12 +19,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import HybridfitError
-from ..fitting import INLIER_DISTANCE_MM
+from ..fitting.frames import INLIER_DISTANCE_MM
 from ..io import check_output, load_npz
-from ..metrics import fingertips, inliers, joint_errors, oracle, success_rate
+from ..metrics import SUCCESS_THRESHOLDS_MM, fingertips, inliers, joint_errors, oracle, success_rate
 from ._common import check_image_format, read_results
 
-THRESHOLDS = np.arange(0, 81)
 REPORTED = (20, 40, 80)
 
 
@@ -202,7 +201,7 @@ def run(args) -> int:
     rows, per_joint, curves = [], [], []
     for label, pts in methods:
         e = joint_errors(pts, truth)
-        curve = success_rate(e, THRESHOLDS)
+        curve = success_rate(e, SUCCESS_THRESHOLDS_MM)
         curves.append((label, curve))
         per_joint.append(np.nanmean(e, axis=0))
         tip = f"{np.nanmean(e[:, tips]):.2f}" if tips else "-"
@@ -249,7 +248,7 @@ def plot_success(curves, out: str, title: str) -> None:
 
     fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=120)
     for label, curve in curves:
-        ax.plot(THRESHOLDS, curve, label=label, linewidth=1.8)
+        ax.plot(SUCCESS_THRESHOLDS_MM, curve, label=label, linewidth=1.8)
     ax.set_xlabel("distance threshold D (mm)")
     ax.set_ylabel("share of frames with every joint within D")
     ax.set_title(title)

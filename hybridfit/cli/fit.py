@@ -11,10 +11,10 @@ from ..datasets.skeletons import dataset_model_config, skeleton
 from .. import registry
 from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK, HybridfitError, PluginError
 from ..io import check_output, load_proposals, save_npz
-from ..dataset import load_dataset
+from ..datasets.folder import load_dataset
 from ..metrics import summary
 from ..objective import dataset_observations
-from ..tracking import track
+from ..fitting.tracking import track
 from ._common import add_fit_options, add_plugin_options, plugin_kwargs
 
 

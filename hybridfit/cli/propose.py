@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from ..estimator import HybridEstimator
+from ..fitting.estimator import HybridEstimator
 from ..errors import EXIT_INCOMPLETE, EXIT_OK
 from ..io import check_output, save_npz
 from ..metrics import joint_errors, oracle

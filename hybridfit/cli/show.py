@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera import xyz_to_uvd
-from ..dataset import load_dataset
+from ..datasets.camera import xyz_to_uvd
+from ..datasets.folder import load_dataset
 from ..errors import HybridfitError
 from ..io import check_output, load_npz, load_proposals
 from ._common import check_image_format

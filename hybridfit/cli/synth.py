@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 
 from ..io import save_npz
-from ..synthetic import synthetic_proposals
+from ..synthetic.proposals import synthetic_proposals
 from ._common import load_toml, positive_int
 
 
@@ -30,7 +30,7 @@ def register(sub) -> None:
     s.set_defaults(func=run_test)
     for c in (t, s):
         c.add_argument("--out", required=True, help="output data set folder (replaced if it is a data set)")
-        c.add_argument("--config", metavar="TOML", help="settings file (keys of hybridfit.synthdata.GridConfig / SequenceConfig)")
+        c.add_argument("--config", metavar="TOML", help="settings file (keys of hybridfit.synthetic.config.GridConfig / SequenceConfig)")
         c.add_argument("--seed", type=int, help="random seed (motions and noise; default 0)")
         c.add_argument("--distance", type=float, metavar="MM", help="palm distance from the camera, mm (default 400)")
         c.add_argument("--noise", action="store_true", help="add the default sensor noise model")
@@ -46,7 +46,7 @@ def run_proposals(args) -> int:
 
 def _config(cls, args):
     """The settings file with the command-line options on top."""
-    from ..synthdata import parse_config
+    from ..synthetic.config import parse_config
 
     base = load_toml(args.config)
     options = {"seed": args.seed, "distance_mm": args.distance, "frames": getattr(args, "frames", None),
@@ -55,7 +55,8 @@ def _config(cls, args):
 
 
 def run_train(args) -> int:
-    from ..synthdata import GridConfig, make_train
+    from ..synthetic.config import GridConfig
+    from ..synthetic.sets import make_train
 
     path = make_train(args.out, _config(GridConfig, args), progress=sys.stderr.isatty())
     print(f"wrote the training grid -> {path}")
@@ -63,7 +64,8 @@ def run_train(args) -> int:
 
 
 def run_test(args) -> int:
-    from ..synthdata import SequenceConfig, make_test
+    from ..synthetic.config import SequenceConfig
+    from ..synthetic.sets import make_test
 
     path = make_test(args.out, _config(SequenceConfig, args), progress=sys.stderr.isatty())
     print(f"wrote the test sequence -> {path}")

@@ -13,11 +13,11 @@ from pathlib import Path
 
 from ..errors import HybridfitError
 from .base import RealDataset
-from .conventions import CONVENTIONS, Convention, convention
+from .conventions import CONVENTIONS, Convention
 from .icvl import ICVL, LABEL_FILES
 from .msra import MSRA
 from .nyu import NYU
-from .skeletons import SKELETONS, Skeleton, skeleton
+from .skeletons import SKELETONS, Skeleton, convention, skeleton
 
 READERS = {"icvl": ICVL, "nyu": NYU, "msra": MSRA}
 DATASETS = tuple(READERS)
@@ -54,9 +54,9 @@ def open_dataset(path: str | os.PathLike, dataset: str | None = None):
     kind = (dataset or detect(path)).lower()
     if kind == "synthetic":
         try:
-            from ..dataset import load_dataset
+            from .folder import load_dataset
         except ImportError:
-            raise HybridfitError(f"{path}: synthetic data sets need hybridfit.dataset, which is not installed") from None
+            raise HybridfitError(f"{path}: synthetic data sets need hybridfit.datasets.folder, which is not installed") from None
         return load_dataset(path)
     if kind not in READERS:
         raise HybridfitError(f"unknown dataset {dataset!r} (known: synthetic, {', '.join(READERS)})")

@@ -1,6 +1,6 @@
 """The frame-access interface shared by every real-data reader (and the synthetic data set).
 
-As :class:`hybridfit.dataset.Dataset`: ``frames`` (F, the number of frames) and ``len()``,
+As :class:`hybridfit.datasets.folder.Dataset`: ``frames`` (F, the number of frames) and ``len()``,
 ``files`` (F frame file names), ``path``, ``joint_names`` (J model point names, see
 ``skeletons``), ``intrinsics``, ``joints_xyz`` (F, J, 3) mm in the dataset's own
 convention (``y_sign``, ``z_sign``), ``joints_uvd`` (F, J, 3) px and mm,
@@ -18,9 +18,10 @@ from typing import Sequence
 
 import numpy as np
 
-from ..camera import Intrinsics
+from .camera import Intrinsics
 from ..errors import HybridfitError
-from .conventions import Convention, convention
+from .conventions import Convention
+from .skeletons import convention
 from .skeletons import Skeleton, skeleton
 
 

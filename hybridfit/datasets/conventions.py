@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import Intrinsics
+from .camera import Intrinsics
 
 
 @dataclass(frozen=True)
@@ -52,14 +52,3 @@ CONVENTIONS: dict[str, Convention] = {
                        y_sign=-1.0, z_sign=-1.0),
 }
 
-
-def convention(dataset: str) -> Convention:
-    """The convention of a dataset's skeleton (a built-in name or a skeleton file)."""
-    from ..errors import HybridfitError
-    from .skeletons import skeleton
-
-    sk = skeleton(dataset)
-    if sk.convention is None:
-        raise HybridfitError(f"the {sk.dataset} skeleton names no camera convention, needed for results files "
-                             f"in pixels (u, v, d); a skeleton file sets one: convention = {' or '.join(map(repr, CONVENTIONS))}")
-    return CONVENTIONS[sk.convention]

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import HybridfitError
-from .conventions import convention
+from .skeletons import convention
 from .skeletons import skeleton
 
 

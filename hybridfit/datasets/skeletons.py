@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import HybridfitError
+from .conventions import CONVENTIONS, Convention
 
 #: the folder of the built-in skeleton files
 BUILTIN_DIR = Path(__file__).with_name("skeleton_files")
@@ -101,8 +102,6 @@ def _parse(raw: dict[str, Any], where: str, default_name: str) -> Skeleton:
         if key in raw and (not isinstance(raw[key], str) or not raw[key].strip()):
             raise fail(key, f"must be a non-empty string, got {raw[key]!r}")
     if "convention" in raw:
-        from .conventions import CONVENTIONS
-
         if raw["convention"] not in CONVENTIONS:
             raise fail("convention", f"unknown convention {raw['convention']!r}{_closest(raw['convention'], CONVENTIONS)};"
                        f" known: {', '.join(CONVENTIONS)}")
@@ -264,3 +263,12 @@ def dataset_model_config(model: str, model_config: dict, dataset: str | None) ->
     if not dataset or model != skeleton(dataset).model:
         return dict(model_config)
     return with_derived_points(model_config, dataset)
+
+
+def convention(dataset: str) -> Convention:
+    """The convention of a dataset's skeleton (a built-in name or a skeleton file)."""
+    sk = skeleton(dataset)
+    if sk.convention is None:
+        raise HybridfitError(f"the {sk.dataset} skeleton names no camera convention, needed for results files "
+                             f"in pixels (u, v, d); a skeleton file sets one: convention = {' or '.join(map(repr, CONVENTIONS))}")
+    return CONVENTIONS[sk.convention]

@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 from tqdm.auto import tqdm
 
-from ..camera import Intrinsics
+from ..datasets.camera import Intrinsics
 from ..errors import HybridfitError
 from ..io import load_npz, save_npz
 from .features import pack_crops, traverse
@@ -276,7 +276,7 @@ def train_forest(depths: np.ndarray, joints_xyz: np.ndarray, intrinsics: Intrins
 
 def train_forest_dataset(ds, config: ForestConfig | None = None, indices: Sequence[int] | None = None,
                          jobs: int | None = None, progress: bool = False, chunk: int = 256) -> Forest:
-    """Train on a Dataset (``hybridfit.dataset`` interface), reading ``chunk`` frames at a time."""
+    """Train on a Dataset (``hybridfit.datasets.folder`` interface), reading ``chunk`` frames at a time."""
     config = config or ForestConfig()
     idx = np.arange(len(ds)) if indices is None else np.asarray(indices, np.int64)
     ts = TrainingSet(config, ds.intrinsics)

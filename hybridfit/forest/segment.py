@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera import Intrinsics
+from ..datasets.camera import Intrinsics
 from ..errors import HybridfitError
 
 

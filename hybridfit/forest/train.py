@@ -21,7 +21,7 @@ from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 from tqdm.auto import tqdm
 
-from ..camera import Intrinsics
+from ..datasets.camera import Intrinsics
 from ..errors import HybridfitError
 from .features import eval_features, feature, pack_crops
 from .meanshift import mean_shift

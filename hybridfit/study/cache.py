@@ -21,7 +21,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Callable
 
-from .spec import digest
+from .expand import digest
 
 
 class Cache:

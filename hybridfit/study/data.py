@@ -99,7 +99,7 @@ class StudyData:
         return self._sets[ck]
 
     def _synthetic(self) -> ProposalSet:
-        from ..synthetic import synthetic_proposals
+        from ..synthetic.proposals import synthetic_proposals
 
         d = self.data
         cfg = d.model_dump(exclude={"kind"})
@@ -117,7 +117,7 @@ class StudyData:
     def _stress(self, skeleton: str) -> tuple[ProposalSet, np.ndarray]:
         """(the fitted frames, the calibration frames' ground truth (C, Q, 3) mm) of the
         skeleton's stress sequence (cached)."""
-        from ..stress import stress_proposals
+        from ..synthetic.stress import stress_proposals
 
         d = self.data
         C = d.calibrate.frames if d.calibrate is not None else 0
@@ -135,7 +135,7 @@ class StudyData:
 
     def _stress_calibration(self, skeleton: str) -> dict[str, Any]:
         """The model calibrated on the skeleton's calibration frames (cached)."""
-        from ..calibrate import calibrate
+        from ..fitting.calibrate import calibrate
         from ..datasets.skeletons import with_derived_points
 
         d = self.data
@@ -192,7 +192,7 @@ class StudyData:
 
     def _datasets(self) -> tuple[Path, Path | None]:
         """(test folder, training folder or None), generated for synthetic depth data."""
-        from ..synthdata import make_test, make_train
+        from ..synthetic.sets import make_test, make_train
 
         d = self.data
         if isinstance(d, DatasetData):
@@ -210,7 +210,7 @@ class StudyData:
 
     def _train_subset(self) -> np.ndarray | None:
         """The grid frames the forest trains on (sorted), None for all."""
-        from ..synthdata import grid_poses
+        from ..synthetic.poses import grid_poses
 
         d = self.data
         n = len(grid_poses(d.train)) if isinstance(d, SyntheticDepthData) else None
@@ -220,7 +220,7 @@ class StudyData:
 
     def forest_path(self) -> Path:
         """The trained forest (cached by its training data and config)."""
-        from ..dataset import load_dataset
+        from ..datasets.folder import load_dataset
         from ..forest import train_forest_dataset
 
         d = self.data
@@ -242,8 +242,8 @@ class StudyData:
         return self.cache.get("forest", payload, make, ".npz")[1]
 
     def _forest_proposals(self, k: int, proposal_set: int) -> ProposalSet:
-        from ..dataset import load_dataset
-        from ..estimator import HybridEstimator
+        from ..datasets.folder import load_dataset
+        from ..fitting.estimator import HybridEstimator
 
         d = self.data
         forest = self.forest_path()
@@ -270,7 +270,7 @@ class StudyData:
         frame without hand pixels) and ground-truth model ``params`` (F, P), P = 0 when the
         data has none; the same frames as the proposals. Forest data only."""
         if self._depth is None:
-            from ..dataset import load_dataset
+            from ..datasets.folder import load_dataset
             from ..objective import dataset_observations
 
             if not self.uses_proposal_set():
@@ -308,7 +308,7 @@ class StudyData:
     def calibration(self) -> dict[str, Any]:
         """hand26 settings calibrated on the ground truth's frames (cached)."""
         if self._calibrated is None:
-            from ..calibrate import calibrate
+            from ..fitting.calibrate import calibrate
             from ..io import read_results as read_xyz
             from ..datasets.skeletons import skeleton, with_derived_points
 

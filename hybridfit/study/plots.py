@@ -15,7 +15,7 @@ import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
-from .report import THRESHOLDS
+from ..metrics import SUCCESS_THRESHOLDS_MM as THRESHOLDS
 
 SWEEP_AXES = {"k": "proposals per joint k", "proposal_set": "|P~|: votes per joint into mean-shift",
               "budget": "budget (objective evaluations per frame)"}

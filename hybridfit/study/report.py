@@ -18,11 +18,12 @@ from typing import Any
 
 import numpy as np
 
+from ..metrics import SUCCESS_THRESHOLDS_MM as THRESHOLDS
 from ..metrics import fingertips, success_rate
 from .spec import METRICS, Study
-from .store import Store
+from . import plots
+from .store import DB_NAME, Store
 
-THRESHOLDS = np.arange(0, 81)
 LABELS = {"mean_error_mm": "mean error (mm)", "median_error_mm": "median frame error (mm)",
           "fingertip_error_mm": "fingertip error (mm)", "success_20mm": "success @20 mm",
           "success_40mm": "success @40 mm", "success_80mm": "success @80 mm", "objective": "objective",
@@ -125,8 +126,6 @@ def _cell(r: dict, m: str) -> str:
 
 def write_report(out: str | os.PathLike, study: Study | None = None) -> Path:
     """Write results.csv, the plots and report.md into ``out`` from its study.db; returns report.md."""
-    from . import plots
-    from .runner import DB_NAME
 
     out = Path(out)
     store = Store(out / DB_NAME)

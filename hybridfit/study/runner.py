@@ -21,16 +21,16 @@ from tqdm.auto import tqdm
 
 from .. import registry
 from ..errors import HybridfitError
-from ..fitting import fit
+from ..fitting.frames import fit
 from ..metrics import joint_errors
-from ..tracking import TrackingSettings, track
+from ..fitting.tracking import TrackingSettings, track
 from .cache import Cache, process_alive
 from .data import StudyData, baseline_errors
 from .executors import make_executor
-from .spec import Study, Trial, digest, expand, trials
-from .store import Store
+from .expand import Trial, digest, expand, trials
+from .spec import Study
+from .store import DB_NAME, Store
 
-DB_NAME = "study.db"
 LOCK_NAME = "study.lock"
 
 

@@ -1,28 +1,17 @@
-"""Study files: TOML validated by pydantic models, and their deterministic expansion into trials.
+"""Study files: the schema of a study (pydantic models) and its validation messages.
 
-A study names its data (``[data]``, one of four kinds), the base settings of every trial
+A study names its data (``[data]``, one of five kinds), the base settings of every trial
 (``[base]``: plugins and their configs, k, |P~|, budget), the sweep (``[sweep]``: a ``grid``
 of dotted setting paths to value lists, and/or a list of ``variants``, each a table of
 overrides deep-merged into the base), the seeds, the baselines and the report. A
 ``[quick]`` table holds overrides deep-merged into the whole file for ``--quick`` runs.
-Paths are relative to the study file. Every error names the file and the field path.
-
-Expansion: variants (in file order, default one empty variant) x grid (keys in file order,
-values in list order) gives the variants; each runs with every seed. ``seeds = n`` derives n
-seeds from the study ``seed`` (numpy SeedSequence), the same for every variant, so variants
-are compared on common random numbers. The trial key hashes the data, settings and seed.
+Reading a file is :mod:`.load`; expanding a study into trials is :mod:`.expand`.
 """
 
 from __future__ import annotations
 
-import copy
 import difflib
-import hashlib
-import itertools
-import json
-import tomllib
 import typing
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
@@ -30,12 +19,12 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .. import registry
-from ..datasets.skeletons import is_skeleton_file, skeleton
+from ..datasets.skeletons import skeleton
 from ..errors import HybridfitError
+from ..fitting.tracking import TrackingSettings
 from ..forest import ForestConfig
-from ..stress import StressSettings
-from ..synthdata import GridConfig, SequenceConfig
-from ..tracking import TrackingSettings
+from ..synthetic.config import GridConfig, SequenceConfig
+from ..synthetic.stress import StressSettings
 
 PLOTS = ("success", "k", "proposal_set", "budget", "variants", "per_joint")
 BASELINES = ("oracle", "top1")
@@ -48,7 +37,7 @@ class _Strict(BaseModel):
 
 
 class StudyTracking(TrackingSettings):
-    """Tracking in a study: the ``hybridfit.tracking`` settings plus where the first frame
+    """Tracking in a study: the ``hybridfit.fitting.tracking`` settings plus where the first frame
     starts and which frames are tracked."""
 
     first_frame: Literal["proposals", "ground-truth"] = Field(
@@ -130,7 +119,7 @@ class SyntheticDepthData(_Strict):
 
 
 class DatasetData(_Strict):
-    """Data-set folders (``hybridfit.dataset``): a test set and a training set or a trained forest."""
+    """Data-set folders (``hybridfit.datasets.folder``): a test set and a training set or a trained forest."""
 
     kind: Literal["dataset"]
     test: Path
@@ -150,7 +139,7 @@ class DatasetData(_Strict):
 
 
 class Calibration(_Strict):
-    """Calibrate hand26 on ground-truth frames (``hybridfit.calibrate``), a cached shared step."""
+    """Calibrate hand26 on ground-truth frames (``hybridfit.fitting.calibrate``), a cached shared step."""
 
     frames: str = Field("0:100", description="START:STOP of the ground truth to calibrate on")
     rounds: int = Field(3, ge=0)
@@ -191,7 +180,7 @@ class StressCalibration(_Strict):
 
 
 class SyntheticStressData(_Strict):
-    """Synthetic stress data like real annotations (``hybridfit.stress``), one sequence per
+    """Synthetic stress data like real annotations (``hybridfit.synthetic.stress``), one sequence per
     skeleton (the trials' ``skeleton`` setting): calibration frames, then the fitted frames."""
 
     kind: Literal["synthetic-stress"]
@@ -245,47 +234,7 @@ class Study(_Strict):
         return [int(s) for s in np.random.SeedSequence(self.seed).generate_state(self.seeds)]
 
 
-@dataclass(frozen=True)
-class Variant:
-    """One point of the sweep: its name, the overrides it makes and the resolved settings."""
-
-    index: int
-    name: str
-    overrides: dict[str, Any]
-    settings: TrialSettings
-
-
-@dataclass(frozen=True)
-class Trial:
-    """One variant x one seed; ``key`` is unique for (data, settings, seed)."""
-
-    key: str
-    variant: Variant
-    seed: int
-
-
-def digest(payload: Any) -> str:
-    """A short content hash of JSON-able data (sorted keys)."""
-    text = json.dumps(payload, sort_keys=True, separators=(",", ":"), default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:20]
-
-
-def deep_merge(base: dict, over: dict) -> dict:
-    """base with over merged in (tables merge recursively, other values replace)."""
-    out = copy.deepcopy(base)
-    for k, v in over.items():
-        out[k] = deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else copy.deepcopy(v)
-    return out
-
-
-def _nest(path: str, value: Any) -> dict:
-    out: Any = value
-    for part in reversed(path.split(".")):
-        out = {part: out}
-    return out
-
-
-def _errors(where: str, err: ValidationError, prefix: str = "") -> HybridfitError:
+def validation_error(where: str, err: ValidationError, prefix: str = "") -> HybridfitError:
     parts = []
     for e in err.errors():
         path = [str(p) for p in (prefix, *e["loc"]) if p != ""]
@@ -318,129 +267,6 @@ def _unknown_key(loc) -> str:
 
 
 _KINDS = "synthetic-proposals, synthetic-depth, dataset, proposals"
-_SETTING_KEYS = {f.alias or n for n, f in TrialSettings.model_fields.items()}
+SETTING_KEYS = {f.alias or n for n, f in TrialSettings.model_fields.items()}
 
 
-def _resolve_paths(data: BaseModel, root: Path) -> None:
-    for name in ("test", "train", "forest_file", "file", "ground_truth"):
-        value = getattr(data, name, None)
-        if isinstance(value, list):
-            object.__setattr__(data, name, [root / v for v in value])
-        elif isinstance(value, Path):
-            object.__setattr__(data, name, root / value)
-    dataset = getattr(data, "dataset", None)
-    if isinstance(dataset, str) and is_skeleton_file(dataset):
-        object.__setattr__(data, "dataset", str(root / dataset))
-
-
-def _check_exists(data: BaseModel, where: str) -> None:
-    for name in ("test", "train", "forest_file", "file", "ground_truth"):
-        value = getattr(data, name, None)
-        for p in value if isinstance(value, list) else [value]:
-            if isinstance(p, Path) and not p.exists():
-                raise HybridfitError(f"{where}: data.{name}: no such file or folder {p}")
-    if isinstance(getattr(data, "dataset", None), str):
-        try:
-            skeleton(data.dataset)
-        except HybridfitError as err:
-            raise HybridfitError(f"{where}: data.dataset: {err}") from None
-
-
-def load_spec(path: str | Path, quick: bool = False) -> Study:
-    """Read and validate a study file (with its ``[quick]`` overrides when ``quick``)."""
-    path = Path(path)
-    if not path.is_file():
-        raise HybridfitError(f"{path}: no such study file")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise HybridfitError(f"{path}: invalid TOML: {err}") from None
-    except UnicodeDecodeError:
-        raise HybridfitError(f"{path}: not a text file; expected a study file (TOML)") from None
-    where = str(path)
-    if quick:
-        over = raw.get("quick", {})
-        if not isinstance(over, dict) or not over:
-            raise HybridfitError(f"{path}: --quick needs a [quick] table of overrides")
-        parse_spec(raw, where, path.parent)  # the whole file is valid, also what [quick] overrides
-        raw = deep_merge(raw, over)
-        where = f"{path} (with its [quick] overrides)"
-    return parse_spec(raw, where, path.parent)
-
-
-def parse_spec(raw: dict, where: str = "study", root: Path | None = None) -> Study:
-    """Validate a study dict; paths resolve against ``root``; data files must exist."""
-    try:
-        study = Study.model_validate(raw)
-    except ValidationError as err:
-        raise _errors(where, err) from None
-    _resolve_paths(study.data, Path(root or "."))
-    _check_exists(study.data, where)
-    expand(study, where)  # sweep errors now, not when the run reaches them
-    return study
-
-
-def _variant_name(overrides: dict[str, Any]) -> str:
-    def flat(d, prefix=""):
-        for k, v in d.items():
-            if isinstance(v, dict) and v:
-                yield from flat(v, f"{prefix}{k}.")
-            else:
-                yield f"{prefix}{k}", v
-
-    return ", ".join(f"{k}={json.dumps(v) if not isinstance(v, str) else v}" for k, v in flat(overrides)) or "base"
-
-
-def expand(study: Study, where: str = "study") -> list[Variant]:
-    """The study's variants in a deterministic order (see the module docstring)."""
-    for key in study.sweep.grid:
-        if key.split(".")[0] not in _SETTING_KEYS:
-            raise HybridfitError(f"{where}: sweep.grid.{key}: unknown setting; allowed: "
-                                 f"{', '.join(sorted(_SETTING_KEYS))}")
-        if not study.sweep.grid[key]:
-            raise HybridfitError(f"{where}: sweep.grid.{key}: needs at least one value")
-    listed = study.sweep.variants or [{}]
-    keys = list(study.sweep.grid)
-    base = study.base.as_dict()
-    out: list[Variant] = []
-    names: set[str] = set()
-    for i, entry in enumerate(listed):
-        entry = dict(entry)
-        name = entry.pop("name", None)
-        over: dict[str, Any] = {}
-        for k, v in entry.items():  # dotted keys in variant tables too
-            over = deep_merge(over, _nest(k, v))
-        for combo in itertools.product(*(study.sweep.grid[k] for k in keys)):
-            o = over
-            for k, v in zip(keys, combo):
-                o = deep_merge(o, _nest(k, v))
-            loc = f"sweep.variants.{i}" if study.sweep.variants else "sweep.grid"
-            if keys:
-                loc += f" ({_variant_name(dict(zip(keys, combo)))})"
-            unknown = [k for k in o if k not in _SETTING_KEYS]
-            if unknown:
-                raise HybridfitError(f"{where}: {loc}.{unknown[0]}: unknown setting; allowed: "
-                                     f"{', '.join(sorted(_SETTING_KEYS))}")
-            try:
-                settings = TrialSettings.model_validate(deep_merge(base, o))
-            except ValidationError as err:
-                raise _errors(where, err, loc) from None
-            grid_label = _variant_name(dict(zip(keys, combo))) if keys else ""
-            label = ", ".join(p for p in (name or (_variant_name(over) if over else ""), grid_label) if p) or "base"
-            if label in names:
-                raise HybridfitError(f"{where}: {loc}: duplicate variant name {label!r}")
-            names.add(label)
-            _check_k(study, settings, where, loc)
-            out.append(Variant(len(out), label, o, settings))
-    return out
-
-
-def _check_k(study: Study, settings: TrialSettings, where: str, loc: str) -> None:
-    if isinstance(study.data, SyntheticProposalsData) and settings.k > study.data.k:
-        raise HybridfitError(f"{where}: {loc}.k: {settings.k} exceeds data.k = {study.data.k} (proposals generated)")
-
-
-def trials(study: Study, variants: list[Variant], data_key: str) -> list[Trial]:
-    """Every variant x seed, variant-major, with its unique key."""
-    return [Trial(digest({"data": data_key, "settings": v.settings.as_dict(), "seed": s}), v, s)
-            for v in variants for s in study.seed_list()]

@@ -20,6 +20,9 @@ import numpy as np
 
 from ..errors import HybridfitError
 
+#: the file name of a study's store inside its output folder
+DB_NAME = "study.db"
+
 SCHEMA_VERSION = 1
 STATES = ("running", "complete", "failed")
 

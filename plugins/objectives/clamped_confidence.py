@@ -18,7 +18,7 @@ import numba as nb
 import numpy as np
 from pydantic import Field
 
-from hybridfit.compiled import KERNEL_SIGNATURE
+from hybridfit.fitting.compiled import KERNEL_SIGNATURE
 from hybridfit.objective import Objective, kernel_loss
 from hybridfit.plugin import Settings
 
@@ -72,7 +72,7 @@ class ClampedConfidence(Objective):
                            np.ascontiguousarray(weights, dtype=np.float64), *self.compiled_kernel()[1:])
 
     def compiled_kernel(self):
-        """(kernel, constants) for :mod:`hybridfit.compiled`."""
+        """(kernel, constants) for :mod:`hybridfit.fitting.compiled`."""
         return clamped_confidence_kernel, np.array([1.0 / self.settings.d_max_mm**2])
 
     def lower_bound(self, weights):

@@ -1,6 +1,6 @@
 """``rendered-depth``: FORTH's objective (Oikonomidis, Kyriazis & Argyros, BMVC 2011).
 
-Each hypothesis's hand surface (the rounded cones of :mod:`hybridfit.render`, on the
+Each hypothesis's hand surface (the rounded cones of :mod:`hybridfit.model.render`, on the
 model's skeleton) is ray-cast at a reduced resolution, ``resolution`` x ``resolution``
 pixels over the frame's hand box (:class:`hybridfit.objective.Observation`), and compared
 with the observed depth sampled at the same pixels:
@@ -22,7 +22,7 @@ from pydantic import Field
 
 from hybridfit.objective import Objective, Observation
 from hybridfit.plugin import Settings
-from hybridfit.render import HandSurface, build_primitives, depth_discrepancy_kernel, pixel_rays
+from hybridfit.model.render import HandSurface, build_primitives, depth_discrepancy_kernel, pixel_rays
 
 
 class RenderedDepthSettings(Settings):

@@ -1,7 +1,7 @@
 """``casadi-ik``: gradient-based inverse kinematics with CasADi and IPOPT.
 
 The model's forward kinematics are built symbolically from its own kinematic description
-(``model.kinematic_tree()``, see :mod:`hybridfit.kinematics_casadi`), for the task's free
+(``model.kinematic_tree()``, see :mod:`hybridfit.model.casadi`), for the task's free
 parameters only (the others frozen at ``task.base``), scaled to the unit cube. IPOPT
 (limited-memory BFGS Hessian, the box as bounds) minimises the task's own objective when
 that objective offers CasADi symbols: a method ``casadi_loss(points, proposals, weights,
@@ -91,7 +91,7 @@ def surrogate(task: Task, sigma_mm: float, span: np.ndarray):
     objective's own ``casadi_loss`` when it has one, else the Gaussian-mixture surrogate)."""
     import casadi as ca
 
-    from hybridfit.kinematics_casadi import casadi_forward
+    from hybridfit.model.casadi import casadi_forward
 
     problem = task.problem
     model = problem.model

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field
 
-from hybridfit.compiled import constriction, pso_step, update_bests
+from hybridfit.fitting.compiled import constriction, pso_step, update_bests
 from hybridfit.optimizer import Optimizer, Task
 from hybridfit.plugin import Settings
 
@@ -54,7 +54,7 @@ class PSO(Optimizer):
         return np.array([s.cognitive, s.social, constriction(s.cognitive, s.social), s.init_sigma, s.max_velocity])
 
     def compiled_pso(self) -> "PSO | None":
-        """This optimiser for :mod:`hybridfit.compiled` (None for a subclass that changes
+        """This optimiser for :mod:`hybridfit.fitting.compiled` (None for a subclass that changes
         ``minimize``, which the compiled path would not follow)."""
         return self if type(self).minimize is PSO.minimize else None
 

@@ -112,7 +112,7 @@ def test_bad_options_fail_before_work_and_keep_the_output(frames_file, good_outp
 
 
 def test_unwritable_out_is_found_before_fitting(frames_file, tmp_path, capsys, monkeypatch):
-    from hybridfit import fitting
+    from hybridfit.fitting import frames as fitting
 
     monkeypatch.setattr(fitting, "Problem", None)  # any fitting would crash
     blocker = tmp_path / "file.txt"
@@ -198,7 +198,7 @@ def _small_forest(tmp_path):
     depths = np.zeros((2, 240, 320), np.uint16)
     depths[:, 100:140, 140:180] = 400
     joints = np.array([[[0, 0, 400], [10, 5, 405]]] * 2, float) + rng.normal(0, 1, (2, 2, 3))
-    from hybridfit.camera import Intrinsics
+    from hybridfit.datasets.camera import Intrinsics
     from hybridfit.forest import ForestConfig, train_forest
 
     cfg = ForestConfig(n_trees=1, max_depth=3, pixels_per_frame=50, n_features=10, n_thresholds=5)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hybridfit.cli import main
-from hybridfit.dataset import load_dataset
+from hybridfit.datasets.folder import load_dataset
 
 
 @pytest.fixture(scope="module")

@@ -3,7 +3,7 @@ import pytest
 from PIL import Image
 
 from hybridfit.cli import main
-from hybridfit.dataset import load_dataset
+from hybridfit.datasets.folder import load_dataset
 
 
 @pytest.fixture(scope="module")

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from hybridfit.cli import main
-from hybridfit.dataset import load_dataset
+from hybridfit.datasets.folder import load_dataset
 
 SMALL_GRID = """
 viewpoints_deg = [[0, 0, 0], [0, 0, 30]]
@@ -17,7 +17,7 @@ def test_synth_test_writes_a_data_set(tmp_path, capsys):
     assert main(["synth", "test", "--out", str(out), "--frames", "4", "--seed", "3"]) == 0
     ds = load_dataset(out)
     assert ds.frames == 4 and ds.meta["seed"] == 3 and ds.meta["config"]["frames"] == 4
-    assert ds.meta["generator"] == "hybridfit.synthdata.make_test"
+    assert ds.meta["generator"] == "hybridfit.synthetic.sets.make_test"
     assert ds.depths().shape == (4, 240, 320) and (ds.depths() > 0).any()
     assert "wrote the test sequence" in capsys.readouterr().out
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 import hybridfit
-from hybridfit.camera import Intrinsics
+from hybridfit.datasets.camera import Intrinsics
 
 #: a small camera so frames render and train in milliseconds
 SMALL = Intrinsics(fx=120.0, fy=120.0, cx=80.0, cy=60.0, width=160, height=120)
@@ -50,9 +50,9 @@ def blob_frames(n: int, seed: int = 0, joints: int = 4):
 
 
 def hand_frames(n: int, seed: int = 0, intrinsics: Intrinsics = SMALL):
-    """n rendered hand26 frames (hybridfit.render): depth, parts, joints (n, 21, 3) mm, params."""
-    from hybridfit.render import Renderer
-    from hybridfit.synthetic import random_poses
+    """n rendered hand26 frames (hybridfit.model.render): depth, parts, joints (n, 21, 3) mm, params."""
+    from hybridfit.model.render import Renderer
+    from hybridfit.synthetic.proposals import random_poses
 
     model = hybridfit.create("model", "hand26")
     X = random_poses(model, n, np.random.default_rng(seed), spread_mm=15.0)
@@ -61,9 +61,9 @@ def hand_frames(n: int, seed: int = 0, intrinsics: Intrinsics = SMALL):
 
 
 def write_hand_dataset(path, n: int, seed: int = 0, empty_frames=()):
-    """A small data-set folder of rendered hands (``hybridfit.dataset`` format); frames in
+    """A small data-set folder of rendered hands (``hybridfit.datasets.folder`` format); frames in
     ``empty_frames`` are blanked (no foreground)."""
-    from hybridfit.dataset import write_dataset
+    from hybridfit.datasets.folder import write_dataset
 
     depth, parts, joints, X = hand_frames(n, seed)
     for f in empty_frames:

@@ -10,7 +10,7 @@ import matplotlib
 matplotlib.use("svg")
 from pathlib import Path
 from hybridfit.study import plots
-from hybridfit.study.report import THRESHOLDS
+from hybridfit.metrics import SUCCESS_THRESHOLDS_MM as THRESHOLDS
 rows = [{{"method": "fit", "curve": [0.5] * len(THRESHOLDS), "variant": "a"}}]
 name = plots.plot_success(Path({str(tmp_path)!r}), rows)
 assert matplotlib.get_backend() == "svg", matplotlib.get_backend()

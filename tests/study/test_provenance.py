@@ -113,8 +113,8 @@ def test_only_the_training_frames_used_are_rendered(tmp_path):
                                                "test": {"frames": 2}}}, root=tmp_path)
     data = StudyData(study.data, Cache(tmp_path / "cache"), log=lambda m: None)
     _, train = data._datasets()
-    from hybridfit.dataset import load_dataset
-    from hybridfit.synthdata import grid_poses
+    from hybridfit.datasets.folder import load_dataset
+    from hybridfit.synthetic.poses import grid_poses
 
     ds = load_dataset(train)
     expected = data._train_subset()

@@ -77,7 +77,7 @@ def test_failing_trial_is_recorded_and_study_goes_on(tmp_path):
 def test_shared_steps_are_cached(tmp_path, monkeypatch):
     """A second study on the same data and cache neither retrains the forest nor re-proposes."""
     import hybridfit.forest
-    from hybridfit.estimator import HybridEstimator
+    from hybridfit.fitting.estimator import HybridEstimator
 
     calls = {"train": 0, "propose": 0}
     train, propose = hybridfit.forest.train_forest_dataset, HybridEstimator.propose_dataset

@@ -10,12 +10,12 @@ from hypothesis import strategies as st
 
 import hybridfit
 from hybridfit import testing
-from hybridfit.camera import Intrinsics
+from hybridfit.datasets.camera import Intrinsics
 from hybridfit.errors import HybridfitError
 from hybridfit.objective import Observation
-from hybridfit.problem import Problem
-from hybridfit.render import Renderer
-from hybridfit.synthdata import sequence_poses
+from hybridfit.fitting.problem import Problem
+from hybridfit.model.render import Renderer
+from hybridfit.synthetic.poses import sequence_poses
 from hybridfit_plugins.objectives.rendered_depth import RenderedDepth
 
 MODEL = hybridfit.create("model", "hand26")

@@ -9,8 +9,8 @@ from hypothesis import given, settings, strategies as st
 import hybridfit
 from hybridfit.datasets.skeletons import dataset_model_config, skeleton
 from hybridfit.optimizer import Task
-from hybridfit.problem import Problem
-from hybridfit.problem import rotation_lever_mm
+from hybridfit.fitting.problem import Problem
+from hybridfit.fitting.problem import rotation_lever_mm
 
 
 def nyu_problem(frames_data, f=0, confidences=None):
@@ -22,7 +22,7 @@ def nyu_problem(frames_data, f=0, confidences=None):
 
 @pytest.fixture(scope="module")
 def nyu_frames():
-    from hybridfit.stress import stress_proposals
+    from hybridfit.synthetic.stress import stress_proposals
 
     return stress_proposals(4, dataset="nyu", seed=3)
 
@@ -95,7 +95,7 @@ def test_guided_stepwise_beats_unguided_on_a_three_point_palm():
     """On NYU-like stress frames the guided root fits better than the paper's palm stage alone
     (measured on 2 x 60 frames: 12.2 / 12.4 vs 14.4 / 15.2 mm; here the first of them)."""
     from hybridfit.metrics import joint_errors
-    from hybridfit.stress import stress_proposals
+    from hybridfit.synthetic.stress import stress_proposals
 
     z = stress_proposals(60, dataset="nyu", seed=7, scale_range=(1, 1), proportion_sd=0.0, weight_sd=0.0, offset_mm=2.0)
     cfg = dataset_model_config("hand26", {}, "nyu")

@@ -1,0 +1,634 @@
+"""The compiled fitting path: stepwise PSO over many frames in one numba call.
+
+The Task path (:mod:`hybridfit.optimizer`) calls Python for every generation of every
+stage. When the optimiser is PSO (jointly or stage by stage), the model is a
+:class:`~hybridfit.model.kinematics.KinematicTree` and the objective offers a compiled kernel
+(``compiled_kernel()``, see :data:`KERNEL_SIGNATURE`), :func:`fit_frames` runs the whole
+fit of a batch of frames in :func:`fit_batch` instead, with the same semantics:
+
+- the stages of a frame come as a list of :class:`StagePlan` (name, parameters, points it
+  minimises over, points it owns, budget); stage budgets add up to the frame's budget and
+  every stage spends its budget exactly;
+- each stage starts from the parameters left by the stages before (the first from the
+  problem's initial guess), tries that start first, and commits its best evaluated
+  hypothesis; the frame's loss is the sum of the stages' best losses over the points they
+  own; a stage owning every point (a final refinement) replaces them only if it is better;
+- frame i draws every random number from ``numpy.random.default_rng([seed, i])`` in the
+  order the Task path's PSO draws them (drawn before the compiled call, so a frame's result
+  does not depend on the frames batched with it).
+
+Forward kinematics here works in camera coordinates and, per stage, computes only the
+joints that the stage's parameters move and its points need; the others are fixed for the
+whole stage and computed once.
+"""
+
+from __future__ import annotations
+
+import functools
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+from numba import types as T
+
+from ..errors import HybridfitError
+from ..model.rotations import quaternion_matrix
+from ..model.kinematics import sincos
+from ..objective import normalise_confidences
+from ..optimizer import StagePlan, Task
+from .problem import Problem
+
+#: an objective's compiled kernel: (points (N, Q, 3) mm, subset (m,) point indices,
+#: proposals (Q, K, 3) mm, weights (Q, K), constants (c,), out (N,)) -> None; writes into
+#: ``out`` the loss of each row over the points in ``subset``.
+KERNEL_SIGNATURE = T.void(T.float64[:, :, ::1], T.int64[::1], T.float64[:, :, ::1], T.float64[:, ::1],
+                          T.float64[::1], T.float64[::1])
+
+#: columns of the integer stage table
+BUDGET, SWARM, NEAR, PARAMS, POINTS, OWNED = 0, 1, 2, 3, 5, 7
+#: the tree's first parameters: position x, y, z (mm) and the quaternion w, x, y, z
+GLOBAL_PARAMS = 7
+
+
+# ---------------------------------------------------------------- PSO update (shared with the `pso` plugin)
+
+
+@nb.njit(cache=True, fastmath=True)
+def pso_step(x, v, pbest_x, gbest_x, r1, r2, chi, c1, c2, vmax, lower, upper, m):
+    """Constricted velocity and position update of the first m particles, in place."""
+    d = x.shape[1]
+    for i in range(m):
+        for k in range(d):
+            vk = chi * (v[i, k] + c1 * r1[i, k] * (pbest_x[i, k] - x[i, k]) + c2 * r2[i, k] * (gbest_x[k] - x[i, k]))
+            vk = min(max(vk, -vmax[k]), vmax[k])
+            xk = x[i, k] + vk
+            xc = min(max(xk, lower[k]), upper[k])  # a particle that hits a bound stops there
+            x[i, k] = xc
+            v[i, k] = vk if xc == xk else 0.0
+
+
+@nb.njit(cache=True)
+def update_bests(x, f, pbest_x, pbest_f, m):
+    """Personal bests of the first m particles; returns the index of the swarm's best."""
+    for i in range(m):
+        if f[i] < pbest_f[i]:
+            pbest_f[i] = f[i]
+            for k in range(x.shape[1]):
+                pbest_x[i, k] = x[i, k]
+    return np.argmin(pbest_f)
+
+
+def constriction(c1: float, c2: float) -> float:
+    """Clerc-Kennedy constriction factor for psi = c1 + c2 (1.0 when psi <= 4)."""
+    psi = c1 + c2
+    return 1.0 if psi <= 4 else 2.0 / abs(2.0 - psi - np.sqrt(psi * psi - 4.0 * psi))
+
+
+# ---------------------------------------------------------------- stage kinematics
+
+
+@nb.njit(cache=True)
+def _stage_joints(parents, axis_params, pm_ptr, pm_joint, indices, pts_lo, pts_hi, own_lo, own_hi,
+                  par_lo, par_hi, n_params, order):
+    """Writes into ``order`` the joints to recompute per hypothesis, parents first: the joints
+    the stage's points and owned points need (with ancestors) that its parameters move.
+    Returns (count, oriented (J,) bool: the needed joints whose rotation a needed child uses)."""
+    J = parents.shape[0]
+    needed = np.zeros(J, dtype=np.bool_)
+    for lo, hi in ((pts_lo, pts_hi), (own_lo, own_hi)):
+        for t in range(lo, hi):
+            q = indices[t]
+            for e in range(pm_ptr[q], pm_ptr[q + 1]):
+                j = pm_joint[e]
+                while j >= 0 and not needed[j]:
+                    needed[j] = True
+                    j = parents[j]
+    moved = np.zeros(n_params, dtype=np.bool_)
+    is_global = False
+    for t in range(par_lo, par_hi):
+        moved[indices[t]] = True
+        if indices[t] < GLOBAL_PARAMS:
+            is_global = True
+    oriented = np.zeros(J, dtype=np.bool_)
+    for j in range(J):
+        if needed[j] and parents[j] >= 0:
+            oriented[parents[j]] = True
+    count = 0
+    variable = np.zeros(J, dtype=np.bool_)
+    for j in range(J):
+        v = is_global or (parents[j] >= 0 and variable[parents[j]])
+        for a in range(axis_params.shape[1]):
+            if axis_params[j, a] >= 0 and moved[axis_params[j, a]]:
+                v = True
+        variable[j] = v
+        if v and needed[j]:
+            order[count] = j
+            count += 1
+    return count, oriented
+
+
+@nb.njit(cache=True, fastmath=True, inline="always")
+def _joint_frames(p, sin_p, cos_p, joints, count, oriented, parents, offsets, rest, rest_identity, axes, axis_params,
+                  mirror, W, Wp, G):
+    """Camera-frame rotation W (J, 3, 3) (mirror included) and position Wp (J, 3) mm of the
+    listed joints for parameters p (P,) with sines and cosines sin_p, cos_p (P,), the
+    rotation only where ``oriented``; the other joints' entries are read as fixed. G (3, 3) is
+    scratch space."""
+    if count and parents[joints[0]] < 0:  # the root moves: the global pose is needed
+        quaternion_matrix(p[3], p[4], p[5], p[6], G)
+        for r in range(3):
+            G[r, 0] *= mirror
+    for c in range(count):
+        j = joints[c]
+        par = parents[j]
+        if par < 0:
+            for r in range(3):
+                Wp[j, r] = G[r, 0] * offsets[j, 0] + G[r, 1] * offsets[j, 1] + G[r, 2] * offsets[j, 2] + p[r]
+            if not oriented[j]:
+                continue
+            for r in range(3):
+                for k in range(3):
+                    W[j, r, k] = G[r, 0] * rest[j, 0, k] + G[r, 1] * rest[j, 1, k] + G[r, 2] * rest[j, 2, k]
+        else:
+            for r in range(3):
+                Wp[j, r] = Wp[par, r] + W[par, r, 0] * offsets[j, 0] + W[par, r, 1] * offsets[j, 1] + W[par, r, 2] * offsets[j, 2]
+            if not oriented[j]:
+                continue
+            if rest_identity[j]:
+                for r in range(3):
+                    for k in range(3):
+                        W[j, r, k] = W[par, r, k]
+            else:
+                for r in range(3):
+                    for k in range(3):
+                        W[j, r, k] = W[par, r, 0] * rest[j, 0, k] + W[par, r, 1] * rest[j, 1, k] + W[par, r, 2] * rest[j, 2, k]
+        for a in range(axes.shape[1]):
+            ax = axes[j, a]
+            if ax < 0:
+                break
+            co = cos_p[axis_params[j, a]]
+            si = sin_p[axis_params[j, a]]
+            if ax == 0:
+                i0, i1 = 1, 2
+            elif ax == 1:
+                i0, i1 = 2, 0
+            else:
+                i0, i1 = 0, 1
+            for r in range(3):
+                a0 = W[j, r, i0]
+                a1 = W[j, r, i1]
+                W[j, r, i0] = co * a0 + si * a1
+                W[j, r, i1] = co * a1 - si * a0
+
+
+@nb.njit(cache=True, fastmath=True, inline="always")
+def _points(Wp, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
+    """Points indices[lo:hi] from joint positions: out[q] = sum_j point_map[q, j] Wp[j]."""
+    for t in range(lo, hi):
+        q = indices[t]
+        x = 0.0
+        y = 0.0
+        z = 0.0
+        for e in range(pm_ptr[q], pm_ptr[q + 1]):
+            j = pm_joint[e]
+            w = pm_weight[e]
+            x += w * Wp[j, 0]
+            y += w * Wp[j, 1]
+            z += w * Wp[j, 2]
+        out[q, 0] = x
+        out[q, 1] = y
+        out[q, 2] = z
+
+
+# ---------------------------------------------------------------- one frame
+
+
+@nb.njit(cache=True)
+def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params, mirror,
+               pm_ptr, pm_joint, pm_weight, proposals, weights, consts, x0, lower, upper,
+               stages, indices, pso, random, out_params):
+    """Stepwise PSO of one frame (see the module doc); returns (loss, evaluations)."""
+    P = x0.shape[0]
+    J = parents.shape[0]
+    Q = proposals.shape[0]
+    base = x0.copy()
+    p = x0.copy()
+    W = np.zeros((J, 3, 3))
+    Wp = np.zeros((J, 3))
+    G = np.empty((3, 3))
+    order = np.empty(J, dtype=np.int64)
+    all_joints = np.arange(J)
+    all_oriented = np.ones(J, dtype=np.bool_)
+    sin_p = np.empty(P)
+    cos_p = np.empty(P)
+    frame_loss = np.inf
+    committed = 0.0
+    used = 0
+    rpos = 0
+    for s in range(stages.shape[0]):
+        budget, n, near = stages[s, BUDGET], stages[s, SWARM], stages[s, NEAR]
+        par_lo, par_hi = stages[s, PARAMS], stages[s, PARAMS + 1]
+        pts_lo, pts_hi = stages[s, POINTS], stages[s, POINTS + 1]
+        own_lo, own_hi = stages[s, OWNED], stages[s, OWNED + 1]
+        c1, c2, chi, sigma, vfrac = pso[s, 0], pso[s, 1], pso[s, 2], pso[s, 3], pso[s, 4]
+        d = par_hi - par_lo
+        pidx = indices[par_lo:par_hi]
+        subset = indices[pts_lo:pts_hi].copy()
+        owned = indices[own_lo:own_hi].copy()
+        guided = own_hi - own_lo != pts_hi - pts_lo
+        if not guided:
+            for t in range(own_hi - own_lo):
+                if owned[t] != subset[t]:
+                    guided = True
+        # fixed joints at the stage's start, then the joints each hypothesis recomputes
+        sincos(base, sin_p, cos_p)
+        _joint_frames(base, sin_p, cos_p, all_joints, J, all_oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror, W, Wp, G)
+        count, oriented = _stage_joints(parents, axis_params, pm_ptr, pm_joint, indices, pts_lo, pts_hi, own_lo, own_hi,
+                                 par_lo, par_hi, P, order)
+        lo = np.empty(d)
+        hi = np.empty(d)
+        span = np.empty(d)
+        sx0 = np.empty(d)
+        for k in range(d):
+            lo[k] = lower[pidx[k]]
+            hi[k] = upper[pidx[k]]
+            span[k] = hi[k] - lo[k]
+            sx0[k] = min(max(base[pidx[k]], lo[k]), hi[k])
+        vmax = vfrac * span
+        # the initial swarm, as the Task path's PSO draws it
+        x = np.empty((n, d))
+        for i in range(n):
+            for k in range(d):
+                x[i, k] = lo[k] + span[k] * random[rpos]
+                rpos += 1
+        if near:
+            for i in range(near):
+                for k in range(d):
+                    x[i, k] = sx0[k] + (sigma * random[rpos]) * span[k]
+                    rpos += 1
+            for k in range(d):
+                x[0, k] = sx0[k]
+        for i in range(n):
+            for k in range(d):
+                x[i, k] = min(max(x[i, k], lo[k]), hi[k])
+        v = np.zeros((n, d))
+        f = np.empty(n)
+        sin_x = np.empty((n, d))
+        cos_x = np.empty((n, d))
+        pts = np.zeros((n, Q, 3))
+        best_loss = np.inf
+        best_owned = np.inf
+        best_x = sx0.copy()
+        one = np.empty(1)
+        left = budget
+        m = n
+        pbest_x = np.empty((n, d))
+        pbest_f = np.empty(n)
+        g = 0
+        first = True
+        while left > 0:
+            if not first:
+                m = min(n, left)
+                r1 = random[rpos:rpos + m * d].reshape((m, d))
+                r2 = random[rpos + m * d:rpos + 2 * m * d].reshape((m, d))
+                rpos += 2 * m * d
+                pso_step(x, v, pbest_x, pbest_x[g].copy(), r1, r2, chi, c1, c2, vmax, lo, hi, m)
+            # score the first m hypotheses
+            sincos(x[:m], sin_x[:m], cos_x[:m])
+            for i in range(m):
+                for k in range(d):
+                    p[pidx[k]] = x[i, k]
+                    sin_p[pidx[k]] = sin_x[i, k]
+                    cos_p[pidx[k]] = cos_x[i, k]
+                _joint_frames(p, sin_p, cos_p, order, count, oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror, W, Wp, G)
+                _points(Wp, pm_ptr, pm_joint, pm_weight, indices, pts_lo, pts_hi, pts[i])
+            kernel(pts[:m], subset, proposals, weights, consts, f[:m])
+            used += m
+            left -= m
+            i = np.argmin(f[:m])
+            if f[i] < best_loss:
+                best_loss = f[i]
+                best_x[:] = x[i]
+                best_owned = best_loss
+                if guided:
+                    for k in range(d):
+                        p[pidx[k]] = x[i, k]
+                        sin_p[pidx[k]] = sin_x[i, k]
+                        cos_p[pidx[k]] = cos_x[i, k]
+                    _joint_frames(p, sin_p, cos_p, order, count, oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror, W, Wp, G)
+                    _points(Wp, pm_ptr, pm_joint, pm_weight, indices, own_lo, own_hi, pts[0])
+                    kernel(pts[:1], owned, proposals, weights, consts, one)
+                    best_owned = one[0]
+            if first:
+                pbest_x[:] = x
+                pbest_f[:] = f
+                g = np.argmin(pbest_f)
+                first = False
+            else:
+                g = update_bests(x, f, pbest_x, pbest_f, m)
+        # commit the stage's best
+        if own_hi - own_lo == Q:
+            if best_owned >= frame_loss:
+                for k in range(P):
+                    p[k] = base[k]
+                continue
+            committed = 0.0
+        for k in range(d):
+            base[pidx[k]] = best_x[k]
+        for k in range(P):
+            p[k] = base[k]
+        committed += best_owned
+        frame_loss = committed
+    out_params[:] = base
+    return frame_loss, used
+
+
+_SIGNATURE = T.void(
+    T.FunctionType(KERNEL_SIGNATURE),
+    T.int64[::1], T.float64[:, ::1], T.float64[:, :, ::1], T.boolean[::1], T.int64[:, ::1], T.int64[:, ::1], T.float64,
+    T.int64[::1], T.int64[::1], T.float64[::1],
+    T.float64[:, :, :, ::1], T.float64[:, :, ::1], T.float64[::1],
+    T.float64[:, ::1], T.float64[:, ::1], T.float64[:, ::1],
+    T.int64[::1], T.int64[:, ::1], T.int64[::1], T.float64[:, ::1],
+    T.float64[::1], T.int64[::1],
+    T.float64[:, ::1], T.float64[::1], T.int64[::1],
+)
+
+
+def _fit_batch(kernel, parents, offsets, rest, rest_identity, axes, axis_params, mirror,
+              pm_ptr, pm_joint, pm_weight, proposals, weights, consts, x0, lower, upper,
+              frame_stages, stages, indices, pso, random, frame_random, out_params, out_loss, out_evaluations):
+    """Stepwise PSO of F frames (releases the GIL: threads may fit other frames meanwhile).
+
+    proposals (F, Q, K, 3) mm, weights (F, Q, K); x0, lower, upper, out_params (F, P);
+    frame f's stages are rows ``frame_stages[f]:frame_stages[f + 1]`` of ``stages`` (S, 9)
+    (columns BUDGET, SWARM, NEAR and [lo, hi) ranges of ``indices`` for its PARAMS, POINTS
+    and OWNED) with the PSO coefficients in the same rows of ``pso`` (S, 5) (c1, c2, chi,
+    init_sigma, max_velocity), its random numbers ``random[frame_random[f]:frame_random[f + 1]]``;
+    the point map (Q, J) in CSR form
+    (pm_ptr, pm_joint, pm_weight)."""
+    for f in range(x0.shape[0]):
+        loss, used = _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params, mirror,
+                                pm_ptr, pm_joint, pm_weight, proposals[f], weights[f], consts, x0[f], lower[f],
+                                upper[f], stages[frame_stages[f]:frame_stages[f + 1]], indices,
+                                pso[frame_stages[f]:frame_stages[f + 1]],
+                                random[frame_random[f]:frame_random[f + 1]], out_params[f])
+        out_loss[f] = loss
+        out_evaluations[f] = used
+
+
+@functools.cache
+def fit_batch():
+    """:func:`_fit_batch` compiled for :data:`KERNEL_SIGNATURE` objectives (compiled, or read
+    from numba's cache, on first use rather than on import)."""
+    return nb.njit(_SIGNATURE, cache=True, nogil=True)(_fit_batch)
+
+
+# ---------------------------------------------------------------- Python side
+
+
+def _compiled(optimizer):
+    """The optimiser as a PSO of the compiled path, or None."""
+    own = getattr(optimizer, "compiled_pso", None)
+    return None if own is None else own()
+
+
+def runs_compiled(optimizer) -> bool:
+    """Whether the compiled path can run this optimiser: one that offers ``compiled_pso()``
+    (the ``pso`` plugin: one stage of all parameters), or that runs such PSOs stage by stage
+    (``plan(task)`` with ``inner`` and ``refiner`` PSOs: the ``stepwise`` plugins)."""
+    if _compiled(optimizer) is not None:
+        return True
+    return (hasattr(optimizer, "plan") and _compiled(getattr(optimizer, "inner", None)) is not None
+            and _compiled(getattr(optimizer, "refiner", None)) is not None)
+
+
+def supports(model, objective, optimizer) -> bool:
+    """Whether :func:`fit_frames` can fit with these plugins."""
+    return (hasattr(model, "kinematic_tree") and hasattr(objective, "compiled_kernel")
+            and not getattr(objective, "observes_depth", False) and getattr(objective, "additive", True)
+            and runs_compiled(optimizer))
+
+
+def plan(optimizer, task) -> list[tuple[StagePlan, object]]:
+    """The stages the optimiser runs on a frame's task (budgets add up to the task's), each
+    with the PSO that runs it (each stage of a stepwise plan names its optimiser)."""
+    own = _compiled(optimizer)
+    if own is not None:
+        return [(StagePlan("all", task.parameters, task.points, task.points, task.budget), own)]
+    return [(StagePlan(s.name, np.asarray(s.parameters, dtype=np.int64), np.asarray(s.points, dtype=np.int64),
+                       np.asarray(s.owned, dtype=np.int64), int(s.budget)), _compiled(s.optimizer))
+            for s in optimizer.plan(task)]
+
+
+def _require(a, dtype) -> np.ndarray:
+    return np.require(a, dtype=dtype, requirements=["C", "W"])
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A schedule as :func:`fit_batch` reads it: ``stages`` (S, 9) rows (budget, swarm size,
+    particles started near the guess, and [lo, hi) ranges of ``indices`` for the parameters,
+    points and owned points), the PSO ``coefficients`` (S, 5) of each stage and ``draws``, the random numbers each stage takes in the Task
+    path's order: (count, normal?) pairs."""
+
+    stages: np.ndarray
+    coefficients: np.ndarray
+    indices: np.ndarray
+    draws: tuple[tuple[int, bool], ...]
+
+    @property
+    def random_count(self) -> int:
+        return sum(n for n, _ in self.draws)
+
+
+def layout(stages: list[tuple[StagePlan, object]]) -> Layout:
+    """Lay out a frame's stages, each with its PSO (as :func:`plan` gives them)."""
+    rows, parts, draws, at = [], [], [], 0
+    for st, pso in stages:
+        n, near = pso.swarm(st.budget)
+        d = len(st.parameters)
+        row = [st.budget, n, near]
+        for idx in (st.parameters, st.points, st.owned):
+            parts.append(np.asarray(idx, dtype=np.int64))
+            row += [at, at + len(idx)]
+            at += len(idx)
+        rows.append(row)
+        draws += [(n * d, False), (near * d, True), (2 * d * (st.budget - n), False)]
+    return Layout(np.array(rows, dtype=np.int64).reshape(-1, 9),
+                  np.array([pso.coefficients() for _, pso in stages], dtype=np.float64).reshape(-1, 5),
+                  np.concatenate(parts), tuple(draws))
+
+
+def draw(rng: np.random.Generator, plan: Layout, out: np.ndarray) -> None:
+    """Fill out (plan.random_count,) with the frame's random numbers: uniform [0, 1) and
+    standard normal, in the order the Task path's PSO draws them from the same stream."""
+    at = 0
+    for n, normal in plan.draws:
+        if n:
+            (rng.standard_normal if normal else rng.random)(out=out[at:at + n])
+            at += n
+
+
+@dataclass
+class Chunk:
+    """Frames prepared for :meth:`CompiledFitter.run`: their indices, the errors of those that
+    cannot be fitted, and for the others (positions ``kept`` in ``frames``) problems, layouts,
+    proposals and random numbers."""
+
+    frames: list
+    errors: list
+    problems: list
+    layouts: list
+    kept: list
+    proposals: np.ndarray | None = None
+    random: np.ndarray | None = None
+    random_at: np.ndarray | None = None
+
+
+class CompiledFitter:
+    """Fits batches of frames of one model, objective and PSO schedule with :func:`fit_batch`.
+
+    model, objective, optimizer: plugins for which :func:`supports` holds; point_names: the
+    proposals' Q points; budget: evaluations per frame; seed: frame i draws from
+    ``default_rng([seed, i])``."""
+
+    def __init__(self, model, objective, optimizer, point_names, budget: int, seed: int,
+                 search_radius_mm: float = 60.0) -> None:
+        self.model, self.objective, self.optimizer = model, objective, optimizer
+        self.names = tuple(point_names)
+        self.budget, self.seed, self.search_radius_mm = int(budget), int(seed), float(search_radius_mm)
+        tree = model.kinematic_tree()
+        self.tree = (_require(tree.parents, np.int64), _require(tree.offsets, np.float64),
+                     _require(tree.rest, np.float64), _require(tree.rest_is_identity, np.bool_),
+                     _require(tree.axes, np.int64), _require(tree.axis_params, np.int64), float(tree.mirror))
+        self.point_matrix = None if self.names == tuple(model.joint_names) else model.point_matrix(self.names)
+        M = np.eye(model.n_joints) if self.point_matrix is None else self.point_matrix
+        rows, cols = np.nonzero(M)
+        self.point_map = (_require(np.searchsorted(rows, np.arange(len(self.names) + 1)), np.int64),
+                          _require(cols, np.int64), _require(M[rows, cols], np.float64))
+        self.kernel, consts = objective.compiled_kernel()
+        self.consts = _require(consts, np.float64)
+        self._layouts: dict[bytes, Layout] = {}
+
+    def layout(self, problem) -> Layout:
+        """The frame's laid-out stages. A schedule adapts to a frame only through which of its
+        points have proposals (``tests/test_compiled.py`` checks this against fresh plans), so
+        it is computed once per set of observed points."""
+        key = (problem.weights.sum(axis=-1) > 0).tobytes()
+        found = self._layouts.get(key)
+        if found is None:
+            found = self._layouts[key] = layout(plan(self.optimizer, Task(problem, self.budget)))
+        return found
+
+    def prepare(self, frames, proposals: np.ndarray, confidences: np.ndarray) -> "Chunk":
+        """The Python half of fitting frames (their indices: the random streams and messages)
+        with proposals (F, Q, K, 3) mm and confidences (F, Q, K): problems, stages, random
+        numbers; frames whose input cannot be fitted get their message."""
+        chunk = Chunk(list(frames), [], [], [], [])
+        for i, f in enumerate(chunk.frames):
+            try:
+                problem = Problem(self.model, self.objective, proposals[i], confidences[i], self.names,
+                                  self.search_radius_mm)
+                chunk.layouts.append(self.layout(problem))
+            except HybridfitError as err:
+                chunk.errors.append((f, None, str(err)))
+                continue
+            chunk.problems.append(problem)
+            chunk.kept.append(i)
+        chunk.proposals = proposals[chunk.kept]
+        chunk.random_at = np.cumsum([0] + [lay.random_count for lay in chunk.layouts]).astype(np.int64)
+        chunk.random = np.empty(chunk.random_at[-1])
+        for n, (i, lay) in enumerate(zip(chunk.kept, chunk.layouts)):
+            draw(np.random.default_rng([self.seed, chunk.frames[i]]), lay,
+                 chunk.random[chunk.random_at[n]:chunk.random_at[n + 1]])
+        return chunk
+
+    def run(self, chunk: "Chunk", threads: int = 1):
+        """The compiled half: (params (F, P), loss (F,), evaluations (F,)) of the chunk's
+        fittable frames, split over ``threads`` threads (the compiled call releases the GIL)."""
+        parts = np.array_split(np.arange(len(chunk.kept)), max(1, min(threads, len(chunk.kept))))
+        if len(parts) == 1:
+            return self._run_part(chunk, parts[0])
+        with ThreadPoolExecutor(max_workers=len(parts)) as pool:
+            fitted = list(pool.map(lambda part: self._run_part(chunk, part), parts))
+        return tuple(np.concatenate(a) for a in zip(*fitted))
+
+    def _run_part(self, chunk: "Chunk", part: np.ndarray):
+        """:meth:`run` on the chunk's fittable frames ``part`` (consecutive positions)."""
+        if not len(part):
+            return np.empty((0, self.model.n_params)), np.empty(0), np.empty(0, dtype=np.int64)
+        p = [chunk.problems[i] for i in part]
+        at = chunk.random_at[part[0]:part[-1] + 2]
+        return self.fit(chunk.proposals[part], np.stack([q.weights for q in p]), np.stack([q.x0 for q in p]),
+                        np.stack([q.lower for q in p]), np.stack([q.upper for q in p]),
+                        [chunk.layouts[i] for i in part], chunk.random[at[0]:at[-1]], at - at[0])
+
+    def finish(self, chunk: "Chunk", fitted) -> list:
+        """A list of (frame, (params (P,), points (Q, 3), joints (J, 3), loss, evaluations),
+        None), or (frame, None, message) for a frame whose input cannot be fitted, in the
+        chunk's frame order."""
+        params, loss, used = fitted
+        out = list(chunk.errors)
+        if chunk.kept:
+            joints = self.model.forward(params)
+            points = joints if self.point_matrix is None else np.einsum("qj,njc->nqc", self.point_matrix, joints)
+            out += [(chunk.frames[i], (params[n], points[n], joints[n], float(loss[n]), int(used[n])), None)
+                    for n, i in enumerate(chunk.kept)]
+        order = {f: n for n, f in enumerate(chunk.frames)}
+        return sorted(out, key=lambda item: order[item[0]])
+
+    def fit_chunk(self, frames, proposals: np.ndarray, confidences: np.ndarray, threads: int = 1) -> list:
+        """Fit frames with proposals (F, Q, K, 3) mm and confidences (F, Q, K) on ``threads``
+        threads (see :meth:`finish` for what it returns)."""
+        chunk = self.prepare(frames, proposals, confidences)
+        return self.finish(chunk, self.run(chunk, threads))
+
+    def fit_chunks(self, chunks, proposals: np.ndarray, confidences: np.ndarray, jobs: int = 1):
+        """Yield :meth:`fit_chunk`'s result for each chunk of frame indices, in order. With
+        ``jobs`` > 1 the next chunk is prepared while the compiled half of the current one runs
+        on ``jobs - 1`` threads; an interrupt while preparing still yields the chunk that was
+        running."""
+        if jobs <= 1:
+            for c in chunks:
+                yield self.fit_chunk(c, proposals[c], confidences[c])
+            return
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            running = None
+            for c in chunks:
+                try:
+                    chunk = self.prepare(c, proposals[c], confidences[c])
+                except BaseException:
+                    if running is not None:
+                        yield self.finish(running[0], running[1].result())
+                    raise
+                if running is not None:
+                    yield self.finish(running[0], running[1].result())
+                running = (chunk, pool.submit(self.run, chunk, jobs - 1))
+            if running is not None:
+                yield self.finish(running[0], running[1].result())
+
+    def fit(self, proposals, weights, x0, lower, upper, layouts: list[Layout], random, random_at):
+        """proposals (F, Q, K, 3) mm, weights (F, Q, K) normalised, x0, lower, upper (F, P), a
+        layout per frame, frame f's random numbers ``random[random_at[f]:random_at[f + 1]]``
+        -> params (F, P), loss (F,), evaluations (F,)."""
+        F = len(layouts)
+        frame_stages = np.cumsum([0] + [len(lay.stages) for lay in layouts]).astype(np.int64)
+        unique = {id(lay): lay for lay in layouts}  # frames share layouts: their indices once each
+        offset, at = {}, 0
+        for key, lay in unique.items():
+            offset[key] = at
+            at += len(lay.indices)
+        indices = np.concatenate([lay.indices for lay in unique.values()])
+        stages = np.concatenate([lay.stages for lay in layouts])
+        stages[:, PARAMS:] += np.repeat([offset[id(lay)] for lay in layouts], [len(lay.stages) for lay in layouts])[:, None]
+        params = np.empty((F, x0.shape[1]))
+        loss = np.empty(F)
+        evaluations = np.empty(F, dtype=np.int64)
+        fit_batch()(self.kernel, *self.tree, *self.point_map, _require(proposals, np.float64),
+                    _require(weights, np.float64), self.consts, _require(x0, np.float64), _require(lower, np.float64),
+                    _require(upper, np.float64), frame_stages, _require(stages, np.int64), _require(indices, np.int64),
+                    np.concatenate([lay.coefficients for lay in layouts]), _require(random, np.float64),
+                    _require(random_at, np.int64), params, loss, evaluations)
+        return params, loss, evaluations

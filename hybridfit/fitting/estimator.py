@@ -1,0 +1,114 @@
+"""``HybridEstimator``: depth frame -> forest joint proposals -> fitted hand pose.
+
+The whole method of Poier et al. (BMVC 2015): a random regression forest gives k proposals
+per joint with confidences (``hybridfit.forest``) and ``hybridfit.fit`` fits the hand model
+to them. Frames without foreground pixels cannot be fitted: they come back failed, with the
+error "no foreground pixels", and the other frames go on (each with the random stream of its
+own index, ``[seed, index]``, whichever frames are empty).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ..datasets.camera import Intrinsics
+from .frames import FitResult, fit
+from ..forest import Forest, Proposals, dataset_masks
+
+EMPTY_FRAME = "no foreground pixels"
+
+
+@dataclass
+class Estimate:
+    """The proposals of every frame and the fit (frames without foreground: failed)."""
+
+    proposals: Proposals
+    fit: FitResult
+
+
+class HybridEstimator:
+    """Forest proposals + model fitting. Parameters are stored unchanged (scikit-learn style).
+
+    forest: a ``Forest`` or the path of a forest file (loaded on first use); k: proposals per
+    joint (paper: 3); proposal_set: |P~|, the most confident votes per joint that go into
+    mean-shift (paper: 200); stride: pixel grid step of the dense sampling; bandwidth_mm:
+    test-time mean-shift bandwidth. model / objective / optimizer (registered names or
+    instances) with their ``*_config`` settings, budget, seed, search_radius_mm and jobs are
+    passed to ``hybridfit.fit``.
+    """
+
+    def __init__(self, forest: Forest | str | os.PathLike, *, k: int = 3, proposal_set: int = 200, stride: int = 2,
+                 bandwidth_mm: float = 10.0, model: Any = "hand26", model_config: Mapping[str, Any] | None = None,
+                 objective: Any = "clamped-confidence", objective_config: Mapping[str, Any] | None = None,
+                 optimizer: Any = "stepwise-pso", optimizer_config: Mapping[str, Any] | None = None,
+                 budget: int = 3400, seed: int = 0, search_radius_mm: float = 60.0, jobs: int = 1):
+        self.forest = forest
+        self.k, self.proposal_set, self.stride, self.bandwidth_mm = k, proposal_set, stride, bandwidth_mm
+        self.model, self.model_config = model, model_config
+        self.objective, self.objective_config = objective, objective_config
+        self.optimizer, self.optimizer_config = optimizer, optimizer_config
+        self.budget, self.seed, self.search_radius_mm, self.jobs = budget, seed, search_radius_mm, jobs
+
+    def get_forest(self) -> Forest:
+        """The Forest (read from its file once)."""
+        if not isinstance(self.forest, Forest):
+            if getattr(self, "_loaded", None) is None or self._loaded[0] != self.forest:
+                self._loaded = (self.forest, Forest.load(self.forest))
+            return self._loaded[1]
+        return self.forest
+
+    def propose(self, depths: np.ndarray, intrinsics: Intrinsics, masks: np.ndarray | None = None,
+                progress: bool = False) -> Proposals:
+        """Proposals (F, J, k, 3) mm / confidences (F, J, k) for depth frames (F, H, W) uint16 mm."""
+        return self.get_forest().propose(depths, intrinsics, masks, k=self.k, proposal_set=self.proposal_set,
+                                         stride=self.stride, bandwidth_mm=self.bandwidth_mm, progress=progress)
+
+    def fit_proposals(self, proposals: Proposals, progress: bool = False) -> FitResult:
+        """Fit every frame; empty frames (all confidences 0) come back failed (``EMPTY_FRAME``).
+
+        Every frame keeps its index in the input, so its random stream (``[seed, index]``)
+        does not depend on which other frames are empty."""
+        res = fit(proposals.proposals, proposals.confidences, model=self.model,
+                  objective=self.objective, optimizer=self.optimizer, budget=self.budget, seed=self.seed,
+                  joint_names=proposals.joint_names, model_config=self.model_config,
+                  objective_config=self.objective_config, optimizer_config=self.optimizer_config,
+                  search_radius_mm=self.search_radius_mm, jobs=self.jobs, progress=progress)
+        for f in np.flatnonzero(proposals.empty):
+            res.errors[int(f)] = EMPTY_FRAME
+        return res
+
+    def estimate(self, depths: np.ndarray, intrinsics: Intrinsics, masks: np.ndarray | None = None,
+                 progress: bool = False) -> Estimate:
+        """Depth frames (F, H, W) uint16 mm -> proposals and fitted poses."""
+        props = self.propose(depths, intrinsics, masks, progress)
+        return Estimate(props, self.fit_proposals(props, progress))
+
+    def propose_dataset(self, ds, indices: Sequence[int] | None = None, foreground: str = "auto",
+                        progress: bool = False, chunk: int = 256) -> Proposals:
+        """Proposals for frames of a Dataset (``hybridfit.datasets.folder`` interface), read ``chunk``
+        at a time; foreground as in ``hybridfit.forest.dataset_masks``."""
+        from tqdm.auto import tqdm
+
+        idx = np.arange(len(ds)) if indices is None else np.asarray(indices, np.int64)
+        parts = []
+        for s in tqdm(range(0, len(idx), chunk), disable=not progress or len(idx) <= chunk, unit="chunk", desc="frames"):
+            sel = idx[s:s + chunk]
+            depths = np.asarray(ds.depths(sel))
+            parts.append(self.propose(depths, ds.intrinsics, dataset_masks(ds, sel, depths, foreground), progress))
+        forest = self.get_forest()
+        if not parts:
+            return Proposals(np.zeros((0, forest.n_joints, self.k, 3)), np.zeros((0, forest.n_joints, self.k)),
+                             np.zeros(0, bool), forest.joint_names)
+        return Proposals(np.concatenate([p.proposals for p in parts]), np.concatenate([p.confidences for p in parts]),
+                         np.concatenate([p.empty for p in parts]), parts[0].joint_names)
+
+    def estimate_dataset(self, ds, indices: Sequence[int] | None = None, foreground: str = "auto",
+                         progress: bool = False) -> Estimate:
+        """Proposals and fitted poses for frames of a Dataset."""
+        props = self.propose_dataset(ds, indices, foreground, progress)
+        return Estimate(props, self.fit_proposals(props, progress))
+

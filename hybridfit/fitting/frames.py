@@ -1,0 +1,276 @@
+"""``hybridfit.fit``: fit a hand model to every frame's joint proposals.
+
+Frames are independent: frame i is optimised with the random stream
+``numpy.random.default_rng([seed, i])``, so results are identical for any number of
+``jobs``. A frame whose input cannot be fitted (a ``HybridfitError``: all confidences 0,
+say) is recorded (``failed``, ``errors``) and the others go on; options and errors that would
+fail every frame (a bad seed, a budget too small, an unknown point name) are raised before
+any work; a plugin's bug (``BudgetExceeded``, a wrong shape) raises ``PluginError`` naming
+the plugins. An interrupt (Ctrl-C) stops the run and keeps every finished frame.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import warnings
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from .. import registry
+from . import compiled
+from ..errors import HybridfitError, PluginError
+from ..io import validate_proposals
+from ..metrics import inliers
+from ..optimizer import Task
+from .problem import Problem
+
+
+#: frames per call of the compiled path (progress and Ctrl-C granularity; with jobs > 1
+#: one chunk is prepared while the one before is fitted)
+COMPILED_CHUNK = 64
+
+#: the inlier distance of objectives without a ``d_max_mm`` setting
+INLIER_DISTANCE_MM = 40.0
+
+
+@dataclass
+class FitResult:
+    """Per-frame fits. params (F, P); joints (F, Q, 3) mm in the input's point order
+    (``joint_names``); model_joints (F, J, 3) mm; objective (F,) the minimised loss;
+    evaluations (F,); failed (F,) bool with ``errors`` {frame: message}; inliers (F,) the
+    number of points within ``inlier_distance_mm`` of one of their proposals (the
+    objective's ``d_max_mm`` when it has one, else 40 mm; 0 for failed frames)."""
+
+    params: np.ndarray
+    joints: np.ndarray
+    model_joints: np.ndarray
+    objective: np.ndarray
+    evaluations: np.ndarray
+    joint_names: tuple[str, ...]
+    failed: np.ndarray
+    errors: dict[int, str] = field(default_factory=dict)
+    interrupted: bool = False
+    inliers: np.ndarray | None = None  # (F,) points within inlier_distance_mm of one of their proposals
+    inlier_distance_mm: float = INLIER_DISTANCE_MM
+
+    def to_npz(self) -> dict[str, np.ndarray]:
+        """The arrays written by ``hybridfit fit --out``."""
+        frames = sorted(self.errors)
+        return {
+            "params": self.params,
+            "joints": self.joints,
+            "model_joints": self.model_joints,
+            "objective": self.objective,
+            "evaluations": self.evaluations,
+            "joint_names": np.asarray(self.joint_names),
+            "failed": self.failed,
+            "error_frames": np.asarray(frames, dtype=np.int64),
+            "error_messages": np.asarray([self.errors[f] for f in frames], dtype=str),
+            **({} if self.inliers is None else {"inliers": self.inliers,
+                                                 "inlier_distance_mm": np.asarray(self.inlier_distance_mm)}),
+        }
+
+
+@dataclass(frozen=True)
+class _Spec:
+    """Everything a worker needs to fit frames (picklable)."""
+
+    model: Any
+    objective: Any
+    optimizer: Any
+    budget: int
+    seed: int
+    point_names: tuple[str, ...]
+    search_radius_mm: float
+
+
+def _fit_one(spec: _Spec, frame: int, proposals: np.ndarray, confidences: np.ndarray, observation=None):
+    problem = Problem(spec.model, spec.objective, proposals, confidences, spec.point_names, spec.search_radius_mm,
+                      observation)
+    result = spec.optimizer.run(problem, spec.budget, np.random.default_rng([spec.seed, frame]))
+    points = problem.points(result.params[None])[0]
+    loss = result.loss if getattr(spec.objective, "additive", True) else float(problem.evaluate(result.params[None])[0])
+    return result.params, points, spec.model.forward(result.params), loss, result.evaluations
+
+
+def _fit_chunk(spec: _Spec, frames: Sequence[int], proposals, confidences, observations=None):
+    out = []
+    for i, f in enumerate(frames):
+        try:
+            obs = None if observations is None else observations[i]
+            out.append((f, _fit_one(spec, f, proposals[i], confidences[i], obs), None))
+        except HybridfitError as err:  # a user error in this frame's input: recorded, the others go on
+            out.append((f, None, str(err)))
+        except Exception as err:  # a plugin's bug: propagates, naming the plugins
+            raise PluginError(f"frame {f}: {type(err).__name__} while fitting with model {_name(spec.model)}, "
+                              f"objective {_name(spec.objective)}, optimizer {_name(spec.optimizer)}: {err}") from err
+    return out
+
+
+def _name(plugin) -> str:
+    return getattr(plugin, "name", None) or type(plugin).__name__
+
+
+def _first_problem(model, objective, proposals, confidences, names, search_radius_mm,
+                   observations=None) -> Problem | None:
+    """The problem of the first frame that can be built (None if none can): frames that
+    cannot are recorded per frame later, they do not abort the run."""
+    for f in range(len(proposals)):
+        try:
+            return Problem(model, objective, proposals[f], confidences[f], names, search_radius_mm,
+                           None if observations is None else observations[f])
+        except HybridfitError:
+            continue
+    return None
+
+
+def check_fit_options(budget: int, seed: int, search_radius_mm: float, jobs: int) -> None:
+    """Raise a HybridfitError naming the first invalid option (before any work)."""
+    for name, value, ok in (("budget", budget, int(budget) == budget and budget >= 1),
+                            ("seed", seed, int(seed) == seed and seed >= 0),
+                            ("search_radius_mm", search_radius_mm, np.isfinite(search_radius_mm) and search_radius_mm > 0),
+                            ("jobs", jobs, int(jobs) == jobs and jobs >= 1)):
+        if not ok:
+            raise HybridfitError(f"{name} must be {'positive' if name != 'seed' else 'a non-negative integer'}, got {value!r}")
+
+
+def check_scale(model, proposals: np.ndarray, confidences: np.ndarray, names: Sequence[str]) -> None:
+    """Warn when the proposals' spread (median distance of the top proposals from their
+    centre, frames with proposals only) is more than 8x off the model's: proposals in
+    metres or centimetres, say, not millimetres."""
+    used = (confidences > 0).any(axis=(1, 2))
+    if not used.any():
+        return
+    top = np.take_along_axis(proposals[used], confidences[used].argmax(-1)[..., None, None], axis=2)[:, :, 0]
+    spread = np.median(np.linalg.norm(top - np.median(top, axis=1, keepdims=True), axis=-1))
+    joints = model.forward(model.default_params()[None])[0]
+    hand = np.median(np.linalg.norm(joints - np.median(joints, axis=0), axis=-1))
+    if not hand / 8 <= spread <= hand * 8:
+        warnings.warn(f"the proposals spread over {spread:.3g} (median distance from their centre), the model's "
+                      f"{len(names)} points over {hand:.3g} mm: are the proposals in millimetres?", stacklevel=3)
+
+
+def fit(
+    proposals: np.ndarray,
+    confidences: np.ndarray,
+    *,
+    model: Any = "hand26",
+    objective: Any = "clamped-confidence",
+    optimizer: Any = "stepwise-pso",
+    budget: int = 3400,
+    seed: int = 0,
+    joint_names: Sequence[str] | None = None,
+    model_config: Mapping[str, Any] | None = None,
+    objective_config: Mapping[str, Any] | None = None,
+    optimizer_config: Mapping[str, Any] | None = None,
+    search_radius_mm: float = 60.0,
+    jobs: int = 1,
+    progress: bool = False,
+    observations: Sequence[Any] | None = None,
+) -> FitResult:
+    """Fit the model to each frame's proposals.
+
+    proposals: (F, J, K, 3) mm; confidences: (F, J, K) >= 0 (normalised per joint here);
+    joint_names: the J proposal points as model joint or derived-point names (default: the
+    model's joints in order). Plugins are registered names (with ``*_config`` settings) or
+    plugin instances. budget: objective evaluations per frame, honoured exactly.
+    observations: per frame a ``hybridfit.objective.Observation`` (the depth), needed by
+    objectives that ``observes_depth`` (``rendered-depth``, ``hybrid``).
+    """
+    check_fit_options(budget, seed, search_radius_mm, jobs)
+    model = registry.create("model", model, model_config)
+    objective = registry.create("objective", objective, objective_config)
+    optimizer = registry.create("optimizer", optimizer, optimizer_config)
+    names = tuple(str(n) for n in joint_names) if joint_names is not None else tuple(model.joint_names)
+    proposals, confidences = validate_proposals(proposals, confidences, names)
+    if names != tuple(model.joint_names):
+        model.point_matrix(names)  # an unknown point name fails every frame: raised at once
+    F = len(proposals)
+    if getattr(objective, "observes_depth", False) and observations is None:
+        raise HybridfitError(f"objective {objective.name or type(objective).__name__} compares hypotheses with the "
+                             f"depth image: give the frames' depth (observations)")
+    if observations is not None and len(observations) != F:
+        raise HybridfitError(f"{len(observations)} observations for {F} frames of proposals")
+    spec = _Spec(model, objective, optimizer, int(budget), int(seed), names, float(search_radius_mm))
+    problem = _first_problem(model, objective, proposals, confidences, names, search_radius_mm, observations)
+    if problem is not None:  # a budget too small fails every frame: raised at once
+        optimizer.check_budget(Task(problem, budget))
+        check_scale(model, proposals, confidences, names)
+
+    P, Q, J = model.n_params, len(names), model.n_joints
+    result = FitResult(
+        params=np.full((F, P), np.nan),
+        joints=np.full((F, Q, 3), np.nan),
+        model_joints=np.full((F, J, 3), np.nan),
+        objective=np.full(F, np.nan),
+        evaluations=np.zeros(F, dtype=np.int64),
+        joint_names=names,
+        failed=np.ones(F, dtype=bool),
+    )
+    done = np.zeros(F, dtype=bool)
+
+    def store(items):
+        for f, values, error in items:
+            done[f] = True
+            if error is not None:
+                result.errors[f] = error
+                continue
+            (result.params[f], result.joints[f], result.model_joints[f], result.objective[f],
+             result.evaluations[f]) = values
+            result.failed[f] = False
+
+    # PSO and stepwise PSO on a kinematic tree with a compiled objective: many frames per
+    # numba call, jobs as threads sharing memory (hybridfit.fitting.compiled)
+    fitter = (compiled.CompiledFitter(model, objective, optimizer, names, budget, seed, search_radius_mm)
+              if observations is None and compiled.supports(model, objective, optimizer) else None)
+    bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
+    try:
+        if fitter is not None:
+            chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // COMPILED_CHUNK)))]
+            for items in fitter.fit_chunks(chunks, proposals, confidences, jobs):
+                store(items)
+                bar.update(len(items))
+        elif jobs <= 1 or F <= 1:
+            for f in range(F):
+                store(_fit_chunk(spec, [f], proposals[f : f + 1], confidences[f : f + 1],
+                                 None if observations is None else observations[f : f + 1]))
+                bar.update(1)
+        else:
+            chunks = np.array_split(np.arange(F), min(F, jobs * 8))
+            ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
+            with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+                futures = [pool.submit(_fit_chunk, spec, list(c), proposals[c], confidences[c],
+                                       None if observations is None else [observations[i] for i in c])
+                           for c in chunks if len(c)]
+                try:
+                    for fut in as_completed(futures):
+                        items = fut.result()
+                        store(items)
+                        bar.update(len(items))
+                except KeyboardInterrupt:
+                    for fut in futures:
+                        fut.cancel()
+                    raise
+    except KeyboardInterrupt:
+        result.interrupted = True
+        for f in np.flatnonzero(~done):
+            result.errors[int(f)] = "interrupted"
+    except PluginError as err:  # a bug: it propagates, carrying the frames finished before it
+        for f in np.flatnonzero(~done):
+            result.errors[int(f)] = "not fitted: a plugin error stopped the run"
+        err.result = _with_inliers(result, objective, proposals, confidences)
+        raise
+    finally:
+        bar.close()
+    return _with_inliers(result, objective, proposals, confidences)
+
+
+def _with_inliers(result: FitResult, objective, proposals, confidences) -> FitResult:
+    """The result with each frame's inlier count at the objective's d_max (or 40 mm)."""
+    result.inlier_distance_mm = float(objective.get_params().get("d_max_mm", INLIER_DISTANCE_MM))
+    result.inliers = inliers(result.joints, proposals, confidences, result.inlier_distance_mm)
+    return result

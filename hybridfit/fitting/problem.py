@@ -1,0 +1,317 @@
+"""One frame's fitting problem: a model, an objective bound to the frame's proposals, the
+mapping of proposal points onto model points, the search box and an initial guess."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numba as nb
+import numpy as np
+
+from ..errors import HybridfitError
+from ..model.rotations import matrix_to_quaternion
+from ..model.base import ORIENTATION, POSITION, HandModel
+from ..objective import Objective, Observation, normalise_confidences
+
+
+class Problem:
+    """Minimise ``loss(points(params))`` for one frame.
+
+    proposals: (Q, K, 3) mm for the Q points named by ``point_names`` (default: the
+    model's joints); confidences: (Q, K) non-negative. The search box is the model's
+    bounds, with the position limited to ``search_radius_mm`` around the initial guess.
+    observation: the frame's depth (needed by objectives that ``observes_depth``); x0: (P,)
+    an initial guess (tracking: the previous frame's fit) instead of the proposals' one.
+    """
+
+    def __init__(
+        self,
+        model: HandModel,
+        objective: Objective,
+        proposals: np.ndarray,
+        confidences: np.ndarray,
+        point_names: Sequence[str] | None = None,
+        search_radius_mm: float = 60.0,
+        observation: Observation | None = None,
+        x0: np.ndarray | None = None,
+    ) -> None:
+        self.model = model
+        self.objective = objective
+        self.proposals = np.ascontiguousarray(proposals, dtype=np.float64)
+        self.weights = np.ascontiguousarray(normalise_confidences(confidences))
+        self.point_names = tuple(point_names) if point_names is not None else tuple(model.joint_names)
+        if len(self.point_names) != self.proposals.shape[0]:
+            raise HybridfitError(
+                f"{len(self.point_names)} point names for {self.proposals.shape[0]} proposal points"
+            )
+        if self.point_names == tuple(model.joint_names):
+            self.point_matrix = None
+        else:
+            self.point_matrix = model.point_matrix(self.point_names)
+        self.observed = bool(getattr(objective, "observes_depth", False))
+        if self.observed:
+            if observation is None:
+                raise HybridfitError(f"objective {objective.name or type(objective).__name__} compares hypotheses "
+                                     f"with the depth image, and this frame has none")
+            self.loss = objective.bind_observed(self.proposals, self.weights, observation, model)
+        else:
+            self.loss = objective.bind(self.proposals, self.weights)
+        self.all_points = np.arange(len(self.point_names), dtype=np.int64)
+        self._needed: dict[bytes, np.ndarray | None] = {}
+        self.x0 = initial_guess(self) if x0 is None else model.clip(np.asarray(x0, dtype=float)[None])[0]
+        lower, upper = model.bounds()
+        lower, upper = lower.astype(float).copy(), upper.astype(float).copy()
+        lower[POSITION] = self.x0[POSITION] - search_radius_mm
+        upper[POSITION] = self.x0[POSITION] + search_radius_mm
+        lower[ORIENTATION] = np.maximum(lower[ORIENTATION], -1.0)
+        upper[ORIENTATION] = np.minimum(upper[ORIENTATION], 1.0)
+        self.lower, self.upper = lower, upper
+
+    def points(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
+        """(N, P) -> (N, Q, 3) model points matching the proposals' points, mm.
+
+        With a ``subset`` of point indices only those points are guaranteed (the model may
+        skip joints that no point of the subset depends on)."""
+        joints = self.model.forward(params, None if subset is None else self._joints_for(subset))
+        if self.point_matrix is None:
+            return joints
+        M = self.point_matrix if subset is None else self.point_matrix[subset]
+        pts = np.zeros((len(params), len(self.point_names), 3))
+        pts[:, self.all_points if subset is None else subset] = np.einsum(
+            "qj,njc->nqc", M, np.nan_to_num(joints, nan=0.0))
+        return pts
+
+    def _joints_for(self, subset: np.ndarray) -> np.ndarray | None:
+        """The joints the points in ``subset`` depend on (cached per subset)."""
+        key = np.asarray(subset, dtype=np.int64).tobytes()
+        if key not in self._needed:
+            if self.point_matrix is None:
+                self._needed[key] = np.asarray(subset, dtype=np.int64)
+            else:
+                self._needed[key] = np.flatnonzero(np.abs(self.point_matrix[subset]).sum(axis=0) > 0)
+        return self._needed[key]
+
+    def evaluate(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
+        """(N, P) -> (N,) loss over the points in ``subset`` (all by default)."""
+        subset = self.all_points if subset is None else subset
+        if self.observed:  # an image term needs the whole hand
+            joints = self.model.forward(params)
+            return self.loss(self._from_joints(joints), subset, joints)
+        return self.loss(self.points(params, subset), subset)
+
+    def _from_joints(self, joints: np.ndarray) -> np.ndarray:
+        """All model joints (N, J, 3) -> (N, Q, 3) points."""
+        if self.point_matrix is None:
+            return joints
+        return np.einsum("qj,njc->nqc", self.point_matrix, joints)
+
+    def stage_points(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """The model's stages as (name, parameter indices, point indices).
+
+        A point is scored in the latest stage that moves any joint it depends on, so the
+        stages' point sets partition the points.
+        """
+        return self._structure().stages
+
+    def _structure(self) -> "_Structure":
+        """What depends only on the model and the point names (shared by every frame)."""
+        key = (id(self.model), self.point_names)
+        found = _STRUCTURES.get(key)
+        if found is None or found.model is not self.model:
+            if len(_STRUCTURES) >= 32:
+                _STRUCTURES.clear()
+            found = _STRUCTURES[key] = _Structure(self.model, self.point_matrix)
+        return found
+
+
+class _Structure:
+    """A model's stages over a set of points, the points' depths in the kinematic tree and
+    their positions in the model's neutral pose (mm), computed once per model and points."""
+
+    def __init__(self, model: HandModel, point_matrix: np.ndarray | None) -> None:
+        self.model = model
+        owner = model.stage_of_joint()
+        M = np.eye(model.n_joints) if point_matrix is None else point_matrix
+        point_stage = np.array([owner[np.flatnonzero(row)].max() for row in M])
+        self.stages = [
+            (st.name, np.asarray(st.parameters, dtype=np.int64), np.flatnonzero(point_stage == s).astype(np.int64))
+            for s, st in enumerate(model.stages())
+        ]
+        self.depths = point_depths(model.parents, M)
+        self.neutral = np.einsum("qj,jc->qc", M, model.forward(model.default_params()))
+        self.guides: dict[tuple, np.ndarray] = {}
+
+
+_STRUCTURES: dict[tuple, _Structure] = {}
+
+
+#: a root stage with fewer observed points than this cannot determine the global rotation
+#: robustly (one wrong proposal of three moves it freely) ...
+MIN_ROOT_POINTS = 4
+#: ... nor one whose observed points are nearly collinear (``rotation_lever_mm`` below this, mm)
+MIN_ROOT_LEVER_MM = 10.0
+
+
+def rotation_lever_mm(points: np.ndarray) -> float:
+    """How well (Q, 3) points determine a rotation: the root-mean-square distance of the points
+    from the axis (through their centroid) about which they constrain a rotation least, mm.
+    0 for collinear points; a rotation error is about noise / (lever * sqrt(Q)) radians."""
+    if len(points) < 3:
+        return 0.0
+    c = points - points.mean(axis=0)
+    inertia = np.eye(3) * (c * c).sum() - c.T @ c
+    return float(np.sqrt(max(np.linalg.eigvalsh(inertia)[0], 0.0) / len(points)))
+
+
+def guide_points(problem: "Problem", root_points: np.ndarray, later: list[np.ndarray],
+                 min_points: int = MIN_ROOT_POINTS, min_lever_mm: float = MIN_ROOT_LEVER_MM) -> np.ndarray:
+    """The points that guide an ill-posed root stage: each later stage's observed points
+    nearest to the root in the kinematic tree (``later``: each stage's points); none when
+    the root's own observed points (fewer than ``min_points``, or nearly collinear) suffice."""
+    observed = problem.weights.sum(axis=-1) > 0
+    structure = problem._structure()
+    key = (observed.tobytes(), root_points.tobytes(), tuple(p.tobytes() for p in later), min_points, min_lever_mm)
+    if key not in structure.guides:
+        own = root_points[observed[root_points]]
+        if len(own) >= min_points and rotation_lever_mm(structure.neutral[own]) >= min_lever_mm:
+            structure.guides[key] = np.zeros(0, dtype=np.int64)
+        else:
+            depth = structure.depths
+            later = [p[observed[p]] for p in later]
+            structure.guides[key] = np.concatenate(
+                [p[depth[p] == depth[p].min()] for p in later if len(p)] + [np.zeros(0)]).astype(np.int64)
+    return structure.guides[key]
+
+
+def point_depths(parents: np.ndarray, point_matrix: np.ndarray) -> np.ndarray:
+    """(Q,) each point's depth in the kinematic tree (root joint 0): that of the deepest joint
+    it depends on. parents (J,), point_matrix (Q, J) as ``HandModel.point_matrix``."""
+    depth = np.zeros(len(parents), dtype=np.int64)
+    for j, p in enumerate(parents):  # parents precede children
+        depth[j] = 0 if p < 0 else depth[p] + 1
+    return np.array([depth[np.flatnonzero(row)].max() for row in point_matrix], dtype=np.int64)
+
+
+def top_proposals(proposals: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The most confident proposal per point and its weight: (Q, 3), (Q,)."""
+    best = weights.argmax(axis=-1)
+    q = np.arange(proposals.shape[0])
+    return proposals[q, best], weights[q, best]
+
+
+#: a root point is consistent with an alignment when one of its proposals lies this close, mm
+INLIER_MM = 20.0
+
+
+def initial_guess(problem: Problem) -> np.ndarray:
+    """Default articulation with the global pose from a weighted rigid alignment (Kabsch) of
+    the model's root-stage points onto their proposals.
+
+    The alignment is robust to one wrong top proposal: besides the most confident proposal
+    of every point, each alternative proposal of each point is tried in its place, and the
+    alignment that puts the most points within ``INLIER_MM`` of one of their proposals wins
+    (ties: the smaller summed distance). One decoy on the point that alone fixes the palm's
+    tilt (ICVL's palm point beside its row of knuckles) otherwise flips the hand. An
+    ill-posed root (``guide_points``) is aligned together with its guide points.
+    Falls back to all points, then to a translation only, when too few root points have
+    proposals.
+    """
+    model = problem.model
+    x = model.default_params().astype(float).copy()
+    canonical = problem.points(x[None])[0]
+    stages = problem.stage_points()
+    root_points = stages[0][2]
+    root_points = np.union1d(root_points, guide_points(problem, root_points, [s[2] for s in stages[1:]]))
+    observed = problem.weights.sum(axis=-1) > 0
+    for candidates in (root_points, problem.all_points):
+        use = candidates[observed[candidates]]
+        if len(use) >= 3:
+            R, t = robust_alignment(canonical[use], problem.proposals[use], problem.weights[use])
+            x[POSITION] = t
+            x[ORIENTATION] = matrix_to_quaternion(R)
+            return x
+    target, w = top_proposals(problem.proposals, problem.weights)
+    use = np.flatnonzero(w > 0)
+    if len(use) == 0:
+        raise HybridfitError("the frame has no proposals with positive confidence")
+    x[POSITION] = np.average(target[use] - canonical[use], axis=0, weights=w[use])
+    return x
+
+
+def robust_alignment(source: np.ndarray, proposals: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R (3, 3), t (3,) aligning source (n, 3) onto one proposal per point, proposals (n, k, 3)
+    with weights (n, k): the most confident ones, or with one point's choice swapped for an
+    alternative, whichever puts the most points within ``INLIER_MM`` of a proposal (ties:
+    the smaller sum of distances, each capped at twice that)."""
+    R, t = np.empty((3, 3)), np.empty(3)
+    _robust_alignment(np.ascontiguousarray(source, dtype=np.float64), np.ascontiguousarray(proposals, dtype=np.float64),
+                      np.ascontiguousarray(weights, dtype=np.float64), INLIER_MM, R, t)
+    return R, t
+
+
+@nb.njit(cache=True)
+def _weighted_kabsch(source, target, w, R, t):
+    """Weighted Kabsch of source (n, 3) onto target (n, 3), w (n,) >= 0 (not all 0), into R, t."""
+    n = source.shape[0]
+    total = w.sum()
+    ms, mt = np.zeros(3), np.zeros(3)
+    for i in range(n):
+        ms += w[i] * source[i]
+        mt += w[i] * target[i]
+    ms /= total
+    mt /= total
+    H = np.zeros((3, 3))
+    for i in range(n):
+        for a in range(3):
+            for b in range(3):
+                H[a, b] += w[i] * (source[i, a] - ms[a]) * (target[i, b] - mt[b])
+    U, _, Vt = np.linalg.svd(H)
+    M = Vt.T @ U.T
+    if np.linalg.det(M) < 0:
+        Vt[2] *= -1.0
+        M = Vt.T @ U.T
+    R[:] = M
+    t[:] = mt - M @ ms
+
+
+@nb.njit(cache=True)
+def _robust_alignment(source, proposals, weights, inlier_mm, R_out, t_out):
+    n, k = weights.shape
+    best = np.empty(n, np.int64)
+    for q in range(n):
+        best[q] = np.argmax(weights[q])
+    choice = best.copy()
+    target, w = np.empty((n, 3)), np.empty(n)
+    R, t = np.empty((3, 3)), np.empty(3)
+    best_inliers, best_cost = -1, np.inf
+    for h in range(1 + n * k):  # h = 0: the top proposals; then point (h-1)//k takes proposal (h-1)%k
+        if h > 0:
+            q, r = (h - 1) // k, (h - 1) % k
+            if r == best[q] or weights[q, r] <= 0.0:
+                continue
+            choice[:] = best
+            choice[q] = r
+        for i in range(n):
+            target[i] = proposals[i, choice[i]]
+            w[i] = weights[i, choice[i]]
+        _weighted_kabsch(source, target, w, R, t)
+        inliers, cost, agree = 0, 0.0, True
+        for i in range(n):
+            p = R @ source[i] + t
+            nearest = np.inf
+            for r2 in range(k):
+                if weights[i, r2] > 0.0:
+                    d = np.sqrt(((p - proposals[i, r2]) ** 2).sum())
+                    nearest = min(nearest, d)
+            if np.sqrt(((p - target[i]) ** 2).sum()) >= 0.5 * inlier_mm:
+                agree = False
+            inliers += nearest < inlier_mm
+            cost += min(nearest, 2.0 * inlier_mm)
+        if inliers > best_inliers or (inliers == best_inliers and cost < best_cost):
+            best_inliers, best_cost = inliers, cost
+            R_out[:] = R
+            t_out[:] = t
+        if h == 0 and agree:  # every top proposal agrees closely: nothing to try
+            return
+
+

@@ -1,0 +1,7 @@
+"""The hand model: what a model declares (:mod:`.base`), a kinematic tree with its batched
+forward kinematics (:mod:`.kinematics`, symbolic in :mod:`.casadi`), rotations
+(:mod:`.rotations`) and depth rendering of its surface (:mod:`.render`)."""
+
+from .base import GLOBAL_POSE, ORIENTATION, POSITION, Geometry, HandModel, Stage
+
+__all__ = ["GLOBAL_POSE", "ORIENTATION", "POSITION", "Geometry", "HandModel", "Stage"]

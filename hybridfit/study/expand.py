@@ -1,0 +1,126 @@
+"""A study's deterministic expansion into variants and trials.
+
+Variants (in file order, default one empty variant) x grid (keys in file order, values in
+list order) gives the variants; each runs with every seed. ``seeds = n`` derives n seeds
+from the study ``seed`` (numpy SeedSequence), the same for every variant, so variants are
+compared on common random numbers. The trial key hashes the data, settings and seed.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import ValidationError
+
+from ..errors import HybridfitError
+from .spec import SETTING_KEYS, Study, SyntheticProposalsData, TrialSettings, validation_error
+
+@dataclass(frozen=True)
+class Variant:
+    """One point of the sweep: its name, the overrides it makes and the resolved settings."""
+
+    index: int
+    name: str
+    overrides: dict[str, Any]
+    settings: TrialSettings
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One variant x one seed; ``key`` is unique for (data, settings, seed)."""
+
+    key: str
+    variant: Variant
+    seed: int
+
+
+def digest(payload: Any) -> str:
+    """A short content hash of JSON-able data (sorted keys)."""
+    text = json.dumps(payload, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+def deep_merge(base: dict, over: dict) -> dict:
+    """base with over merged in (tables merge recursively, other values replace)."""
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        out[k] = deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else copy.deepcopy(v)
+    return out
+
+
+def _nest(path: str, value: Any) -> dict:
+    out: Any = value
+    for part in reversed(path.split(".")):
+        out = {part: out}
+    return out
+
+
+def _variant_name(overrides: dict[str, Any]) -> str:
+    def flat(d, prefix=""):
+        for k, v in d.items():
+            if isinstance(v, dict) and v:
+                yield from flat(v, f"{prefix}{k}.")
+            else:
+                yield f"{prefix}{k}", v
+
+    return ", ".join(f"{k}={json.dumps(v) if not isinstance(v, str) else v}" for k, v in flat(overrides)) or "base"
+
+
+def expand(study: Study, where: str = "study") -> list[Variant]:
+    """The study's variants in a deterministic order (see the module docstring)."""
+    for key in study.sweep.grid:
+        if key.split(".")[0] not in SETTING_KEYS:
+            raise HybridfitError(f"{where}: sweep.grid.{key}: unknown setting; allowed: "
+                                 f"{', '.join(sorted(SETTING_KEYS))}")
+        if not study.sweep.grid[key]:
+            raise HybridfitError(f"{where}: sweep.grid.{key}: needs at least one value")
+    listed = study.sweep.variants or [{}]
+    keys = list(study.sweep.grid)
+    base = study.base.as_dict()
+    out: list[Variant] = []
+    names: set[str] = set()
+    for i, entry in enumerate(listed):
+        entry = dict(entry)
+        name = entry.pop("name", None)
+        over: dict[str, Any] = {}
+        for k, v in entry.items():  # dotted keys in variant tables too
+            over = deep_merge(over, _nest(k, v))
+        for combo in itertools.product(*(study.sweep.grid[k] for k in keys)):
+            o = over
+            for k, v in zip(keys, combo):
+                o = deep_merge(o, _nest(k, v))
+            loc = f"sweep.variants.{i}" if study.sweep.variants else "sweep.grid"
+            if keys:
+                loc += f" ({_variant_name(dict(zip(keys, combo)))})"
+            unknown = [k for k in o if k not in SETTING_KEYS]
+            if unknown:
+                raise HybridfitError(f"{where}: {loc}.{unknown[0]}: unknown setting; allowed: "
+                                     f"{', '.join(sorted(SETTING_KEYS))}")
+            try:
+                settings = TrialSettings.model_validate(deep_merge(base, o))
+            except ValidationError as err:
+                raise validation_error(where, err, loc) from None
+            grid_label = _variant_name(dict(zip(keys, combo))) if keys else ""
+            label = ", ".join(p for p in (name or (_variant_name(over) if over else ""), grid_label) if p) or "base"
+            if label in names:
+                raise HybridfitError(f"{where}: {loc}: duplicate variant name {label!r}")
+            names.add(label)
+            _check_k(study, settings, where, loc)
+            out.append(Variant(len(out), label, o, settings))
+    return out
+
+
+def _check_k(study: Study, settings: TrialSettings, where: str, loc: str) -> None:
+    if isinstance(study.data, SyntheticProposalsData) and settings.k > study.data.k:
+        raise HybridfitError(f"{where}: {loc}.k: {settings.k} exceeds data.k = {study.data.k} (proposals generated)")
+
+
+def trials(study: Study, variants: list[Variant], data_key: str) -> list[Trial]:
+    """Every variant x seed, variant-major, with its unique key."""
+    return [Trial(digest({"data": data_key, "settings": v.settings.as_dict(), "seed": s}), v, s)
+            for v in variants for s in study.seed_list()]

@@ -1,0 +1,202 @@
+"""The poses of the synthetic data sets: a training grid and a TrackSeq-like test sequence
+(settings in :mod:`.config`; rendered and written by :mod:`.sets`).
+
+Training grid: a few articulations per finger (default 4), every combination of them
+(4^5 = 1024 hand shapes), each seen from several viewpoints (default 7: 7168 frames),
+the palm facing the camera at ``distance_mm``. Frame index = shape * viewpoints + viewpoint;
+shapes enumerate the fingers' articulations with the thumb slowest. By default every frame
+also gets its own deterministic random change of the global pose (``viewpoint_jitter_deg``
++-17.5 degrees about each camera axis, half the spacing of the default viewpoints;
+``position_jitter_mm`` +-30 and ``distance_jitter_mm`` +-40, the test sequence's drift), so
+the 7168 frames cover the orientations and positions between the 7 exact viewpoints. With
+the exact viewpoints and distance (all three 0) the paper's forest (3 trees, depth 23)
+memorises the grid (1 mm top-proposal error on training frames) and generalises poorly: on
+the test sequence with tilt 35 / roll 40 degrees its top proposal is off by 34.0 mm on
+average (Oracle k=3 17.1 mm), with the jitter by 7.7 mm (Oracle 4.9 mm); on the default
+sequence 33.7 -> 5.0 mm (benchmarks/bench_forest.py, default ForestConfig). The distance
+jitter matters most: a depth feature with one probe on the background reads
+``background_mm`` minus the hand's depth, so a forest trained at one distance splits on
+absolute depth (62% of its splits threshold such a reading) and fails once the hand moves
+by a few centimetres.
+
+Test sequence: natural motions (counting, pinching, grasping, finger waves, an OK sign)
+as key poses perturbed at random (so none is a training pose), interpolated smoothly in
+joint-angle space with holds, while the global orientation and position drift slowly
+between random keys; every ``subsample``-th frame of this slow motion is kept, as in the
+paper's TrackSeq. The paper's TrackSeq keeps the global pose fixed; ours drifts slowly,
+by default within a tilt and an in-plane roll of 20 degrees of the frontal palm (inside the
+training grid's +-35 degree viewpoints), +-30 mm laterally and +-40 mm in distance. Larger
+ranges (``max_tilt_deg``, ``max_roll_deg``; up to 35 / 40 degrees before) make a harder
+test of the forest's viewpoint generalisation. Angles in degrees in the configs, radians
+in the parameters.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Mapping
+
+import numpy as np
+
+from .. import registry
+from ..errors import HybridfitError
+from ..model.rotations import axis_angle_matrix, matrix_to_quaternion, slerp
+from .config import GridConfig, SequenceConfig, _Common, parse_config
+from .proposals import PALM_TO_CAMERA, palm_orientation
+
+# per-finger angles in degrees in the model's parameter order: thumb (CMC flexion, CMC
+# abduction, MCP, IP), fingers (MCP flexion, MCP abduction, PIP, DIP)
+_THUMB = {"open": (-12, -25, 5, 3), "rest": (8, 0, 12, 10), "across": (45, 35, 35, 25),
+          "pinch": (40, 10, 30, 25), "grasp": (25, 15, 20, 15)}
+_FINGER = {"straight": (3, 0, 3, 2), "fist": (85, 0, 95, 65), "rest": (15, 0, 20, 10), "half": (40, 0, 45, 25),
+           "grasp": (50, 0, 55, 35), "pinch": (45, 0, 35, 20), "wave": (60, 0, 70, 40)}
+_SPREAD = (-10, -2, 6, 12)  # abduction of index .. little in an open hand
+
+
+def _hand(thumb: str, *fingers: str, spread: bool = False) -> np.ndarray:
+    """(20,) degrees: a thumb state and four finger states (index .. little)."""
+    out = [_THUMB[thumb]]
+    for i, f in enumerate(fingers):
+        a = list(_FINGER[f])
+        if spread and f == "straight":
+            a[1] = _SPREAD[i]
+        out.append(a)
+    return np.array(out, float).ravel()
+
+
+KEY_POSES = {
+    "open": _hand("open", "straight", "straight", "straight", "straight", spread=True),
+    "rest": _hand("rest", "rest", "rest", "rest", "rest"),
+    "fist": _hand("across", "fist", "fist", "fist", "fist"),
+    "one": _hand("across", "straight", "fist", "fist", "fist"),
+    "two": _hand("across", "straight", "straight", "fist", "fist", spread=True),
+    "three": _hand("across", "straight", "straight", "straight", "fist", spread=True),
+    "four": _hand("across", "straight", "straight", "straight", "straight", spread=True),
+    "pinch_open": _hand("open", "half", "rest", "rest", "rest"),
+    "pinch": _hand("pinch", "pinch", "half", "half", "half"),
+    "grasp": _hand("grasp", "grasp", "grasp", "grasp", "grasp"),
+    "ok": _hand("pinch", "pinch", "straight", "straight", "straight", spread=True),
+    **{f"wave{i}": _hand("open", *["wave" if k == i else "straight" for k in range(4)]) for i in range(4)},
+}
+MOTIONS = {
+    "count": ("fist", "one", "two", "three", "four", "open"),
+    "pinch": ("rest", "pinch_open", "pinch", "pinch_open", "pinch", "rest"),
+    "grasp": ("open", "grasp", "fist", "grasp", "open"),
+    "wave": ("open", "wave0", "wave1", "wave2", "wave3", "open"),
+    "ok": ("rest", "ok", "open", "ok", "rest"),
+}
+
+def _model(config: _Common):
+    return registry.create("model", config.model, config.model_settings)
+
+
+def _finger_slices(model) -> dict[str, list[int]]:
+    """Finger name -> indices of its angle parameters (by the parameter name prefix)."""
+    out: dict[str, list[int]] = {}
+    for i, name in enumerate(model.parameter_names[7:], start=7):
+        out.setdefault(name.split("_")[0], []).append(i)
+    return out
+
+
+def _orientation(about_xyz_deg) -> np.ndarray:
+    """(4,) quaternion of a palm facing the camera rotated about the camera's x, y, z axes."""
+    ax, ay, az = np.radians(about_xyz_deg)
+    R = axis_angle_matrix([0, 0, 1], az) @ axis_angle_matrix([0, 1, 0], ay) @ axis_angle_matrix([1, 0, 0], ax)
+    return matrix_to_quaternion(R @ PALM_TO_CAMERA)
+
+
+def grid_poses(config: GridConfig | Mapping | None = None, model=None) -> np.ndarray:
+    """(shapes * viewpoints, P) parameters of the training grid."""
+    config = parse_config(GridConfig, config)
+    model = model or _model(config)
+    lower, upper = model.bounds()
+    fingers = _finger_slices(model)
+    unknown = set(config.articulations_deg) - set(fingers)
+    if unknown:
+        raise HybridfitError(f"articulations_deg: unknown fingers {sorted(unknown)} (the model has {', '.join(fingers)})")
+    choices = []
+    for finger, idx in fingers.items():
+        arts = np.radians(np.array(config.articulations_deg.get(finger, [np.degrees(model.default_params()[idx])]), float))
+        if arts.ndim != 2 or arts.shape[1] != len(idx):
+            raise HybridfitError(f"articulations_deg.{finger}: each articulation needs {len(idx)} angles "
+                                 f"({', '.join(model.parameter_names[i] for i in idx)})")
+        outside = (arts < lower[idx] - 1e-9) | (arts > upper[idx] + 1e-9)
+        if outside.any():
+            a, k = np.argwhere(outside)[0]
+            raise HybridfitError(
+                f"articulations_deg.{finger}[{a}]: {model.parameter_names[idx[k]]} = {np.degrees(arts[a, k]):g} deg is "
+                f"outside the model's limits [{np.degrees(lower[idx[k]]):g}, {np.degrees(upper[idx[k]]):g}]")
+        choices.append((idx, arts))
+    views = np.array(config.viewpoints_deg, float)
+    base = model.default_params()
+    base[0:3] = (0.0, 0.0, config.distance_mm)
+    rows = []
+    for combo in itertools.product(*[range(len(arts)) for _, arts in choices]):
+        shape = base.copy()
+        for (idx, arts), c in zip(choices, combo):
+            shape[idx] = arts[c]
+        rows.append(np.tile(shape, (len(views), 1)))
+    X = np.concatenate(rows)
+    # per-frame jitter of the global pose from its own stream: the articulations and the
+    # frame order do not depend on it, and the same seed gives the same grid
+    rng = np.random.default_rng([config.seed, 2])
+    n = len(X)
+    about = np.tile(views, (n // len(views), 1)) + rng.uniform(-1, 1, (n, 3)) * config.viewpoint_jitter_deg
+    shift = rng.uniform(-1, 1, (n, 3)) * (config.position_jitter_mm, config.position_jitter_mm, config.distance_jitter_mm)
+    X[:, 0:3] += shift
+    X[:, 3:7] = [_orientation(a) for a in about]
+    return X
+
+
+def _smooth(times: np.ndarray, key_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Segment index and smoothstep weight of each time between increasing key times."""
+    i = np.clip(np.searchsorted(key_t, times, side="right") - 1, 0, len(key_t) - 2)
+    s = np.clip((times - key_t[i]) / np.maximum(key_t[i + 1] - key_t[i], 1e-9), 0.0, 1.0)
+    return i, s * s * (3.0 - 2.0 * s)
+
+
+
+
+def sequence_poses(config: SequenceConfig | Mapping | None = None, model=None) -> np.ndarray:
+    """(frames, P) parameters of the test sequence (deterministic for a seed)."""
+    config = parse_config(SequenceConfig, config)
+    model = model or _model(config)
+    lower, upper = model.bounds()
+    angles = np.arange(7, model.n_params)
+    if len(angles) != 20:
+        raise HybridfitError(f"the test sequence's key poses need a model with 20 finger angles, {config.model} has {len(angles)}")
+    # separate streams: a shorter sequence is a prefix of a longer one with the same seed
+    rng = np.random.default_rng([config.seed, 0])
+    rng_global = np.random.default_rng([config.seed, 1])
+    end = (config.frames - 1) * config.subsample
+    # finger articulation keys: motions in random order, each key held, then a smooth transition
+    key_t, key_v, t = [], [], 0
+    while not key_t or key_t[-1] <= end:  # until a key lies beyond the end
+        for name in MOTIONS[config.motions[rng.integers(len(config.motions))]]:
+            pose = np.clip(np.radians(KEY_POSES[name] + rng.normal(0, config.jitter_deg, 20)), lower[angles], upper[angles])
+            hold = int(rng.integers(config.hold_frames[0], config.hold_frames[1] + 1))
+            key_t += [t, t + hold]
+            key_v += [pose, pose]
+            t += hold + int(rng.integers(config.transition_frames[0], config.transition_frames[1] + 1))
+    # global pose keys
+    glob_t, glob_q, glob_p, t = [], [], [], 0
+    while not glob_t or glob_t[-1] <= end:
+        phi = rng_global.uniform(0, 2 * np.pi)
+        tilt = rng_global.uniform(0, config.max_tilt_deg)
+        glob_q.append(palm_orientation(phi, tilt, rng_global.uniform(-config.max_roll_deg, config.max_roll_deg)))
+        s = config.position_spread_mm
+        glob_p.append([rng_global.uniform(-s, s), rng_global.uniform(-s, s),
+                       config.distance_mm + rng_global.uniform(-config.depth_spread_mm, config.depth_spread_mm)])
+        glob_t.append(t)
+        t += int(rng_global.integers(config.orientation_frames[0], config.orientation_frames[1] + 1))
+
+    times = np.arange(config.frames, dtype=float) * config.subsample
+    X = np.tile(model.default_params(), (config.frames, 1))
+    key_t, key_v = np.array(key_t, float), np.array(key_v)
+    i, w = _smooth(times, key_t)
+    X[:, angles] = key_v[i] + w[:, None] * (key_v[i + 1] - key_v[i])
+    glob_t, glob_q, glob_p = np.array(glob_t, float), np.array(glob_q), np.array(glob_p)
+    i, w = _smooth(times, glob_t)
+    X[:, 0:3] = glob_p[i] + w[:, None] * (glob_p[i + 1] - glob_p[i])
+    X[:, 3:7] = slerp(glob_q[i], glob_q[i + 1], w)
+    return X

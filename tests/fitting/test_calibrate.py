@@ -1,0 +1,203 @@
+"""Calibration of a model's geometry to annotated points, through the HandModel interface."""
+
+import tomllib
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from pydantic import Field
+
+import hybridfit
+from hybridfit.fitting.calibrate import calibrate, determined, split_frames, to_toml
+from hybridfit.datasets.skeletons import skeleton, with_derived_points
+from hybridfit.model.rotations import quaternion_matrix
+from hybridfit.model.base import Geometry, HandModel, Stage
+from hybridfit.plugin import Settings
+
+NAMES = ("wrist", "thumb_mcp", "thumb_tip", "index_mcp", "index_pip", "index_tip", "middle_mcp", "middle_tip",
+         "ring_mcp", "ring_tip", "little_mcp", "little_tip", "my_palm", "my_side")
+TRUE = {"mirror": True, "bone_lengths": {"index_proximal": 48.0},
+        # outside the start's support: a palm point beyond the middle MCP, a wrist side point far out
+        "derived_points": {"my_palm": {"wrist": -0.3, "middle_mcp": 1.3},
+                           "my_side": {"wrist": 1.0, "index_mcp": 1.2, "little_mcp": -1.2}}}
+START = {"derived_points": {"my_palm": {"wrist": 0.5, "middle_mcp": 0.5},
+                            "my_side": {"wrist": 1.0, "index_mcp": 0.4, "little_mcp": -0.4}}}
+
+
+def _poses(model, frames, rng):
+    params = np.repeat(model.default_params()[None], frames, axis=0)
+    params[:, 2] = 400
+    params[:, 3:7] = rng.normal(size=(frames, 4))
+    lower, upper = model.bounds()
+    params[:, 7:] = lower[7:] + rng.uniform(0.1, 0.6, size=(frames, model.n_params - 7)) * (upper[7:] - lower[7:])
+    return params
+
+
+def _truth(frames=10, seed=1):
+    """Points of a left hand with a longer index finger than the default, in random poses."""
+    model = hybridfit.create("model", "hand26", TRUE)
+    return model.points(_poses(model, frames, np.random.default_rng(seed)), NAMES)
+
+
+@pytest.fixture(scope="module")
+def result():
+    return calibrate(_truth(), NAMES, model_config=START, rounds=1, budget=800, max_nfev=25)
+
+
+def test_calibration_chooses_the_hand_and_reduces_the_error(result):
+    assert result.settings["mirror"] is True
+    assert result.error_after < 0.5 * result.error_before
+    assert result.ls_error < 3.0
+
+
+def test_held_out_frames_are_the_last_fifth_and_reported(result):
+    np.testing.assert_array_equal(result.calibration_frames, np.arange(8))
+    np.testing.assert_array_equal(result.heldout_frames, [8, 9])
+    assert np.isfinite(result.error_heldout) and result.per_point_heldout.shape == (len(NAMES),)
+    assert result.error_heldout < 1.5 * result.error_after + 1.0
+
+
+def test_calibration_recovers_bone_lengths(result):
+    assert result.settings["bone_lengths"]["index_proximal"] == pytest.approx(48.0, abs=3.0)
+
+
+def test_derived_point_weights_stay_near_their_support(result):
+    """Truth lies outside what the weights may express: convex weights stay in [0, 1] and
+    sum to 1; an offset point's weights stay within +-0.6 and keep their sum."""
+    palm = result.settings["derived_points"]["my_palm"]
+    assert sum(palm.values()) == pytest.approx(1.0, abs=1e-9)
+    assert min(palm.values()) >= 0.0 and max(palm.values()) <= 1.0
+    assert palm["middle_mcp"] > 0.7  # moved towards the truth, within its support
+    side = result.settings["derived_points"]["my_side"]
+    assert sum(side.values()) == pytest.approx(1.0, abs=1e-9)
+    assert all(abs(w) <= 0.6 + 1e-9 for j, w in side.items() if j != "wrist")
+    assert side["index_mcp"] > 0.4  # moved towards the truth
+
+
+def test_settings_round_trip_through_toml(result):
+    settings = tomllib.loads(to_toml(result.settings))
+    model = hybridfit.create("model", "hand26", settings)
+    assert model.settings.mirror is True and "my_palm" in model.derived_points
+
+
+def test_bad_input_is_an_error():
+    with pytest.raises(hybridfit.HybridfitError, match=r"ground truth of shape \(frames, 14, 3\)"):
+        calibrate(np.zeros((3, 12, 3)), NAMES)
+    bad = _truth(3)
+    bad[1, 2, 0] = np.nan
+    with pytest.raises(hybridfit.HybridfitError, match="frame 1 is not finite"):
+        calibrate(bad, NAMES, model_config=START)
+
+
+@given(st.integers(1, 300), st.floats(0.0, 0.95))
+def test_split_holds_out_the_last_frames(n, holdout):
+    cal, held = split_frames(n, holdout)
+    np.testing.assert_array_equal(np.concatenate([cal, held]), np.arange(n))
+    assert len(cal) >= 1
+    assert len(held) == (min(max(int(np.floor(holdout * n)), 1), n - 1) if holdout > 0 and n >= 2 else 0)
+
+
+def test_split_refuses_a_bad_share():
+    with pytest.raises(hybridfit.HybridfitError, match=r"holdout must be in \[0, 1\)"):
+        split_frames(10, 1.0)
+
+
+@pytest.mark.parametrize("dataset, at_prior", [
+    ("msra", set()),
+    ("icvl", {"thumb_metacarpal"}),  # ICVL's thumb root is the MCP: the CMC is never seen
+    # no MCP among NYU's 14 points: the palm's shape and the proximal phalanges stay at the prior
+    ("nyu", {"thumb_metacarpal", *(f"{f}_proximal" for f in ("index", "middle", "ring", "little")),
+             *(f"{f}_base_{c}" for f in ("thumb", "index", "middle", "ring", "little") for c in "xyz")}),
+])
+def test_geometry_the_points_cannot_determine(dataset, at_prior):
+    model = hybridfit.create("model", "hand26", with_derived_points({}, dataset))
+    geo = model.geometry()
+    free = determined(model, geo, skeleton(dataset).model_names)
+    assert {n for n, f in zip(geo.names, free) if not f} == at_prior
+
+
+# ------------------------------------------------------------------ a model other than hand26
+
+class ToySettings(Settings):
+    width: float = Field(20.0, gt=0, description="wrist to side point, mm")
+    palm: float = Field(40.0, gt=0, description="wrist to knuckle, mm")
+    finger: float = Field(30.0, gt=0, description="knuckle to tip, mm")
+
+
+class ToyHand(HandModel):
+    """A wrist, a side point, a knuckle and a one-joint finger: 8 parameters, 4 joints."""
+
+    Settings = ToySettings
+    parameter_names = ("x", "y", "z", "qw", "qx", "qy", "qz", "flexion")
+    joint_names = ("wrist", "side", "knuckle", "tip")
+    PRIOR = np.array([20.0, 40.0, 30.0])
+
+    @property
+    def parents(self):
+        return np.array([-1, 0, 0, 2])
+
+    def bounds(self):
+        lower, upper = np.full(8, -np.inf), np.full(8, np.inf)
+        lower[3:7], upper[3:7] = -1.0, 1.0
+        lower[7], upper[7] = 0.0, np.pi / 2
+        return lower, upper
+
+    def default_params(self):
+        return np.array([0, 0, 0, 1, 0, 0, 0, 0.2])
+
+    def stages(self):
+        return Stage("palm", tuple(range(7)), (0, 1, 2)), Stage("finger", (7,), (3,))
+
+    def _forward(self, params, joints=None):
+        s = self.settings
+        a = params[:, 7]
+        local = np.zeros((len(params), 4, 3))
+        local[:, 1, 0] = s.width
+        local[:, 2, 1] = s.palm
+        local[:, 3, 1] = s.palm + s.finger * np.cos(a)
+        local[:, 3, 2] = s.finger * np.sin(a)
+        out = np.empty_like(local)
+        R = np.empty((3, 3))
+        for n, p in enumerate(params):
+            quaternion_matrix(*(p[3:7] / np.linalg.norm(p[3:7])), R)
+            out[n] = local[n] @ R.T + p[:3]
+        return out
+
+    def geometry(self):
+        values = np.array([self.settings.width, self.settings.palm, self.settings.finger])
+        return Geometry(("width", "palm", "finger"), values, self.PRIOR, 0.1 * self.PRIOR, 0.3 * self.PRIOR,
+                        3.0 * self.PRIOR, np.ones(3, bool), (("wrist", "side"), ("wrist", "knuckle"), ("knuckle", "tip")))
+
+    def with_geometry(self, values):
+        return {**self.get_params(), **dict(zip(("width", "palm", "finger"), map(float, values)))}
+
+
+def _toy_truth(names, frames=12, seed=3):
+    true = ToyHand(width=24.0, palm=46.0, finger=27.0)  # 1.1 x the prior, other proportions
+    rng = np.random.default_rng(seed)
+    params = np.tile(true.default_params(), (frames, 1))
+    params[:, 2] = 400
+    params[:, 3:7] = rng.normal(size=(frames, 4))
+    params[:, 7] = rng.uniform(0, np.pi / 2, frames)
+    return true.points(params, names)
+
+
+def test_a_model_other_than_hand26_can_be_calibrated():
+    names = ToyHand.joint_names
+    r = calibrate(_toy_truth(names), names, model=ToyHand(), rounds=1, budget=600)
+    assert r.error_after < r.error_before and np.isfinite(r.error_heldout) and len(r.heldout_frames) == 2
+    assert [r.settings[k] for k in ("width", "palm", "finger")] == pytest.approx([24.0, 46.0, 27.0], abs=1.0)
+
+
+def test_geometry_no_point_determines_stays_at_the_scaled_prior():
+    names = ("wrist", "knuckle", "tip")  # the side point is never seen: its distance stays at the prior
+    r = calibrate(_toy_truth(names), names, model=ToyHand(), rounds=1, budget=600)
+    assert r.at_prior == ("width",)
+    assert r.settings["width"] == pytest.approx(r.scale * 20.0, abs=1e-3)
+    assert r.settings["palm"] == pytest.approx(46.0, abs=1.0)
+
+
+def test_a_model_without_a_mirror_setting_refuses_a_hand():
+    with pytest.raises(hybridfit.HybridfitError, match="no mirror setting"):
+        calibrate(_toy_truth(ToyHand.joint_names, 3), ToyHand.joint_names, model=ToyHand(), mirror=True)

@@ -1,0 +1,68 @@
+"""Problem: point mapping, stages over points, initial guess by rigid alignment."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hybridfit.errors import HybridfitError
+from hybridfit.metrics import joint_errors
+from hybridfit.fitting.problem import Problem
+
+
+def test_initial_guess_recovers_the_global_pose_of_a_default_hand(hand26, clamped):
+    truth = hand26.default_params()
+    truth[:3] = [30.0, -10.0, 420.0]
+    truth[3:7] = [0.2, 0.9, -0.3, 0.1]
+    joints = hand26.forward(truth)
+    p = Problem(hand26, clamped, joints[:, None, :], np.ones((21, 1)))
+    assert joint_errors(hand26.forward(p.x0), joints).max() < 1e-6
+
+
+def test_search_box_is_centred_on_the_guess(hand26, clamped, frames):
+    p = Problem(hand26, clamped, frames["proposals"][0], frames["confidences"][0], search_radius_mm=25.0)
+    np.testing.assert_allclose(p.upper[:3] - p.x0[:3], 25.0)
+    assert np.all(p.lower[3:7] == -1) and np.all(p.upper[3:7] == 1)
+
+
+def test_points_can_be_derived_points(hand26, clamped):
+    x = hand26.default_params()
+    x[:3] = [0.0, 0.0, 400.0]
+    names = ["palm_centre", "index_tip", "thumb_tip"]
+    pts = hand26.points(x, names)[0]
+    p = Problem(hand26, clamped, pts[:, None, :], np.ones((3, 1)), names)
+    assert p.points(x[None]).shape == (1, 3, 3)
+    stages = p.stage_points()
+    assert [list(s[2]) for s in stages] == [[0], [2], [1], [], [], []]  # palm_centre scored with the palm
+    with pytest.raises(HybridfitError, match="'pinky' is neither a joint nor a derived point"):
+        Problem(hand26, clamped, pts[:, None, :], np.ones((3, 1)), ["pinky", "index_tip", "thumb_tip"])
+
+
+def test_frame_without_any_proposal_is_an_error(hand26, clamped):
+    with pytest.raises(HybridfitError, match="no proposals with positive confidence"):
+        Problem(hand26, clamped, np.zeros((21, 2, 3)), np.zeros((21, 2)))
+
+
+def test_the_initial_alignment_survives_one_decoy_on_the_palm_point():
+    """ICVL's palm stage: a row of knuckles and one palm point that alone fixes the tilt. A
+    decoy as that point's top proposal flips a plain alignment; the robust one tries the
+    alternative and keeps the hand the right way round."""
+    import hybridfit
+    from hybridfit.datasets.skeletons import dataset_model_config, skeleton
+    from hybridfit.model.rotations import kabsch
+    from hybridfit.fitting.problem import robust_alignment
+
+    model = hybridfit.create("model", "hand26", dataset_model_config("hand26", {}, "icvl"))
+    names = list(skeleton("icvl").model_names)
+    root = [names.index(n) for n in ("icvl_palm", "index_mcp", "middle_mcp", "ring_mcp", "little_mcp")]
+    source = model.points(model.default_params(), names)[0][root]
+    R_true = np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]])
+    truth = source @ R_true.T + [0, 0, 400]
+    proposals = np.repeat(truth[:, None], 2, axis=1)
+    decoy = truth[0] + 3.0 * (truth[0] - truth[1:].mean(axis=0))  # the palm point pulled far past the knuckles
+    proposals[0] = [decoy, truth[0]]
+    weights = np.tile([0.6, 0.4], (5, 1))
+    R, t = robust_alignment(source, proposals, weights)
+    np.testing.assert_allclose(source @ R.T + t, truth, atol=1e-6)
+    R_plain, t_plain = kabsch(source, proposals[:, 0], weights[:, 0])
+    assert np.linalg.norm(source @ R_plain.T + t_plain - truth, axis=-1).max() > 10.0
