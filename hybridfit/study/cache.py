@@ -1,8 +1,9 @@
 """A content-addressed cache of expensive shared steps (data, forests, proposals, calibrations).
 
 An entry is ``ROOT/KIND/KEY[SUFFIX]``, KEY a hash of everything that determines it, the
-versions of hybridfit and of every plugin distribution included (``code_versions``), so an
-upgrade recomputes instead of reusing what older code made. It is built under a temporary
+versions of hybridfit and of every plugin distribution and a hash of their Python sources
+included (``code_versions``), so an upgrade, or an edit of an installed checkout,
+recomputes instead of reusing what other code made. It is built under a temporary
 name holding the builder's PID (``.tmp-PID-...``) in the same folder and renamed into place,
 so a killed run leaves no half-written entry, and the temporary files and folders of runs
 that are gone are removed when a cache is opened; two runs building the same entry at once
@@ -12,6 +13,8 @@ both succeed (the second rename finds it in place and discards its own copy).
 from __future__ import annotations
 
 import functools
+import hashlib
+import importlib.util
 import json
 import os
 import re
@@ -62,19 +65,41 @@ class Cache:
 
 @functools.cache
 def code_versions() -> dict[str, str]:
-    """{distribution: version} of hybridfit and of every distribution providing a plugin."""
+    """{distribution: "VERSION+src.HASH"} of hybridfit and of every distribution providing a
+    plugin; HASH covers the Python sources of the packages it provides plugins from (and
+    ``hybridfit`` itself), so an edited editable install counts as other code."""
     from .. import registry
 
-    names = {"hybridfit"}
+    packages: dict[str, set[str]] = {"hybridfit": {"hybridfit"}}
     for kind in ("model", "objective", "optimizer"):
-        names.update(i.distribution for i in registry.available(kind) if i.distribution != "?")
+        for info in registry.available(kind):
+            if info.distribution != "?":
+                packages.setdefault(info.distribution, set()).add(info.value.split(":")[0].split(".")[0])
     out = {}
-    for n in sorted(names):
+    for name in sorted(packages):
         try:
-            out[n] = metadata.version(n)
+            version = metadata.version(name)
         except metadata.PackageNotFoundError:
-            out[n] = "?"
+            version = "?"
+        out[name] = f"{version}+src.{source_hash(sorted(packages[name]))}"
     return out
+
+
+def source_hash(packages: list[str]) -> str:
+    """A short hash of the ``.py`` files (paths and contents) of importable packages."""
+    h = hashlib.sha256()
+    for name in packages:
+        spec = importlib.util.find_spec(name)
+        if spec is None:
+            continue
+        roots = [Path(p) for p in (spec.submodule_search_locations or [])] or [Path(spec.origin or name)]
+        for root in roots:
+            files = sorted(root.rglob("*.py")) if root.is_dir() else [root]
+            for path in files:
+                if path.is_file():
+                    h.update(f"{name}/{path.relative_to(root) if root.is_dir() else path.name}".encode())
+                    h.update(path.read_bytes())
+    return h.hexdigest()[:12]
 
 
 _TEMPORARY = re.compile(r"^\.?\.tmp-(\d+)-|\.partial-(\d+)$")

@@ -44,7 +44,19 @@ def test_code_versions_name_hybridfit_and_the_plugin_distributions():
     from importlib import metadata
 
     versions = cache_module.code_versions()
-    assert versions["hybridfit"] == metadata.version("hybridfit") and all(versions.values())
+    assert versions["hybridfit"].startswith(metadata.version("hybridfit") + "+src.") and all(versions.values())
+
+
+def test_an_edited_source_file_changes_the_source_hash(tmp_path, monkeypatch):
+    package = tmp_path / "edited_plugin_package"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "model.py").write_text("SCALE = 1.0\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    before = cache_module.source_hash(["edited_plugin_package"])
+    assert cache_module.source_hash(["edited_plugin_package"]) == before
+    (package / "model.py").write_text("SCALE = 1.1\n")
+    assert cache_module.source_hash(["edited_plugin_package"]) != before
 
 
 def test_a_folder_hash_covers_its_depth_images(tmp_path):
