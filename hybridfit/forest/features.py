@@ -71,17 +71,54 @@ def eval_features(buf, meta, s_frame, s_u, s_v, s_d, rows, feats, fx, fy, backgr
     return out
 
 
+def pack_nodes(node_feature: np.ndarray, node_threshold: np.ndarray, node_left: np.ndarray, node_right: np.ndarray,
+               node_leaf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The node arrays (N, 4), (N,), (N,), (N,), (N,) interleaved for ``traverse``: one 32-byte
+    record per node, so a visit reads one cache line. Returns nodes (N, 8) float32 (ux, uy, vx,
+    vy mm, threshold mm, then three int32 stored bitwise) and links, the (N, 3) int32 view of
+    those three (left, right, leaf)."""
+    nodes = np.empty((len(node_threshold), 8), np.float32)
+    nodes[:, :4] = node_feature
+    nodes[:, 4] = node_threshold
+    bits = nodes.view(np.int32)
+    bits[:, 5], bits[:, 6], bits[:, 7] = node_left, node_right, node_leaf
+    return nodes, bits[:, 5:]
+
+
 @njit(cache=True, nogil=True)
-def traverse(buf, meta, s_frame, s_u, s_v, s_d, node_feature, node_threshold, node_left, node_right,
-             node_leaf, roots, fx, fy, background):
-    """Leaf index (n, T) int32 of every sample in every tree (left when f < threshold)."""
+def traverse(buf, meta, s_frame, s_u, s_v, s_d, nodes, links, roots, fx, fy, background, lanes=16):
+    """Leaf index (n, T) int32 of every sample in every tree (left when f < threshold);
+    nodes, links from ``pack_nodes``.
+
+    ``lanes`` samples go down all trees in lockstep, one level per step, and the child is
+    picked without a branch: the memory reads of independent walks overlap."""
     n, T = s_frame.shape[0], roots.shape[0]
     out = np.empty((n, T), np.int32)
-    for i in range(n):
-        for t in range(T):
-            node = roots[t]
-            while node_left[node] >= 0:
-                val = feature(buf, meta, s_frame[i], s_u[i], s_v[i], s_d[i], node_feature[node], fx, fy, background)
-                node = node_left[node] if val < node_threshold[node] else node_right[node]
-            out[i, t] = node_leaf[node]
+    L = lanes * T
+    node = np.empty(L, np.int64)
+    sample = np.empty(L, np.int64)
+    sx, sy = np.empty(L), np.empty(L)
+    for i0 in range(0, n, lanes):
+        nl = min(lanes, n - i0) * T
+        for w in range(nl):
+            i = i0 + w // T
+            node[w], sample[w] = roots[w % T], i
+            sx[w], sy[w] = fx / s_d[i], fy / s_d[i]
+        busy = True
+        while busy:
+            busy = False
+            for w in range(nl):
+                k = node[w]
+                if links[k, 0] < 0:
+                    continue
+                busy = True
+                i = sample[w]
+                f, u, v = s_frame[i], s_u[i], s_v[i]
+                a = _read(buf, meta, f, u + int(np.floor(nodes[k, 0] * sx[w] + 0.5)),
+                          v + int(np.floor(nodes[k, 1] * sy[w] + 0.5)), background)
+                b = _read(buf, meta, f, u + int(np.floor(nodes[k, 2] * sx[w] + 0.5)),
+                          v + int(np.floor(nodes[k, 3] * sy[w] + 0.5)), background)
+                node[w] = links[k, np.int64(np.float32(a - b) >= nodes[k, 4])]
+        for w in range(nl):
+            out[i0 + w // T, w % T] = links[node[w], 2]
     return out

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Sequence
 
@@ -28,7 +29,7 @@ from tqdm.auto import tqdm
 from ..datasets.camera import Intrinsics
 from ..errors import HybridfitError
 from ..io import load_npz, save_npz
-from .features import pack_crops, traverse
+from .features import pack_crops, pack_nodes, traverse
 from .meanshift import mean_shift
 from .train import ForestConfig, TrainingSet, grow_forest
 
@@ -158,6 +159,11 @@ class Forest:
 
     # ------------------------------------------------------------------------- inference
 
+    @cached_property
+    def packed_nodes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The node arrays as ``features.pack_nodes`` lays them out for traversal (built once)."""
+        return pack_nodes(self.node_feature, self.node_threshold, self.node_left, self.node_right, self.node_leaf)
+
     def propose(self, depths: np.ndarray, intrinsics: Intrinsics, masks: np.ndarray | None = None, *,
                 k: int = 3, proposal_set: int = 200, stride: int = 2, bandwidth_mm: float = 10.0,
                 progress: bool = False) -> Proposals:
@@ -185,6 +191,7 @@ class Forest:
         F, J = len(depths), self.n_joints
         out = Proposals(np.zeros((F, J, k, 3)), np.zeros((F, J, k)), np.zeros(F, bool), self.joint_names)
         buf, meta = pack_crops(depths, masks)
+        nodes, links = self.packed_nodes
         fx, fy, bg = float(intrinsics.fx), float(intrinsics.fy), np.float32(self.config.background_mm)
         for f in tqdm(range(F), disable=not progress, unit="frame", desc="propose"):
             v, u = np.nonzero(masks[f, ::stride, ::stride])
@@ -195,8 +202,7 @@ class Forest:
             order = np.argsort((u.astype(np.uint32) * np.uint32(2654435761)) ^ (v.astype(np.uint32) * np.uint32(40503)), kind="stable")
             u, v = u[order], v[order]
             d = depths[f, v, u].astype(np.float32)
-            leaves = traverse(buf, meta, np.full(len(u), f, np.int32), u, v, d, self.node_feature, self.node_threshold,
-                              self.node_left, self.node_right, self.node_leaf, self.roots, fx, fy, bg)
+            leaves = traverse(buf, meta, np.full(len(u), f, np.int32), u, v, d, nodes, links, self.roots, fx, fy, bg)
             xyz = np.stack([(u - intrinsics.cx) * d / intrinsics.fx, (v - intrinsics.cy) * d / intrinsics.fy,
                             d.astype(np.float64)], axis=-1)
             out.proposals[f], out.confidences[f] = frame_proposals(
@@ -205,9 +211,71 @@ class Forest:
 
 
 @njit(cache=True, nogil=True)
+def _select_votes(key, proposal_set, hist, cand, chosen):
+    """The ``proposal_set`` most confident votes of one joint, as in the module docstring.
+
+    key (nv,) uint32: the votes' weights as order-preserving keys (float32 bits of a
+    positive weight, 0 for none). Writes vote indices into chosen: first the votes above
+    the cut, then ties at the cut, each in vote order; returns their number. The cut (the
+    proposal_set-th largest weight, counting repeats; 0 with nv <= proposal_set) comes
+    from a radix select on 11 + 11 + 10 bits. hist (2048,), cand (nv,) int64: scratch."""
+    nv = key.shape[0]
+    cut, ties = np.uint32(0), 0
+    nc = 0
+    if nv > proposal_set:
+        rank = proposal_set
+        hist[:] = 0
+        for c in range(nv):
+            hist[key[c] >> 21] += 1
+        b = 2047
+        while hist[b] < rank:
+            rank -= hist[b]
+            b -= 1
+        for c in range(nv):  # candidates: the cut's top-level bin and above, in vote order
+            cand[nc] = c
+            nc += (key[c] >> 21) >= b
+        prefix, mask = np.uint32(b << 21), np.uint32(2047 << 21)
+        for shift, width in ((10, 11), (0, 10)):
+            top = (1 << width) - 1
+            hist[:top + 1] = 0
+            for q in range(nc):
+                x = key[cand[q]]
+                if x & mask == prefix:
+                    hist[(x >> shift) & top] += 1
+            b = top
+            while hist[b] < rank:
+                rank -= hist[b]
+                b -= 1
+            prefix |= np.uint32(b << shift)
+            mask |= np.uint32(top << shift)
+        cut = prefix
+        ties = rank if cut > 0 else 0  # votes equal to the cut that still fit
+    else:
+        for c in range(nv):
+            cand[c] = c
+        nc = nv
+    p = 0
+    for q in range(nc):  # above the cut, in vote order
+        c = cand[q]
+        chosen[p] = c
+        p += key[c] > cut
+    t = 0
+    for q in range(nc):  # then the first ties
+        if t == ties:
+            break
+        c = cand[q]
+        chosen[p] = c
+        hit = key[c] == cut
+        p += hit
+        t += hit
+    return p
+
+
+@njit(cache=True, nogil=True)
 def frame_proposals(xyz, leaves, leaf_offsets, leaf_weights, proposal_set, k, bandwidth):
     """One frame's proposals (J, k, 3) mm and confidences (J, k) from pixel points xyz (n, 3)
-    mm and their leaves (n, T); see the module docstring."""
+    mm and their leaves (n, T); see the module docstring. Vote c = (i * T + t) * M + m is
+    mode m of pixel i's leaf in tree t."""
     n, T = leaves.shape
     J, M = leaf_weights.shape[1], leaf_weights.shape[2]
     props = np.zeros((J, k, 3))
@@ -217,33 +285,28 @@ def frame_proposals(xyz, leaves, leaf_offsets, leaf_weights, proposal_set, k, ba
         centre += xyz[i]
     centre /= max(n, 1)
     nv = n * T * M
-    W = np.empty((J, nv))  # vote weights, gathered leaf by leaf (each leaf's (J, M) block is contiguous)
-    for i in range(n):
-        for t in range(T):
-            leaf = leaves[i, t]
-            for j in range(J):
-                for m in range(M):
-                    W[j, (i * T + t) * M + m] = leaf_weights[leaf, j, m]
+    bits = leaf_weights.view(np.uint32)
+    key = np.empty(nv, np.uint32)
+    hist = np.empty(2048, np.int64)
+    cand = np.empty(nv, np.int64)
+    chosen = np.empty(nv, np.int64)
     pts = np.empty((proposal_set, 3))
     wts = np.empty(proposal_set)
     for j in range(J):
-        w = W[j]
-        cut = 0.0
-        if nv > proposal_set:
-            cut = max(np.partition(w, nv - proposal_set)[nv - proposal_set], 0.0)
-        p = 0
-        for strict in (True, False):  # votes above the cut first, then ties at the cut
-            for c in range(nv):
-                if p == proposal_set:
-                    break
-                if (w[c] > cut) if strict else (w[c] == cut and w[c] > 0.0):
-                    i, r = c // (T * M), c % (T * M)
-                    off = leaf_offsets[leaves[i, r // M], j, r % M]
-                    pts[p, 0] = xyz[i, 0] + off[0]
-                    pts[p, 1] = xyz[i, 1] + off[1]
-                    pts[p, 2] = xyz[i, 2] + off[2]
-                    wts[p] = w[c]
-                    p += 1
+        for i in range(n):
+            for t in range(T):
+                leaf = leaves[i, t]
+                for m in range(M):
+                    key[(i * T + t) * M + m] = bits[leaf, j, m] if leaf_weights[leaf, j, m] > 0 else 0
+        p = _select_votes(key, proposal_set, hist, cand, chosen)
+        for q in range(p):
+            c = chosen[q]
+            i, r = c // (T * M), c % (T * M)
+            leaf, m = leaves[i, r // M], r % M
+            pts[q, 0] = xyz[i, 0] + leaf_offsets[leaf, j, m, 0]
+            pts[q, 1] = xyz[i, 1] + leaf_offsets[leaf, j, m, 1]
+            pts[q, 2] = xyz[i, 2] + leaf_offsets[leaf, j, m, 2]
+            wts[q] = leaf_weights[leaf, j, m]
         if p == 0:
             for q in range(k):
                 props[j, q] = centre

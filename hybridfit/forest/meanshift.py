@@ -43,43 +43,62 @@ def mean_shift(points, weights, bandwidth, max_iter=30, tol=0.1):
         b = np.int64(np.floor(points[i, 1] / cell)) + 1048576
         c = np.int64(np.floor(points[i, 2] / cell)) + 1048576
         keys[i] = (a << 42) | (b << 21) | c
-    order = np.argsort(keys, kind="mergesort")
+    size = 1 << max(4, int(np.ceil(np.log2(2 * n))))  # open-addressing table: cell key -> seed
+    table = np.full(size, -1, np.int64)
+    cell_keys = np.empty(n, np.int64)
     seeds = np.zeros((n, 3))
     mass = np.zeros(n)
-    s = -1
-    for r in range(n):
-        i = order[r]
-        if r == 0 or keys[i] != keys[order[r - 1]]:
-            s += 1
+    S = 0
+    for i in range(n):  # each cell sums its points in index order
+        h = (np.uint64(keys[i]) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(40)
+        s = -1
+        while s < 0:
+            h &= np.uint64(size - 1)
+            if table[h] < 0:
+                table[h] = S
+                cell_keys[S] = keys[i]
+                S += 1
+            if cell_keys[table[h]] == keys[i]:
+                s = table[h]
+            h += np.uint64(1)
         w = weights[i] + 1e-12
         seeds[s, 0] += w * points[i, 0]
         seeds[s, 1] += w * points[i, 1]
         seeds[s, 2] += w * points[i, 2]
         mass[s] += w
-    S = s + 1
+    by_cell = np.argsort(cell_keys[:S])
+    visit = by_cell[np.argsort(-mass[by_cell], kind="mergesort")]  # heaviest first, ties by cell key
     inv2s2 = 0.5 / (bandwidth * bandwidth)
     cutoff2 = 4.0 * bandwidth * bandwidth  # the kernel is cut at 2 sigma
     merge2 = 0.25 * bandwidth * bandwidth
     tol2 = (tol * bandwidth) ** 2
+    px, py, pz = points[:, 0].copy(), points[:, 1].copy(), points[:, 2].copy()  # SIMD-friendly layout
+    r2 = np.empty(n)
+    near = np.empty(n, np.int64)
     modes = np.empty((S, 3))
     m = 0
-    for s in np.argsort(-mass[:S], kind="mergesort"):
+    for s in visit:
         x0, x1, x2 = seeds[s, 0] / mass[s], seeds[s, 1] / mass[s], seeds[s, 2] / mass[s]
         hit = -1
         for _ in range(max_iter):
             hit = _near(modes, m, x0, x1, x2, merge2)
             if hit >= 0:
                 break
-            s0 = s1 = s2 = sw = 0.0
+            for p in range(n):  # branch-free: distances, then the points inside the cutoff in index order
+                d0, d1, d2 = px[p] - x0, py[p] - x1, pz[p] - x2
+                r2[p] = d0 * d0 + d1 * d1 + d2 * d2
+            k = 0
             for p in range(n):
-                d0, d1, d2 = points[p, 0] - x0, points[p, 1] - x1, points[p, 2] - x2
-                r2 = d0 * d0 + d1 * d1 + d2 * d2
-                if r2 < cutoff2:
-                    w = weights[p] * np.exp(-r2 * inv2s2)
-                    s0 += w * points[p, 0]
-                    s1 += w * points[p, 1]
-                    s2 += w * points[p, 2]
-                    sw += w
+                near[k] = p
+                k += r2[p] < cutoff2
+            s0 = s1 = s2 = sw = 0.0
+            for q in range(k):
+                p = near[q]
+                w = weights[p] * np.exp(-r2[p] * inv2s2)
+                s0 += w * px[p]
+                s1 += w * py[p]
+                s2 += w * pz[p]
+                sw += w
             if sw <= 0.0:
                 break
             y0, y1, y2 = s0 / sw, s1 / sw, s2 / sw
