@@ -39,11 +39,13 @@ within +-``OFFSET_WEIGHT_MAX``.
 from __future__ import annotations
 
 
+from typing import ClassVar
+
 import numpy as np
 from pydantic import Field, field_validator
 
-from hybridfit.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
-from hybridfit.model import Geometry, Stage
+from hybridfit.model.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
+from hybridfit.model.base import Geometry, Stage
 from hybridfit.plugin import Settings
 
 FINGERS = ("thumb", "index", "middle", "ring", "little")
@@ -54,6 +56,13 @@ FINGER_JOINTS = {
 FINGER_ANGLES = {
     "thumb": ("cmc_flexion", "cmc_abduction", "mcp_flexion", "ip_flexion"),
     **{f: ("mcp_flexion", "mcp_abduction", "pip_flexion", "dip_flexion") for f in FINGERS[1:]},
+}
+#: per finger, the rotations of its three moving joints (base, second, third) in the order
+#: applied: (axis in the joint's frame, angle name); the base joint abducts, then flexes
+JOINT_AXES = {
+    "thumb": (((Z_AXIS, "cmc_abduction"), (X_AXIS, "cmc_flexion")), ((X_AXIS, "mcp_flexion"),), ((X_AXIS, "ip_flexion"),)),
+    **{f: (((Z_AXIS, "mcp_abduction"), (X_AXIS, "mcp_flexion")), ((X_AXIS, "pip_flexion"),), ((X_AXIS, "dip_flexion"),))
+       for f in FINGERS[1:]},
 }
 SEGMENTS = {"thumb": ("metacarpal", "proximal", "distal"), **{f: ("proximal", "middle", "distal") for f in FINGERS[1:]}}
 
@@ -91,6 +100,47 @@ DEFAULT_POSE_DEG = {
     **{f: (10.0, 0.0, 10.0, 5.0) for f in FINGERS[1:]},
 }
 
+#: named hand shapes (degrees, per finger in FINGER_ANGLES order), the test sequence's key
+#: poses (``named_poses_deg``): thumb states and finger states, combined below
+_THUMB_STATES = {"open": (-12, -25, 5, 3), "rest": (8, 0, 12, 10), "across": (45, 35, 35, 25),
+                 "pinch": (40, 10, 30, 25), "grasp": (25, 15, 20, 15)}
+_FINGER_STATES = {"straight": (3, 0, 3, 2), "fist": (85, 0, 95, 65), "rest": (15, 0, 20, 10),
+                  "half": (40, 0, 45, 25), "grasp": (50, 0, 55, 35), "pinch": (45, 0, 35, 20),
+                  "wave": (60, 0, 70, 40)}
+_SPREAD = (-10, -2, 6, 12)  # abduction of index .. little in an open hand
+
+
+def _hand(thumb: str, *fingers: str, spread: bool = False) -> np.ndarray:
+    """(20,) degrees in hand26's angle order: a thumb state and four finger states (index .. little)."""
+    out = [_THUMB_STATES[thumb]]
+    for i, f in enumerate(fingers):
+        a = list(_FINGER_STATES[f])
+        if spread and f == "straight":
+            a[1] = _SPREAD[i]
+        out.append(a)
+    return np.array(out, float).ravel()
+
+
+KEY_POSES_DEG = {
+    "open": _hand("open", "straight", "straight", "straight", "straight", spread=True),
+    "rest": _hand("rest", "rest", "rest", "rest", "rest"),
+    "fist": _hand("across", "fist", "fist", "fist", "fist"),
+    "one": _hand("across", "straight", "fist", "fist", "fist"),
+    "two": _hand("across", "straight", "straight", "fist", "fist", spread=True),
+    "three": _hand("across", "straight", "straight", "straight", "fist", spread=True),
+    "four": _hand("across", "straight", "straight", "straight", "straight", spread=True),
+    "pinch_open": _hand("open", "half", "rest", "rest", "rest"),
+    "pinch": _hand("pinch", "pinch", "half", "half", "half"),
+    "grasp": _hand("grasp", "grasp", "grasp", "grasp", "grasp"),
+    "ok": _hand("pinch", "pinch", "straight", "straight", "straight", spread=True),
+    **{f"wave{i}": _hand("open", *["wave" if k == i else "straight" for k in range(4)]) for i in range(4)},
+}
+#: the training grid's articulations per finger (degrees, FINGER_ANGLES order): 4^5 hand shapes
+GRID_ARTICULATIONS_DEG = {
+    "thumb": [(-10, -20, 5, 0), (10, 0, 20, 15), (40, 30, 30, 20), (55, 20, 60, 60)],
+    **{f: [(5, 0, 5, 5), (30, 0, 50, 30), (60, 0, 10, 5), (80, 0, 100, 70)] for f in FINGERS[1:]},
+}
+
 #: calibration prior: std of each bone length as a fraction of it, std of base coordinates (mm, scale 1)
 PRIOR_BONE_REL = 0.2
 PRIOR_BASE_MM = 10.0
@@ -100,15 +150,23 @@ OFFSET_WEIGHT_MAX = 0.6
 #: joints of the rigid palm: every derived point's weights may use them
 PALM_JOINTS = ("wrist", "thumb_cmc", "index_mcp", "middle_mcp", "ring_mcp", "little_mcp")
 
-PARAMETER_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz") + tuple(
-    f"{f}_{a}" for f in FINGERS for a in FINGER_ANGLES[f]
-)
+
+
+def parameter_names(finger_angles: dict[str, tuple[str, ...]]) -> tuple[str, ...]:
+    """The global pose's 7 parameter names, then each finger's angles in finger order."""
+    return ("x", "y", "z", "qw", "qx", "qy", "qz") + tuple(f"{f}_{a}" for f in FINGERS for a in finger_angles[f])
+
+
+PARAMETER_NAMES = parameter_names(FINGER_ANGLES)
 JOINT_NAMES = ("wrist",) + tuple(f"{f}_{j}" for f in FINGERS for j in FINGER_JOINTS[f])
 BONE_NAMES = tuple(f"{f}_{s}" for f in FINGERS for s in SEGMENTS[f])
 
 
 class Hand26Settings(Settings):
     """Geometry of the hand26 model. Lengths in millimetres, angles in degrees."""
+
+    #: the articulation angles whose limits ``limits_deg`` may override
+    angle_names: ClassVar[tuple[str, ...]] = PARAMETER_NAMES[7:]
 
     scale: float = Field(1.0, gt=0, description="global scale of every length")
     bone_lengths: dict[str, float] = Field(
@@ -149,8 +207,8 @@ class Hand26Settings(Settings):
     @classmethod
     def _limits(cls, v):
         for name, (lo, hi) in v.items():
-            if name not in PARAMETER_NAMES[7:]:
-                raise ValueError(f"unknown angle {name!r} (angles: {', '.join(PARAMETER_NAMES[7:])})")
+            if name not in cls.angle_names:
+                raise ValueError(f"unknown angle {name!r} (angles: {', '.join(cls.angle_names)})")
             if not lo <= hi:
                 raise ValueError(f"limits of {name!r} must satisfy lower <= upper, got ({lo}, {hi})")
         return v
@@ -182,7 +240,10 @@ _REST_FRAMES = {f: _frame(*REST_DIRECTIONS[f]) for f in FINGERS}
 
 
 class Hand26(TreeHandModel):
-    """The paper's 26-DoF (27-parameter) joints-only hand model with anatomical limits."""
+    """The paper's 26-DoF (27-parameter) joints-only hand model with anatomical limits.
+
+    The per-finger tables below are class attributes so that a richer model (``hand27``)
+    changes a finger's joints and angles and inherits everything else."""
 
     Settings = Hand26Settings
     parameter_names = PARAMETER_NAMES
@@ -190,6 +251,14 @@ class Hand26(TreeHandModel):
     bone_names = BONE_NAMES
     mirror_setting = "mirror"
     derived_points_setting = "derived_points"
+    #: per finger: its angle names in parameter order, the rotations of its three moving
+    #: joints, the angles' limits and default pose (degrees, in the angles' order)
+    finger_angles: ClassVar[dict[str, tuple[str, ...]]] = FINGER_ANGLES
+    joint_axes: ClassVar[dict[str, tuple]] = JOINT_AXES
+    angle_limits_deg: ClassVar[dict[str, tuple[tuple[float, float], ...]]] = LIMITS_DEG
+    default_pose_deg: ClassVar[dict[str, tuple[float, ...]]] = DEFAULT_POSE_DEG
+    #: each finger's (3, 3) rest frame of its base joint in the hand frame
+    rest_frames: ClassVar[dict[str, np.ndarray]] = _REST_FRAMES
 
     def kinematic_tree(self) -> KinematicTree:
         """Wrist (root) -> each finger's base joint -> two further joints -> tip."""
@@ -197,6 +266,7 @@ class Hand26(TreeHandModel):
         bases = np.array([s.base_positions.get(f, BASE_POSITIONS[f]) for f in FINGERS], float) * s.scale
         lengths = self._lengths()
         centre = bases[1:].sum(axis=0) / 5.0  # palm_centre (mean of the wrist at 0 and 4 MCPs) is the origin
+        index = {name: i for i, name in enumerate(self.parameter_names)}
         J = len(JOINT_NAMES)
         parents = np.zeros(J, dtype=np.int64)
         offsets = np.zeros((J, 3))
@@ -205,14 +275,14 @@ class Hand26(TreeHandModel):
         axis_params = np.zeros((J, 2), dtype=np.int64)
         parents[0], offsets[0] = -1, -centre
         for f, finger in enumerate(FINGERS):
-            base, first = 1 + 4 * f, 7 + 4 * f
-            parents[base], offsets[base], rest[base] = 0, bases[f], _REST_FRAMES[finger]
-            axes[base], axis_params[base] = (Z_AXIS, X_AXIS), (first + 1, first)  # abduction, then flexion
+            base = 1 + 4 * f
+            parents[base], offsets[base], rest[base] = 0, bases[f], self.rest_frames[finger]
             for k in range(3):
                 j = base + 1 + k
                 parents[j], offsets[j] = j - 1, (0.0, lengths[f, k], 0.0)
-                if k < 2:
-                    axes[j, 0], axis_params[j, 0] = X_AXIS, first + 2 + k
+            for k, rotations in enumerate(self.joint_axes[finger]):
+                for a, (axis, angle) in enumerate(rotations):
+                    axes[base + k, a], axis_params[base + k, a] = axis, index[f"{finger}_{angle}"]
         return KinematicTree(parents, offsets, rest, axes, axis_params, -1.0 if s.mirror else 1.0)
 
     def _lengths(self) -> np.ndarray:
@@ -294,29 +364,44 @@ class Hand26(TreeHandModel):
         return out
 
     def bounds(self):
-        lower = np.full(27, -np.inf)
-        upper = np.full(27, np.inf)
+        P = self.n_params
+        lower = np.full(P, -np.inf)
+        upper = np.full(P, np.inf)
         lower[3:7], upper[3:7] = -1.0, 1.0
-        for i, name in enumerate(PARAMETER_NAMES[7:], start=7):
-            f = FINGERS[(i - 7) // 4]
-            lo, hi = self.settings.limits_deg.get(name, LIMITS_DEG[f][(i - 7) % 4])
+        table = {f"{f}_{a}": lim for f in FINGERS for a, lim in zip(self.finger_angles[f], self.angle_limits_deg[f])}
+        for i, name in enumerate(self.parameter_names[7:], start=7):
+            lo, hi = self.settings.limits_deg.get(name, table[name])
             lower[i], upper[i] = np.radians(lo), np.radians(hi)
         return lower, upper
 
     def default_params(self):
-        x = np.zeros(27)
+        x = np.zeros(self.n_params)
         x[3] = 1.0
-        x[7:] = np.radians([a for f in FINGERS for a in DEFAULT_POSE_DEG[f]])
+        x[7:] = np.radians([a for f in FINGERS for a in self.default_pose_deg[f]])
         lower, upper = self.bounds()
         return np.clip(x, lower, upper)
 
+    def named_poses_deg(self) -> dict[str, np.ndarray]:
+        """The test sequence's key poses (open, rest, fist, counting, pinch, grasp, ok, finger
+        waves): {name: (P - 7,) articulation angles in degrees}; an angle hand26 lacks is 0."""
+        hand26 = PARAMETER_NAMES[7:]
+        return {name: np.array([dict(zip(hand26, pose)).get(a, 0.0) for a in self.parameter_names[7:]])
+                for name, pose in KEY_POSES_DEG.items()}
+
+    def grid_articulations_deg(self) -> dict[str, list[tuple[float, ...]]]:
+        """The training grid's articulations: {finger stage: [(its angles in degrees), ...]};
+        an angle hand26 lacks is 0."""
+        return {f: [tuple(dict(zip(FINGER_ANGLES[f], art)).get(a, 0.0) for a in self.finger_angles[f])
+                    for art in GRID_ARTICULATIONS_DEG[f]] for f in FINGERS}
+
     def stages(self):
         palm = Stage("palm", tuple(range(7)), (0,) + tuple(1 + 4 * f for f in range(5)))
-        fingers = tuple(
-            Stage(f, tuple(range(7 + 4 * i, 11 + 4 * i)), tuple(range(2 + 4 * i, 5 + 4 * i)))
-            for i, f in enumerate(FINGERS)
-        )
-        return (palm,) + fingers
+        fingers, first = [], 7
+        for i, f in enumerate(FINGERS):
+            n = len(self.finger_angles[f])
+            fingers.append(Stage(f, tuple(range(first, first + n)), tuple(range(2 + 4 * i, 5 + 4 * i))))
+            first += n
+        return (palm, *fingers)
 
 
 def _weight_support(weights: dict[str, float]) -> tuple[tuple[str, ...], str | None]:

@@ -191,7 +191,7 @@ BREAKS = [
     (lambda r: r.pop("fingertips"), "fingertips", "must be a list"),
     (lambda r: r.__setitem__("fingertip", r.pop("fingertips")), "fingertip", "did you mean 'fingertips'"),
     (lambda r: r.__setitem__("modle", "hand26"), "modle", "did you mean 'model'"),
-    (lambda r: r.__setitem__("model", "hand62"), "model", "did you mean 'hand26'"),
+    (lambda r: r.__setitem__("model", "hnad26"), "model", "did you mean 'hand26'"),
     (lambda r: r.__setitem__("convention", "nyy"), "convention", "did you mean 'nyu'"),
     (lambda r: r.__setitem__("name", 3), "name", "non-empty string"),
     (lambda r: r["points"].__setitem__("thumb_tip", "thumb_tp"), "points.thumb_tip", "did you mean 'thumb_tip'"),
