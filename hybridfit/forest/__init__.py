@@ -5,10 +5,11 @@ gives ``propose(depths, intrinsics) -> Proposals`` (the (F, J, k, 3) / (F, J, k)
 ``hybridfit.fit``) and saves to / loads from one versioned .npz.
 """
 
-from .forest import FORMAT, VERSION, Forest, Proposals, train_forest, train_forest_dataset
+from .config import ForestConfig
+from .forest import FORMAT, VERSION, Forest, Proposals
 from .meanshift import mean_shift
 from .segment import dataset_masks, segment_hand
-from .train import ForestConfig
+from .train import train_forest, train_forest_dataset
 
 __all__ = ["FORMAT", "VERSION", "Forest", "ForestConfig", "Proposals", "dataset_masks", "mean_shift",
            "segment_hand", "train_forest", "train_forest_dataset"]
