@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import sys
 
+import numpy as np
+
+from ..datasets import open_dataset
+from ..datasets.protocol import ground_truth, model_config
 from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK
 from ..fitting.estimator import EMPTY_FRAME, HybridEstimator
 from ..io import check_output, save_npz
 from ..metrics import summary
 from ._common import add_fit_options, add_plugin_options, plugin_kwargs
-from ._forest import frame_indices, ground_truth, open_dataset, report_empty
+from ._forest import frame_indices, report_empty
 from .fit import report_failures
 from .propose import add_proposal_options
 
@@ -18,7 +22,8 @@ def register(sub) -> None:
     p = sub.add_parser("estimate", help="hand poses from depth frames: forest proposals + model fitting")
     p.add_argument("forest", help="forest file (.npz from `hybridfit train`)")
     p.add_argument("data", help="data-set folder")
-    p.add_argument("--out", required=True, help="output npz: the `hybridfit fit` keys plus proposals, confidences, empty")
+    p.add_argument("--out", required=True, help="output npz (camera coordinates, mm): the `hybridfit fit` keys plus "
+                   "proposals, confidences, empty, frames")
     add_proposal_options(p)
     add_plugin_options(p)
     add_fit_options(p)
@@ -29,7 +34,7 @@ def run(args) -> int:
     check_output(args.out)
     plugins = plugin_kwargs(args)
     ds = open_dataset(args.data)
-    plugins["model_config"] = ds.model_config(plugins["model"], plugins["model_config"])
+    plugins["model_config"] = model_config(ds, plugins["model"], plugins["model_config"])
     est = HybridEstimator(args.forest, k=args.k, proposal_set=args.proposal_set, stride=args.stride,
                           bandwidth_mm=args.bandwidth, budget=args.budget, seed=args.seed, jobs=args.jobs,
                           search_radius_mm=args.search_radius, **plugins)
@@ -37,9 +42,10 @@ def run(args) -> int:
     idx = frame_indices(ds, args.frames)
     result = est.estimate_dataset(ds, idx, args.foreground, progress=sys.stderr.isatty())
     fit = result.fit
-    fit.joints, fit.model_joints = ds.to_dataset(fit.joints), ds.to_dataset(fit.model_joints)
-    out = {**fit.to_npz(), "proposals": ds.to_dataset(result.proposals.proposals), "confidences": result.proposals.confidences,
+    out = {**fit.to_npz(), "proposals": result.proposals.proposals, "confidences": result.proposals.confidences,
            "empty": result.proposals.empty, "frames": idx}
+    if ds.dataset:
+        out["dataset"] = np.asarray(ds.dataset)
     gt = ground_truth(ds, idx)
     if gt is not None and gt.shape == fit.joints.shape:
         out["ground_truth"] = gt

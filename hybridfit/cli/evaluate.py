@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..datasets.points import in_order
 from ..errors import HybridfitError
 from ..fitting.frames import INLIER_DISTANCE_MM
 from ..io import check_output, load_npz
@@ -142,21 +143,6 @@ def load_truth(args) -> tuple[np.ndarray, list[str] | None]:
     raise HybridfitError("no ground truth: give DATA, --ground-truth LABELS, or an npz with 'ground_truth'")
 
 
-def aligned(pred, pred_names, truth, truth_names, where) -> np.ndarray:
-    """Predictions in the truth's point order (by name when both have names)."""
-    if len(pred) != len(truth):
-        raise HybridfitError(f"{where}: {len(pred)} frames, the ground truth has {len(truth)}")
-    if pred_names is None or truth_names is None:
-        if pred.shape[1] != truth.shape[1]:
-            raise HybridfitError(f"{where}: {pred.shape[1]} points, the ground truth has {truth.shape[1]}")
-        return pred
-    index = {n: i for i, n in enumerate(pred_names)}
-    missing = [n for n in truth_names if n not in index]
-    if missing:
-        raise HybridfitError(f"{where}: no prediction for the ground truth's {', '.join(missing)}")
-    return pred[:, [index[n] for n in truth_names]]
-
-
 def _skeleton(dataset):
     from ..datasets.skeletons import skeleton
 
@@ -192,7 +178,10 @@ def run(args) -> int:
             first_len = len(pts) if path is args.predictions else first_len
             if len(pts) == len(truth):
                 pts = pts[sel]  # else: already the selected frames
-            methods.append((label, aligned(pts, names, truth[sel], truth_names, path)))
+            if len(pts) != len(truth[sel]):
+                raise HybridfitError(f"{path}: {len(pts)} frames, the ground truth has {len(truth[sel])}")
+            methods.append((label, in_order(pts, names, truth_names or [None] * truth.shape[1], path,
+                                            "the ground truth")))
     truth = truth[sel]
     names = truth_names or [f"joint {j}" for j in range(truth.shape[1])]
     tips = fingertips(names)

@@ -4,25 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..datasets.points import in_order
 from ..datasets.results import write_xyz
 from ..datasets.skeletons import skeleton
 from ..errors import HybridfitError
 from ..io import atomic_path, check_output, load_npz
-
-
-def in_skeleton_order(joints: np.ndarray, names, dataset: str, where: str) -> np.ndarray:
-    """(F, Q, 3) points named ``names`` (model point names, or None for the skeleton's
-    order) -> (F, J, 3) in the dataset's skeleton order; errors name the missing points."""
-    sk = skeleton(dataset)
-    if names is None:
-        if joints.shape[1] != len(sk):
-            raise HybridfitError(f"{where}: {joints.shape[1]} points without joint_names; {dataset} has {len(sk)}")
-        return joints
-    index = {str(n): i for i, n in enumerate(names)}
-    missing = [n for n in sk.model_names if n not in index]
-    if missing:
-        raise HybridfitError(f"{where}: no points for {dataset}'s {', '.join(missing)} (joint_names: {', '.join(index)})")
-    return joints[:, [index[n] for n in sk.model_names]]
 
 
 def register(sub) -> None:
@@ -45,7 +31,7 @@ def run(args) -> int:
     if not len(joints):
         raise HybridfitError(f"{args.fits}: 'joints' has no frames")
     names = point_names(args.fits, data, joints.shape[1])
-    joints = in_skeleton_order(joints, names, args.dataset, args.fits)
+    joints = in_order(joints, names, skeleton(args.dataset).model_names, args.fits, args.dataset)
     failed = ~np.isfinite(joints).all(axis=(1, 2))
     if failed.any():
         raise HybridfitError(f"{args.fits}: {int(failed.sum())} failed frames (first {int(np.argmax(failed))}) "

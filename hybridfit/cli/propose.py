@@ -6,12 +6,14 @@ import sys
 
 import numpy as np
 
+from ..datasets import open_dataset
+from ..datasets.protocol import ground_truth
 from ..fitting.estimator import HybridEstimator
 from ..errors import EXIT_INCOMPLETE, EXIT_OK
 from ..io import check_output, save_npz
 from ..metrics import joint_errors, oracle
 from ._common import positive_float, positive_int
-from ._forest import frame_indices, ground_truth, open_dataset, report_empty
+from ._forest import frame_indices, report_empty
 
 
 def add_proposal_options(p) -> None:
@@ -29,7 +31,8 @@ def register(sub) -> None:
     p = sub.add_parser("propose", help="joint proposals from a forest (-> proposals .npz, a `hybridfit fit` input)")
     p.add_argument("forest", help="forest file (.npz from `hybridfit train`)")
     p.add_argument("data", help="data-set folder")
-    p.add_argument("--out", required=True, help="output npz: proposals, confidences, joint_names, empty, ground_truth")
+    p.add_argument("--out", required=True, help="output npz: proposals (camera coordinates, mm), confidences, "
+                   "joint_names, empty, frames, ground_truth, dataset (the skeleton, for real datasets)")
     add_proposal_options(p)
     p.set_defaults(func=run)
 
@@ -42,9 +45,10 @@ def run(args) -> int:
     ds = open_dataset(args.data)
     idx = frame_indices(ds, args.frames)
     props = est.propose_dataset(ds, idx, args.foreground, progress=sys.stderr.isatty())
-    props.proposals = ds.to_dataset(props.proposals)
     out = {"proposals": props.proposals, "confidences": props.confidences,
            "joint_names": np.asarray(props.joint_names), "empty": props.empty, "frames": idx}
+    if ds.dataset:
+        out["dataset"] = np.asarray(ds.dataset)
     gt = ground_truth(ds, idx)
     if gt is not None and gt.shape == props.proposals.shape[:2] + (3,):
         out["ground_truth"] = gt

@@ -5,10 +5,11 @@ from __future__ import annotations
 import sys
 import time
 
+from ..datasets import open_dataset
 from ..forest import ForestConfig, train_forest_dataset
 from ..io import check_output
 from ._common import load_toml, positive_int, seed_int
-from ._forest import frame_indices, open_dataset
+from ._forest import frame_indices
 
 
 def register(sub) -> None:

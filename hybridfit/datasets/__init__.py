@@ -1,9 +1,10 @@
 """Real hand-pose datasets (ICVL, NYU, MSRA 2015), their skeleton mappings onto the model,
 their camera conventions and the common results format.
 
-``open_dataset(path)`` detects the format of a folder or file and returns an object with
-the frame-access interface of :mod:`hybridfit.datasets.base` (the synthetic data set's
-interface), so training and estimation accept real folders.
+``open_dataset(path)`` detects the format of a folder or file and returns a
+:class:`DepthDataset` (:mod:`hybridfit.datasets.protocol`, the one protocol of synthetic
+folders and real datasets), every point in camera coordinates (x right, y down, z forward,
+mm), so training, estimation, evaluation and studies accept any of them alike.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from .conventions import CONVENTIONS, Convention
 from .icvl import ICVL, LABEL_FILES
 from .msra import MSRA
 from .nyu import NYU
+from .protocol import DepthDataset
 from .skeletons import SKELETONS, Skeleton, convention, skeleton
 
 READERS = {"icvl": ICVL, "nyu": NYU, "msra": MSRA}
@@ -49,7 +51,7 @@ def detect(path: str | os.PathLike) -> str:
     )
 
 
-def open_dataset(path: str | os.PathLike, dataset: str | None = None):
+def open_dataset(path: str | os.PathLike, dataset: str | None = None) -> DepthDataset:
     """Open a data set folder or file; ``dataset`` forces the format (else it is detected)."""
     kind = (dataset or detect(path)).lower()
     if kind == "synthetic":
@@ -64,6 +66,6 @@ def open_dataset(path: str | os.PathLike, dataset: str | None = None):
 
 
 __all__ = [
-    "CONVENTIONS", "Convention", "DATASETS", "ICVL", "MSRA", "NYU", "RealDataset", "SKELETONS", "Skeleton",
+    "CONVENTIONS", "Convention", "DATASETS", "DepthDataset", "ICVL", "MSRA", "NYU", "RealDataset", "SKELETONS", "Skeleton",
     "convention", "detect", "open_dataset", "skeleton",
 ]

@@ -1,13 +1,13 @@
-"""The frame-access interface shared by every real-data reader (and the synthetic data set).
+"""The base of every real-data reader: the dataset protocol (:mod:`hybridfit.datasets.protocol`).
 
-As :class:`hybridfit.datasets.folder.Dataset`: ``frames`` (F, the number of frames) and ``len()``,
-``files`` (F frame file names), ``path``, ``joint_names`` (J model point names, see
-``skeletons``), ``intrinsics``, ``joints_xyz`` (F, J, 3) mm in the dataset's own
-convention (``y_sign``, ``z_sign``), ``joints_uvd`` (F, J, 3) px and mm,
-``depth(i) -> (H, W) uint16`` mm (0 = no measurement), ``depths(indices) -> (n, H, W)``,
-``parts(i) -> (H, W) uint8`` and ``part_labels(indices) -> (n, H, W)``: each pixel's
-closest joint (label j + 1), 0 for background (no depth, or further than
-``part_radius_mm`` from every joint). Also ``point_names`` (the dataset's own names).
+A reader gives ``frames`` (F) and ``len()``, ``files`` (F frame file names), ``path``,
+``dataset`` (its skeleton name), ``joint_names`` (J model point names, see ``skeletons``),
+``intrinsics``, ``joints_xyz`` (F, J, 3) mm in camera coordinates (x right, y down, z
+forward, whatever the dataset's own convention: ``convention`` converts on export),
+``joints_uvd`` (F, J, 3) px and mm, ``depth(i) -> (H, W) uint16`` mm (0 = no measurement),
+``depths(indices) -> (n, H, W)``, ``parts(i) -> (H, W) uint8`` and ``part_labels(indices)
+-> (n, H, W)``: each pixel's closest joint (label j + 1), 0 for background (no depth, or
+further than ``part_radius_mm`` from every joint). Also ``point_names`` (the dataset's own names).
 """
 
 from __future__ import annotations
@@ -31,7 +31,10 @@ class RealDataset(abc.ABC):
     dataset: str = ""
     part_radius_mm: float = 40.0
 
-    def __init__(self, root: str | Path, files: Sequence[str], joints_uvd: np.ndarray) -> None:
+    def __init__(self, root: str | Path, files: Sequence[str], joints_uvd: np.ndarray,
+                 joints_xyz: np.ndarray | None = None) -> None:
+        """joints_uvd (F, J, 3) px, mm; joints_xyz (F, J, 3) mm in the dataset's own convention
+        where the dataset annotates xyz (default: back-projected from joints_uvd)."""
         self.root = self.path = Path(root)
         self.files = list(files)
         self.frames = len(self.files)
@@ -43,20 +46,13 @@ class RealDataset(abc.ABC):
                 f"{self.root}: {self.dataset} joints must have shape ({self.frames}, {len(self.skeleton)}, 3), "
                 f"got {self.joints_uvd.shape}"
             )
-        self.joints_xyz = self.convention.to_xyz(self.joints_uvd)
+        self.joints_xyz = (self.convention.uvd_to_camera(self.joints_uvd) if joints_xyz is None
+                           else self.convention.to_camera(joints_xyz))
 
     # ---------------------------------------------------------------- metadata
     @property
     def intrinsics(self) -> Intrinsics:
         return self.convention.intrinsics
-
-    @property
-    def y_sign(self) -> float:
-        return self.convention.y_sign
-
-    @property
-    def z_sign(self) -> float:
-        return self.convention.z_sign
 
     @property
     def joint_names(self) -> list[str]:
@@ -116,7 +112,7 @@ class RealDataset(abc.ABC):
         v, u = np.nonzero(d > 0)
         labels = np.zeros(d.shape, dtype=np.uint8)
         if len(u):
-            xyz = self.convention.to_xyz(np.stack([u, v, d[v, u]], axis=-1))
+            xyz = self.convention.uvd_to_camera(np.stack([u, v, d[v, u]], axis=-1))
             dist = np.linalg.norm(xyz[:, None, :] - self.joints_xyz[int(i) % len(self)][None], axis=-1)
             best = dist.argmin(axis=1)
             near = dist[np.arange(len(u)), best] <= self.part_radius_mm

@@ -1,8 +1,8 @@
 """Pinhole camera: intrinsics and uvd <-> xyz conversion, shared by every data path.
 
 Camera coordinates: x right, y down, z along the optical axis (depth), millimetres; u, v
-pixels (u right, v down), d = z in mm. Datasets whose xyz convention differs (y up, for
-example) convert with ``y_sign=-1``.
+pixels (u right, v down), d = z in mm. Datasets whose own xyz convention differs (y up, for
+example) are converted at the edges by :mod:`hybridfit.datasets.conventions`.
 """
 
 from __future__ import annotations
@@ -36,19 +36,19 @@ class Intrinsics(BaseModel):
         return np.array([self.fx, self.fy, self.cx, self.cy])
 
 
-def uvd_to_xyz(uvd: np.ndarray, intrinsics: Intrinsics, y_sign: float = 1.0) -> np.ndarray:
+def uvd_to_xyz(uvd: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     """(..., 3) pixel u, v and depth d (mm) -> (..., 3) camera x, y, z (mm)."""
     uvd = np.asarray(uvd, dtype=np.float64)
     d = uvd[..., 2]
     x = (uvd[..., 0] - intrinsics.cx) * d / intrinsics.fx
     y = (uvd[..., 1] - intrinsics.cy) * d / intrinsics.fy
-    return np.stack([x, y_sign * y, d], axis=-1)
+    return np.stack([x, y, d], axis=-1)
 
 
-def xyz_to_uvd(xyz: np.ndarray, intrinsics: Intrinsics, y_sign: float = 1.0) -> np.ndarray:
+def xyz_to_uvd(xyz: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     """(..., 3) camera x, y, z (mm) -> (..., 3) pixel u, v and depth d (mm)."""
     xyz = np.asarray(xyz, dtype=np.float64)
     z = xyz[..., 2]
     u = xyz[..., 0] * intrinsics.fx / z + intrinsics.cx
-    v = y_sign * xyz[..., 1] * intrinsics.fy / z + intrinsics.cy
+    v = xyz[..., 1] * intrinsics.fy / z + intrinsics.cy
     return np.stack([u, v, z], axis=-1)

@@ -1,13 +1,16 @@
-"""Each dataset's camera and xyz convention, and uvd <-> xyz in that convention.
+"""Each dataset's camera and xyz convention: camera coordinates <-> the dataset's own xyz.
 
-Every dataset keeps its own xyz frame (millimetres); u, v are pixels (u right, v down) in
-its depth image and d the depth in mm.
+Inside hybridfit every point is in camera coordinates: x right, y down, z forward (along
+the optical axis, z = depth d), millimetres; u, v are pixels (u right, v down) in the depth
+image and d the depth in mm. A dataset's own xyz convention appears only at the edges: its
+reader converts the annotations in (:meth:`Convention.to_camera`) and an exporter writes
+them back out (:meth:`Convention.from_camera`); both only flip signs, so a round trip is exact.
 
-| dataset | image | fx, fy, cx, cy | xyz convention | hand in that frame |
+| dataset | image | fx, fy, cx, cy | its own xyz convention | hand in camera coordinates |
 | --- | --- | --- | --- | --- |
-| icvl | 320x240, 16-bit PNG, mm | 240.99, 240.96, 160, 120 | back-projected: x right, y down, z = d | calibration decides (``mirror``) |
-| nyu | 640x480, depth = G*256 + B in mm | 588.03, 587.07, 320, 240 | ``joint_xyz``: x right, y up, z = d | mirrored (a left-handed frame): ``mirror = true`` |
-| msra | 320x240, float32 box in a .bin, mm | 241.42, 241.42, 160, 120 | ``joint.txt``: x right, y up, z = -d | right hand (y and z both flipped is a rotation) |
+| icvl | 320x240, 16-bit PNG, mm | 240.99, 240.96, 160, 120 | back-projected: x right, y down, z = d (= camera) | calibration decides (``mirror``) |
+| nyu | 640x480, depth = G*256 + B in mm | 588.03, 587.07, 320, 240 | ``joint_xyz``: x right, y up, z = d | as recorded (its y-up xyz is a mirror image) |
+| msra | 320x240, float32 box in a .bin, mm | 241.42, 241.42, 160, 120 | ``joint.txt``: x right, y up, z = -d | as recorded (y and z both flipped: a rotation) |
 """
 
 from __future__ import annotations
@@ -16,33 +19,44 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import Intrinsics
+from .camera import Intrinsics, uvd_to_xyz, xyz_to_uvd
 
 
 @dataclass(frozen=True)
 class Convention:
-    """intrinsics; y_sign, z_sign: xyz = (x, y_sign * y, z_sign * z) of the y-down camera frame."""
+    """intrinsics; y_sign, z_sign: the dataset's xyz = (x, y_sign * y, z_sign * z) of camera x, y, z."""
 
     intrinsics: Intrinsics
     y_sign: float = 1.0
     z_sign: float = 1.0
 
+    def _signs(self) -> np.ndarray:
+        return np.array([1.0, self.y_sign, self.z_sign])
+
+    def to_camera(self, xyz: np.ndarray) -> np.ndarray:
+        """(..., 3) xyz (mm) in the dataset's convention -> (..., 3) camera coordinates (mm); exact."""
+        return np.asarray(xyz, dtype=np.float64) * self._signs()
+
+    def from_camera(self, xyz: np.ndarray) -> np.ndarray:
+        """(..., 3) camera coordinates (mm) -> (..., 3) xyz (mm) in the dataset's convention; exact."""
+        return np.asarray(xyz, dtype=np.float64) * self._signs()
+
+    def uvd_to_camera(self, uvd: np.ndarray) -> np.ndarray:
+        """(..., 3) u, v (px), d (mm) -> (..., 3) camera coordinates (mm)."""
+        return uvd_to_xyz(uvd, self.intrinsics)
+
+    def camera_to_uvd(self, xyz: np.ndarray) -> np.ndarray:
+        """(..., 3) camera coordinates (mm) -> (..., 3) u, v (px), d (mm)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return xyz_to_uvd(xyz, self.intrinsics)
+
     def to_xyz(self, uvd: np.ndarray) -> np.ndarray:
-        """(..., 3) u, v (px), d (mm) -> (..., 3) xyz (mm) in the dataset's frame."""
-        uvd = np.asarray(uvd, dtype=np.float64)
-        k, d = self.intrinsics, uvd[..., 2]
-        x = (uvd[..., 0] - k.cx) * d / k.fx
-        y = (uvd[..., 1] - k.cy) * d / k.fy
-        return np.stack([x, self.y_sign * y, self.z_sign * d], axis=-1)
+        """(..., 3) u, v (px), d (mm) -> (..., 3) xyz (mm) in the dataset's own convention."""
+        return self.from_camera(self.uvd_to_camera(uvd))
 
     def to_uvd(self, xyz: np.ndarray) -> np.ndarray:
-        """(..., 3) xyz (mm) in the dataset's frame -> (..., 3) u, v (px), d (mm)."""
-        xyz = np.asarray(xyz, dtype=np.float64)
-        k, d = self.intrinsics, self.z_sign * xyz[..., 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = xyz[..., 0] * k.fx / d + k.cx
-            v = self.y_sign * xyz[..., 1] * k.fy / d + k.cy
-        return np.stack([u, v, d], axis=-1)
+        """(..., 3) xyz (mm) in the dataset's own convention -> (..., 3) u, v (px), d (mm)."""
+        return self.camera_to_uvd(self.to_camera(xyz))
 
 
 CONVENTIONS: dict[str, Convention] = {
@@ -51,4 +65,3 @@ CONVENTIONS: dict[str, Convention] = {
     "msra": Convention(Intrinsics(fx=241.42, fy=241.42, cx=160.0, cy=120.0, width=320, height=240),
                        y_sign=-1.0, z_sign=-1.0),
 }
-

@@ -151,7 +151,11 @@ def _read_png(path: Path, shape: tuple[int, int], dtype) -> np.ndarray:
 
 
 class Dataset:
-    """A loaded data set: labels in memory, frames decoded from their PNGs on request."""
+    """A loaded data set: labels in memory, frames decoded from their PNGs on request.
+    Implements the dataset protocol (:class:`hybridfit.datasets.protocol.DepthDataset`);
+    ``dataset`` is None: its points are the generating model's own joints."""
+
+    dataset: str | None = None
 
     def __init__(self, path: Path, meta: dict, labels: dict[str, np.ndarray]):
         self.path = path

@@ -1,7 +1,8 @@
 """MSRA Hand Gesture dataset 2015 (Sun et al., CVPR 2015).
 
 Folders ``P<subject>/<gesture>/`` each hold ``joint.txt`` (a frame-count line, then one
-line per frame of 21 joints x (x, y, z) mm: x right, y up, z = -depth) and per frame
+line per frame of 21 joints x (x, y, z) mm: x right, y up, z = -depth; the reader returns
+camera coordinates, y down, z = depth) and per frame
 ``NNNNNN_depth.bin``: six int32 (image width, image height, left, top, right, bottom)
 then float32 depth (mm) of the box rows top..bottom-1, columns left..right-1.
 """
@@ -92,8 +93,7 @@ class MSRA(RealDataset):
             frames += [str(rel / f"{i:06d}_depth.bin") for i in range(len(j))]
             xyz.append(j)
         xyz = np.concatenate(xyz)
-        super().__init__(root, frames, CONVENTIONS["msra"].to_uvd(xyz))
-        self.joints_xyz = xyz  # exactly as in joint.txt
+        super().__init__(root, frames, CONVENTIONS["msra"].to_uvd(xyz), xyz)  # camera: y and z of joint.txt negated
 
     def _read_depth(self, i: int) -> np.ndarray:
         return read_bin(self.root / self.files[i])

@@ -1,7 +1,7 @@
 """NYU Hand Pose Dataset (Tompson et al., TOG 2014).
 
 ``joint_data.mat`` holds ``joint_uvd`` and ``joint_xyz`` of shape (kinects, F, 36, 3)
-(u, v px, d mm; xyz mm, y up). Depth images ``depth_K_NNNNNNN.png`` (K the kinect, N from
+(u, v px, d mm; xyz mm, y up: the reader returns camera coordinates, y down). Depth images ``depth_K_NNNNNNN.png`` (K the kinect, N from
 1) are 640x480 RGB PNGs with the depth in mm packed as G * 256 + B (the dataset toolbox:
 ``bitshift(G, 8) + B``). The reader keeps the common 14-point evaluation subset.
 """
@@ -68,8 +68,7 @@ class NYU(RealDataset):
         uvd, xyz = read_joint_data(mat, kinect)
         self.kinect = kinect
         frames = [f"depth_{kinect}_{i + 1:07d}.png" for i in range(len(uvd))]
-        super().__init__(mat.parent, frames, uvd[:, list(NYU14)])
-        self.joints_xyz = xyz[:, list(NYU14)]  # the dataset's own xyz (y up)
+        super().__init__(mat.parent, frames, uvd[:, list(NYU14)], xyz[:, list(NYU14)])  # its xyz: y up
 
     def _read_depth(self, i: int) -> np.ndarray:
         from PIL import Image

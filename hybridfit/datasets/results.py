@@ -2,7 +2,9 @@
 
 One line per frame: J points x (u, v, d), whitespace separated (u, v pixels, d mm), J =
 16 (icvl), 14 (nyu) or 21 (msra), in the dataset's skeleton order (``skeletons``).
-Read as predictions, ground truth or proposals; our fits are written in it.
+Read as predictions, ground truth or proposals; our fits are written in it. Points come in
+and go out in camera coordinates (x right, y down, z forward, mm: ``read_xyz``,
+``write_xyz``); the dataset's own xyz convention is for export only (``dataset_xyz``).
 """
 
 from __future__ import annotations
@@ -54,8 +56,8 @@ def _read_rows(path: Path, dataset: str, J: int) -> list[np.ndarray]:
 
 
 def read_xyz(path: str | os.PathLike, dataset: str) -> np.ndarray:
-    """A results file -> (F, J, 3) xyz mm in the dataset's own convention."""
-    return convention(dataset).to_xyz(read_uvd(path, dataset))
+    """A results file -> (F, J, 3) xyz mm in camera coordinates."""
+    return convention(dataset).uvd_to_camera(read_uvd(path, dataset))
 
 
 def write_uvd(path: str | os.PathLike, uvd: np.ndarray, dataset: str) -> None:
@@ -70,8 +72,14 @@ def write_uvd(path: str | os.PathLike, uvd: np.ndarray, dataset: str) -> None:
 
 
 def write_xyz(path: str | os.PathLike, xyz: np.ndarray, dataset: str) -> None:
-    """Write (F, J, 3) xyz mm (the dataset's convention) as a results file."""
-    write_uvd(path, convention(dataset).to_uvd(xyz), dataset)
+    """Write (F, J, 3) xyz mm in camera coordinates as a results file."""
+    write_uvd(path, convention(dataset).camera_to_uvd(xyz), dataset)
+
+
+def dataset_xyz(xyz: np.ndarray, dataset: str) -> np.ndarray:
+    """(..., 3) camera coordinates (mm) -> the dataset's own xyz convention (NYU, MSRA: y up;
+    MSRA: z = -depth), for export; exact (a sign flip)."""
+    return convention(dataset).from_camera(xyz)
 
 
 #: The objective a fit of other methods' predictions uses unless the user names one.
@@ -101,3 +109,35 @@ def proposals_from_results(predictions, confidences=None) -> dict[str, np.ndarra
     proposals = np.stack(arrays, axis=2)
     return {"proposals": proposals, "confidences": np.broadcast_to(conf, proposals.shape[:3]).copy(),
             "objective": np.asarray(ESTIMATES_OBJECTIVE)}
+
+
+def read_proposals(files, dataset: str, confidences=None, ground_truth=None, frames: str | None = None,
+                   confidences_option: str = "confidences", frames_option: str = "frames") -> dict[str, np.ndarray]:
+    """Results files (one method each) -> proposals in camera coordinates: the keys of
+    :func:`proposals_from_results` plus ``joint_names`` (J,) (the skeleton's model points),
+    ``dataset`` (the skeleton's name) and, given a ``ground_truth`` results file,
+    ``ground_truth`` (F, J, 3) mm; only the frames ``frames`` ('START:STOP', default all).
+    Errors name the file, or the option the confidences or frames came from."""
+    from ..io import frame_slice
+
+    sk = skeleton(dataset)
+    files = list(files)
+    xyz = [read_xyz(f, dataset) for f in files]
+    for f, a in zip(files[1:], xyz[1:]):
+        if len(a) != len(xyz[0]):
+            raise HybridfitError(f"{f}: {len(a)} frames, but {files[0]} has {len(xyz[0])}")
+    if confidences is not None and len(confidences) != len(xyz):
+        raise HybridfitError(f"{confidences_option}: need {len(xyz)} values (one per file), got {list(confidences)}")
+    try:
+        out = proposals_from_results(xyz, confidences)
+    except HybridfitError as err:
+        raise HybridfitError(f"{confidences_option}: {err}") from None
+    out.update(joint_names=np.asarray(sk.model_names), dataset=np.asarray(sk.dataset))
+    if ground_truth is not None:
+        gt = read_xyz(ground_truth, dataset)
+        if len(gt) != len(xyz[0]):
+            raise HybridfitError(f"{ground_truth}: {len(gt)} frames, but the results have {len(xyz[0])}")
+        out["ground_truth"] = gt
+    sel = frame_slice(frames, len(xyz[0]), frames_option)
+    return {key: value[sel] if key in ("proposals", "confidences", "ground_truth") else value
+            for key, value in out.items()}

@@ -28,3 +28,13 @@ def test_image_sizes_and_focal_lengths():
     assert (convention("nyu").intrinsics.width, convention("nyu").intrinsics.height) == (640, 480)
     assert convention("icvl").intrinsics.fx == pytest.approx(240.99)
     assert convention("msra").intrinsics.fx == pytest.approx(241.42)
+
+
+@pytest.mark.parametrize("dataset", ["icvl", "nyu", "msra"])
+def test_camera_coordinates_are_y_down_and_z_forward_for_every_dataset(dataset):
+    c = convention(dataset)
+    x, y, z = c.uvd_to_camera([c.intrinsics.cx + 10, c.intrinsics.cy + 10, 500.0])
+    assert x > 0 and y > 0 and z == 500.0  # right of and below the centre, in front of the camera
+    xyz = np.array([[1.5, -2.25, 400.125], [-3.0, 7.0, 812.5]])
+    np.testing.assert_array_equal(c.to_camera(c.from_camera(xyz)), xyz)  # exact: a sign flip
+    np.testing.assert_allclose(c.camera_to_uvd(c.to_camera(c.to_xyz([[100.0, 50.0, 600.0]]))), [[100.0, 50.0, 600.0]])

@@ -11,10 +11,18 @@ from hybridfit.datasets.msra import read_bin, read_joints, write_bin
 def test_reads_every_gesture_folder(msra_dir):
     ds = MSRA(msra_dir)
     assert len(ds) == 5 and ds.files[0] == "P0/1/000000_depth.bin" and ds.files[2] == "P0/TIP/000000_depth.bin"
-    np.testing.assert_allclose(ds.joints_xyz[:2], read_joints(msra_dir / "P0" / "1" / "joint.txt"))
-    assert (ds.joints_xyz[..., 2] < 0).all()  # z = -depth, as in joint.txt
-    np.testing.assert_allclose(convention("msra").to_xyz(ds.joints_uvd), ds.joints_xyz)
+    np.testing.assert_allclose(ds.joints_xyz[:2], read_joints(msra_dir / "P0" / "1" / "joint.txt") * [1, -1, -1])
+    assert (ds.joints_xyz[..., 2] > 0).all()  # camera coordinates: z = depth (joint.txt has z = -depth)
+    np.testing.assert_allclose(convention("msra").uvd_to_camera(ds.joints_uvd), ds.joints_xyz)
     assert ds.joint_names[-4:] == ["thumb_cmc", "thumb_mcp", "thumb_ip", "thumb_tip"]
+
+
+def test_read_camera_export_round_trip_is_exact(msra_dir):
+    """joint.txt (y up, z = -depth) -> camera coordinates -> MSRA's xyz again, bit for bit."""
+    from hybridfit.datasets.results import dataset_xyz
+
+    ds = MSRA(msra_dir)
+    np.testing.assert_array_equal(dataset_xyz(ds.joints_xyz[2:], "msra"), read_joints(msra_dir / "P0" / "TIP" / "joint.txt"))
 
 
 def test_bin_box_is_placed_in_the_full_image(tmp_path):
