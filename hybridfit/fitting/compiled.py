@@ -37,7 +37,8 @@ from ..model.rotations import quaternion_matrix
 from ..model.kinematics import sincos
 from ..objective import normalise_confidences
 from ..optimizer import StagePlan, Task
-from .problem import Problem
+from .problem import Problem, prepare_frames
+from .streams import normal, uniform
 
 #: an objective's compiled kernel: (points (N, Q, 3) mm, subset (m,) point indices,
 #: proposals (Q, K, 3) mm, weights (Q, K), constants (c,), out (N,)) -> None; writes into
@@ -207,8 +208,9 @@ def _points(Wp, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
 @nb.njit(cache=True)
 def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params, mirror,
                pm_ptr, pm_joint, pm_weight, proposals, weights, consts, x0, lower, upper,
-               stages, indices, pso, random, out_params):
-    """Stepwise PSO of one frame (see the module doc); returns (loss, evaluations)."""
+               stages, indices, pso, keys, out_params):
+    """Stepwise PSO of one frame (see the module doc); returns (loss, evaluations). Stage s
+    draws its random numbers from the streams of ``keys[s]`` (:mod:`.streams`)."""
     P = x0.shape[0]
     J = parents.shape[0]
     Q = proposals.shape[0]
@@ -225,8 +227,9 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
     frame_loss = np.inf
     committed = 0.0
     used = 0
-    rpos = 0
     for s in range(stages.shape[0]):
+        key = keys[s]
+        rpos = 0
         budget, n, near = stages[s, BUDGET], stages[s, SWARM], stages[s, NEAR]
         par_lo, par_hi = stages[s, PARAMS], stages[s, PARAMS + 1]
         pts_lo, pts_hi = stages[s, POINTS], stages[s, POINTS + 1]
@@ -260,13 +263,12 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
         x = np.empty((n, d))
         for i in range(n):
             for k in range(d):
-                x[i, k] = lo[k] + span[k] * random[rpos]
+                x[i, k] = lo[k] + span[k] * uniform(key, rpos)
                 rpos += 1
         if near:
             for i in range(near):
                 for k in range(d):
-                    x[i, k] = sx0[k] + (sigma * random[rpos]) * span[k]
-                    rpos += 1
+                    x[i, k] = sx0[k] + (sigma * normal(key, i * d + k)) * span[k]
             for k in range(d):
                 x[0, k] = sx0[k]
         for i in range(n):
@@ -285,13 +287,17 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
         m = n
         pbest_x = np.empty((n, d))
         pbest_f = np.empty(n)
+        r1 = np.empty((n, d))
+        r2 = np.empty((n, d))
         g = 0
         first = True
         while left > 0:
             if not first:
                 m = min(n, left)
-                r1 = random[rpos:rpos + m * d].reshape((m, d))
-                r2 = random[rpos + m * d:rpos + 2 * m * d].reshape((m, d))
+                for i in range(m):
+                    for k in range(d):
+                        r1[i, k] = uniform(key, rpos + i * d + k)
+                        r2[i, k] = uniform(key, rpos + (m + i) * d + k)
                 rpos += 2 * m * d
                 pso_step(x, v, pbest_x, pbest_x[g].copy(), r1, r2, chi, c1, c2, vmax, lo, hi, m)
             # score the first m hypotheses
@@ -351,21 +357,22 @@ _SIGNATURE = T.void(
     T.float64[:, :, :, ::1], T.float64[:, :, ::1], T.float64[::1],
     T.float64[:, ::1], T.float64[:, ::1], T.float64[:, ::1],
     T.int64[::1], T.int64[:, ::1], T.int64[::1], T.float64[:, ::1],
-    T.float64[::1], T.int64[::1],
+    T.uint64[::1],
     T.float64[:, ::1], T.float64[::1], T.int64[::1],
 )
 
 
 def _fit_batch(kernel, parents, offsets, rest, rest_identity, axes, axis_params, mirror,
               pm_ptr, pm_joint, pm_weight, proposals, weights, consts, x0, lower, upper,
-              frame_stages, stages, indices, pso, random, frame_random, out_params, out_loss, out_evaluations):
+              frame_stages, stages, indices, pso, keys, out_params, out_loss, out_evaluations):
     """Stepwise PSO of F frames (releases the GIL: threads may fit other frames meanwhile).
 
     proposals (F, Q, K, 3) mm, weights (F, Q, K); x0, lower, upper, out_params (F, P);
     frame f's stages are rows ``frame_stages[f]:frame_stages[f + 1]`` of ``stages`` (S, 9)
     (columns BUDGET, SWARM, NEAR and [lo, hi) ranges of ``indices`` for its PARAMS, POINTS
     and OWNED) with the PSO coefficients in the same rows of ``pso`` (S, 5) (c1, c2, chi,
-    init_sigma, max_velocity), its random numbers ``random[frame_random[f]:frame_random[f + 1]]``;
+    init_sigma, max_velocity), and the key of each stage's random streams in the same rows of
+    ``keys`` (S,);
     the point map (Q, J) in CSR form
     (pm_ptr, pm_joint, pm_weight)."""
     for f in range(x0.shape[0]):
@@ -373,7 +380,7 @@ def _fit_batch(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
                                 pm_ptr, pm_joint, pm_weight, proposals[f], weights[f], consts, x0[f], lower[f],
                                 upper[f], stages[frame_stages[f]:frame_stages[f + 1]], indices,
                                 pso[frame_stages[f]:frame_stages[f + 1]],
-                                random[frame_random[f]:frame_random[f + 1]], out_params[f])
+                                keys[frame_stages[f]:frame_stages[f + 1]], out_params[f])
         out_loss[f] = loss
         out_evaluations[f] = used
 
@@ -430,69 +437,60 @@ def _require(a, dtype) -> np.ndarray:
 class Layout:
     """A schedule as :func:`fit_batch` reads it: ``stages`` (S, 9) rows (budget, swarm size,
     particles started near the guess, and [lo, hi) ranges of ``indices`` for the parameters,
-    points and owned points), the PSO ``coefficients`` (S, 5) of each stage and ``draws``, the random numbers each stage takes in the Task
-    path's order: (count, normal?) pairs."""
+    points and owned points) and the PSO ``coefficients`` (S, 5) of each stage."""
 
     stages: np.ndarray
     coefficients: np.ndarray
     indices: np.ndarray
-    draws: tuple[tuple[int, bool], ...]
-
-    @property
-    def random_count(self) -> int:
-        return sum(n for n, _ in self.draws)
 
 
 def layout(stages: list[tuple[StagePlan, object]]) -> Layout:
     """Lay out a frame's stages, each with its PSO (as :func:`plan` gives them)."""
-    rows, parts, draws, at = [], [], [], 0
+    rows, parts, at = [], [], 0
     for st, pso in stages:
         n, near = pso.swarm(st.budget)
-        d = len(st.parameters)
         row = [st.budget, n, near]
         for idx in (st.parameters, st.points, st.owned):
             parts.append(np.asarray(idx, dtype=np.int64))
             row += [at, at + len(idx)]
             at += len(idx)
         rows.append(row)
-        draws += [(n * d, False), (near * d, True), (2 * d * (st.budget - n), False)]
     return Layout(np.array(rows, dtype=np.int64).reshape(-1, 9),
                   np.array([pso.coefficients() for _, pso in stages], dtype=np.float64).reshape(-1, 5),
-                  np.concatenate(parts), tuple(draws))
+                  np.concatenate(parts))
 
 
-def draw(rng: np.random.Generator, plan: Layout, out: np.ndarray) -> None:
-    """Fill out (plan.random_count,) with the frame's random numbers: uniform [0, 1) and
-    standard normal, in the order the Task path's PSO draws them from the same stream."""
-    at = 0
-    for n, normal in plan.draws:
-        if n:
-            (rng.standard_normal if normal else rng.random)(out=out[at:at + n])
-            at += n
+def stage_keys(seed: int, frame: int, stages: int) -> np.ndarray:
+    """(stages,) uint64: the keys of a frame's stages' random streams, as the Task path's PSO
+    takes them (one raw draw per stage, in order) from ``default_rng([seed, frame])``."""
+    return np.random.default_rng([seed, frame]).bit_generator.random_raw(stages)
 
 
 @dataclass
 class Chunk:
     """Frames prepared for :meth:`CompiledFitter.run`: their indices, the errors of those that
-    cannot be fitted, and for the others (positions ``kept`` in ``frames``) problems, layouts,
-    proposals and random numbers."""
+    cannot be fitted, and for the others (positions ``kept`` in ``frames``) layouts,
+    proposals, weights, initial guesses, search boxes and stream keys."""
 
     frames: list
     errors: list
-    problems: list
     layouts: list
     kept: list
-    proposals: np.ndarray | None = None
-    random: np.ndarray | None = None
-    random_at: np.ndarray | None = None
+    proposals: np.ndarray
+    weights: np.ndarray
+    x0: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    keys: np.ndarray
+    keys_at: np.ndarray
 
 
 class CompiledFitter:
     """Fits batches of frames of one model, objective and PSO schedule with :func:`fit_batch`.
 
     model, objective, optimizer: plugins for which :func:`supports` holds; point_names: the
-    proposals' Q points; budget: evaluations per frame; seed: frame i draws from
-    ``default_rng([seed, i])``."""
+    proposals' Q points; budget: evaluations per frame; seed: frame i's stages key their
+    random streams from ``default_rng([seed, i])`` (:func:`stage_keys`)."""
 
     def __init__(self, model, objective, optimizer, point_names, budget: int, seed: int,
                  search_radius_mm: float = 60.0) -> None:
@@ -512,38 +510,43 @@ class CompiledFitter:
         self.consts = _require(consts, np.float64)
         self._layouts: dict[bytes, Layout] = {}
 
-    def layout(self, problem) -> Layout:
-        """The frame's laid-out stages. A schedule adapts to a frame only through which of its
-        points have proposals (``tests/test_compiled.py`` checks this against fresh plans), so
-        it is computed once per set of observed points."""
-        key = (problem.weights.sum(axis=-1) > 0).tobytes()
+    def layout(self, observed: np.ndarray, proposals: np.ndarray, confidences: np.ndarray) -> Layout:
+        """The laid-out stages of a frame whose points ``observed`` (Q,) bool have proposals
+        (one such frame's proposals (Q, K, 3) and confidences (Q, K)). A schedule adapts to a
+        frame only through which of its points have proposals (``tests/fitting/test_compiled.py``
+        checks this against fresh plans), so it is computed once per set of observed points."""
+        key = observed.tobytes()
         found = self._layouts.get(key)
         if found is None:
+            problem = Problem(self.model, self.objective, proposals, confidences, self.names, self.search_radius_mm)
             found = self._layouts[key] = layout(plan(self.optimizer, Task(problem, self.budget)))
         return found
 
     def prepare(self, frames, proposals: np.ndarray, confidences: np.ndarray) -> "Chunk":
         """The Python half of fitting frames (their indices: the random streams and messages)
-        with proposals (F, Q, K, 3) mm and confidences (F, Q, K): problems, stages, random
-        numbers; frames whose input cannot be fitted get their message."""
-        chunk = Chunk(list(frames), [], [], [], [])
-        for i, f in enumerate(chunk.frames):
-            try:
-                problem = Problem(self.model, self.objective, proposals[i], confidences[i], self.names,
-                                  self.search_radius_mm)
-                chunk.layouts.append(self.layout(problem))
-            except HybridfitError as err:
-                chunk.errors.append((f, None, str(err)))
+        with proposals (F, Q, K, 3) mm and confidences (F, Q, K): initial guesses, search boxes,
+        stages and stream keys; frames whose input cannot be fitted get their message."""
+        frames = list(frames)
+        weights, x0, lower, upper, failed = prepare_frames(self.model, self.objective, proposals, confidences,
+                                                           self.names, self.search_radius_mm)
+        errors, layouts, kept = [], [], []
+        observed = weights.sum(axis=-1) > 0
+        for i, f in enumerate(frames):
+            if i in failed:
+                errors.append((f, None, failed[i]))
                 continue
-            chunk.problems.append(problem)
-            chunk.kept.append(i)
-        chunk.proposals = proposals[chunk.kept]
-        chunk.random_at = np.cumsum([0] + [lay.random_count for lay in chunk.layouts]).astype(np.int64)
-        chunk.random = np.empty(chunk.random_at[-1])
-        for n, (i, lay) in enumerate(zip(chunk.kept, chunk.layouts)):
-            draw(np.random.default_rng([self.seed, chunk.frames[i]]), lay,
-                 chunk.random[chunk.random_at[n]:chunk.random_at[n + 1]])
-        return chunk
+            try:
+                layouts.append(self.layout(observed[i], proposals[i], confidences[i]))
+            except HybridfitError as err:
+                errors.append((f, None, str(err)))
+                continue
+            kept.append(i)
+        keys_at = np.cumsum([0] + [len(lay.stages) for lay in layouts]).astype(np.int64)
+        keys = np.empty(keys_at[-1], dtype=np.uint64)
+        for n, i in enumerate(kept):
+            keys[keys_at[n]:keys_at[n + 1]] = stage_keys(self.seed, frames[i], keys_at[n + 1] - keys_at[n])
+        return Chunk(frames, errors, layouts, kept, proposals[kept], weights[kept], x0[kept], lower[kept],
+                     upper[kept], keys, keys_at)
 
     def run(self, chunk: "Chunk", threads: int = 1):
         """The compiled half: (params (F, P), loss (F,), evaluations (F,)) of the chunk's
@@ -559,11 +562,9 @@ class CompiledFitter:
         """:meth:`run` on the chunk's fittable frames ``part`` (consecutive positions)."""
         if not len(part):
             return np.empty((0, self.model.n_params)), np.empty(0), np.empty(0, dtype=np.int64)
-        p = [chunk.problems[i] for i in part]
-        at = chunk.random_at[part[0]:part[-1] + 2]
-        return self.fit(chunk.proposals[part], np.stack([q.weights for q in p]), np.stack([q.x0 for q in p]),
-                        np.stack([q.lower for q in p]), np.stack([q.upper for q in p]),
-                        [chunk.layouts[i] for i in part], chunk.random[at[0]:at[-1]], at - at[0])
+        sl = slice(part[0], part[-1] + 1)
+        return self.fit(chunk.proposals[sl], chunk.weights[sl], chunk.x0[sl], chunk.lower[sl], chunk.upper[sl],
+                        chunk.layouts[sl], chunk.keys[chunk.keys_at[part[0]]:chunk.keys_at[part[-1] + 1]])
 
     def finish(self, chunk: "Chunk", fitted) -> list:
         """A list of (frame, (params (P,), points (Q, 3), joints (J, 3), loss, evaluations),
@@ -576,8 +577,10 @@ class CompiledFitter:
             points = joints if self.point_matrix is None else np.einsum("qj,njc->nqc", self.point_matrix, joints)
             out += [(chunk.frames[i], (params[n], points[n], joints[n], float(loss[n]), int(used[n])), None)
                     for n, i in enumerate(chunk.kept)]
-        order = {f: n for n, f in enumerate(chunk.frames)}
-        return sorted(out, key=lambda item: order[item[0]])
+        if chunk.errors:
+            order = {f: n for n, f in enumerate(chunk.frames)}
+            out.sort(key=lambda item: order[item[0]])
+        return out
 
     def fit_chunk(self, frames, proposals: np.ndarray, confidences: np.ndarray, threads: int = 1) -> list:
         """Fit frames with proposals (F, Q, K, 3) mm and confidences (F, Q, K) on ``threads``
@@ -609,9 +612,9 @@ class CompiledFitter:
             if running is not None:
                 yield self.finish(running[0], running[1].result())
 
-    def fit(self, proposals, weights, x0, lower, upper, layouts: list[Layout], random, random_at):
+    def fit(self, proposals, weights, x0, lower, upper, layouts: list[Layout], keys):
         """proposals (F, Q, K, 3) mm, weights (F, Q, K) normalised, x0, lower, upper (F, P), a
-        layout per frame, frame f's random numbers ``random[random_at[f]:random_at[f + 1]]``
+        layout per frame, the frames' stages' stream keys (S,) uint64 in order
         -> params (F, P), loss (F,), evaluations (F,)."""
         F = len(layouts)
         frame_stages = np.cumsum([0] + [len(lay.stages) for lay in layouts]).astype(np.int64)
@@ -629,6 +632,6 @@ class CompiledFitter:
         fit_batch()(self.kernel, *self.tree, *self.point_map, _require(proposals, np.float64),
                     _require(weights, np.float64), self.consts, _require(x0, np.float64), _require(lower, np.float64),
                     _require(upper, np.float64), frame_stages, _require(stages, np.int64), _require(indices, np.int64),
-                    np.concatenate([lay.coefficients for lay in layouts]), _require(random, np.float64),
-                    _require(random_at, np.int64), params, loss, evaluations)
+                    np.concatenate([lay.coefficients for lay in layouts]), _require(keys, np.uint64),
+                    params, loss, evaluations)
         return params, loss, evaluations

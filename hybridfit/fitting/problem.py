@@ -9,7 +9,6 @@ import numba as nb
 import numpy as np
 
 from ..errors import HybridfitError
-from ..model.rotations import matrix_to_quaternion
 from ..model.base import ORIENTATION, POSITION, HandModel
 from ..objective import Objective, Observation, normalise_confidences
 
@@ -59,13 +58,8 @@ class Problem:
         self.all_points = np.arange(len(self.point_names), dtype=np.int64)
         self._needed: dict[bytes, np.ndarray | None] = {}
         self.x0 = initial_guess(self) if x0 is None else model.clip(np.asarray(x0, dtype=float)[None])[0]
-        lower, upper = model.bounds()
-        lower, upper = lower.astype(float).copy(), upper.astype(float).copy()
-        lower[POSITION] = self.x0[POSITION] - search_radius_mm
-        upper[POSITION] = self.x0[POSITION] + search_radius_mm
-        lower[ORIENTATION] = np.maximum(lower[ORIENTATION], -1.0)
-        upper[ORIENTATION] = np.minimum(upper[ORIENTATION], 1.0)
-        self.lower, self.upper = lower, upper
+        lower, upper = search_boxes(self._structure(), self.x0[None], search_radius_mm)
+        self.lower, self.upper = lower[0], upper[0]
 
     def points(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
         """(N, P) -> (N, Q, 3) model points matching the proposals' points, mm.
@@ -115,13 +109,19 @@ class Problem:
 
     def _structure(self) -> "_Structure":
         """What depends only on the model and the point names (shared by every frame)."""
-        key = (id(self.model), self.point_names)
-        found = _STRUCTURES.get(key)
-        if found is None or found.model is not self.model:
-            if len(_STRUCTURES) >= 32:
-                _STRUCTURES.clear()
-            found = _STRUCTURES[key] = _Structure(self.model, self.point_matrix)
-        return found
+        return structure_of(self.model, self.point_names, self.point_matrix)
+
+
+def structure_of(model: HandModel, point_names: tuple[str, ...], point_matrix: np.ndarray | None) -> "_Structure":
+    """The model's :class:`_Structure` over these points (point_matrix: None for the model's
+    joints, else ``model.point_matrix(point_names)``), computed once."""
+    key = (id(model), point_names)
+    found = _STRUCTURES.get(key)
+    if found is None or found.model is not model:
+        if len(_STRUCTURES) >= 32:
+            _STRUCTURES.clear()
+        found = _STRUCTURES[key] = _Structure(model, point_matrix)
+    return found
 
 
 class _Structure:
@@ -140,6 +140,14 @@ class _Structure:
         self.depths = point_depths(model.parents, M)
         self.neutral = np.einsum("qj,jc->qc", M, model.forward(model.default_params()))
         self.guides: dict[tuple, np.ndarray] = {}
+        self.alignments: dict[bytes, np.ndarray | None] = {}
+        lower, upper = model.bounds()
+        self.bounds = lower.astype(float).copy(), upper.astype(float).copy()
+        self.default_params = model.default_params().astype(float).copy()
+        # the points in the default pose, as Problem.points gives them
+        joints = model.forward(self.default_params[None])
+        self.canonical = np.ascontiguousarray(
+            joints[0] if point_matrix is None else np.einsum("qj,njc->nqc", M, np.nan_to_num(joints, nan=0.0))[0])
 
 
 _STRUCTURES: dict[tuple, _Structure] = {}
@@ -168,8 +176,13 @@ def guide_points(problem: "Problem", root_points: np.ndarray, later: list[np.nda
     """The points that guide an ill-posed root stage: each later stage's observed points
     nearest to the root in the kinematic tree (``later``: each stage's points); none when
     the root's own observed points (fewer than ``min_points``, or nearly collinear) suffice."""
-    observed = problem.weights.sum(axis=-1) > 0
-    structure = problem._structure()
+    return _guides(problem._structure(), problem.weights.sum(axis=-1) > 0, root_points, later, min_points,
+                   min_lever_mm)
+
+
+def _guides(structure: "_Structure", observed: np.ndarray, root_points: np.ndarray, later: list[np.ndarray],
+            min_points: int = MIN_ROOT_POINTS, min_lever_mm: float = MIN_ROOT_LEVER_MM) -> np.ndarray:
+    """:func:`guide_points` for the points ``observed`` (Q,) bool (cached per structure)."""
     key = (observed.tobytes(), root_points.tobytes(), tuple(p.tobytes() for p in later), min_points, min_lever_mm)
     if key not in structure.guides:
         own = root_points[observed[root_points]]
@@ -216,26 +229,137 @@ def initial_guess(problem: Problem) -> np.ndarray:
     Falls back to all points, then to a translation only, when too few root points have
     proposals.
     """
-    model = problem.model
-    x = model.default_params().astype(float).copy()
-    canonical = problem.points(x[None])[0]
-    stages = problem.stage_points()
-    root_points = stages[0][2]
-    root_points = np.union1d(root_points, guide_points(problem, root_points, [s[2] for s in stages[1:]]))
-    observed = problem.weights.sum(axis=-1) > 0
-    for candidates in (root_points, problem.all_points):
-        use = candidates[observed[candidates]]
-        if len(use) >= 3:
-            R, t = robust_alignment(canonical[use], problem.proposals[use], problem.weights[use])
-            x[POSITION] = t
-            x[ORIENTATION] = matrix_to_quaternion(R)
-            return x
+    structure = problem._structure()
+    x = structure.default_params.copy()
+    use = alignment_points(structure, problem.weights.sum(axis=-1) > 0)
+    if use is not None:
+        _aligned_guess(structure.canonical, problem.proposals, problem.weights, use, INLIER_MM, x)
+        return x
     target, w = top_proposals(problem.proposals, problem.weights)
     use = np.flatnonzero(w > 0)
     if len(use) == 0:
         raise HybridfitError("the frame has no proposals with positive confidence")
-    x[POSITION] = np.average(target[use] - canonical[use], axis=0, weights=w[use])
+    x[POSITION] = np.average(target[use] - structure.canonical[use], axis=0, weights=w[use])
     return x
+
+
+def alignment_points(structure: "_Structure", observed: np.ndarray) -> np.ndarray | None:
+    """The points :func:`initial_guess` aligns when the points ``observed`` (Q,) bool have
+    proposals: the root stage's and its guide points, else all, if at least 3 of them are
+    observed; None when it falls back to a translation (cached per structure)."""
+    key = observed.tobytes()
+    if key not in structure.alignments:
+        stages = structure.stages
+        root_points = stages[0][2]
+        root_points = np.union1d(root_points, _guides(structure, observed, root_points, [s[2] for s in stages[1:]]))
+        structure.alignments[key] = None
+        for candidates in (root_points, np.arange(len(observed))):
+            use = candidates[observed[candidates]].astype(np.int64)
+            if len(use) >= 3:
+                structure.alignments[key] = use
+                break
+    return structure.alignments[key]
+
+
+def search_boxes(structure: "_Structure", x0: np.ndarray, search_radius_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) (F, P) of frames with initial guesses x0 (F, P): the model's bounds, the
+    position within ``search_radius_mm`` of the guess, the quaternion within [-1, 1]."""
+    lower = np.repeat(structure.bounds[0][None], len(x0), axis=0)
+    upper = np.repeat(structure.bounds[1][None], len(x0), axis=0)
+    lower[:, POSITION] = x0[:, POSITION] - search_radius_mm
+    upper[:, POSITION] = x0[:, POSITION] + search_radius_mm
+    lower[:, ORIENTATION] = np.maximum(lower[:, ORIENTATION], -1.0)
+    upper[:, ORIENTATION] = np.minimum(upper[:, ORIENTATION], 1.0)
+    return lower, upper
+
+
+def prepare_frames(model: HandModel, objective: Objective, proposals: np.ndarray, confidences: np.ndarray,
+                   point_names: Sequence[str], search_radius_mm: float = 60.0):
+    """What :class:`Problem` computes, for F frames at once: proposals (F, Q, K, 3) mm and
+    confidences (F, Q, K) -> (weights (F, Q, K), x0 (F, P), lower (F, P), upper (F, P), errors
+    {frame position: message} for frames that cannot be fitted, whose rows are unspecified).
+    Frames whose guess is not an alignment (fewer than 3 observed points) get a Problem each."""
+    proposals = np.ascontiguousarray(proposals, dtype=np.float64)
+    weights = np.ascontiguousarray(normalise_confidences(confidences))
+    F = len(proposals)
+    if F == 0:
+        P = model.n_params
+        return weights, np.empty((0, P)), np.empty((0, P)), np.empty((0, P)), {}
+    names = tuple(point_names)
+    structure = structure_of(model, names, None if names == tuple(model.joint_names) else model.point_matrix(names))
+    observed = weights.sum(axis=-1) > 0
+    uses = [alignment_points(structure, observed[f]) for f in range(F)]
+    at = np.cumsum([0] + [0 if u is None else len(u) for u in uses]).astype(np.int64)
+    flat = np.concatenate([u for u in uses if u is not None] + [np.zeros(0, dtype=np.int64)])
+    x0 = np.repeat(structure.default_params[None], F, axis=0)
+    _aligned_guesses(structure.canonical, proposals, weights, at, flat, INLIER_MM, x0)
+    errors = {}
+    for f in range(F):
+        if uses[f] is None:
+            try:
+                x0[f] = initial_guess(Problem(model, objective, proposals[f], confidences[f], point_names,
+                                              search_radius_mm))
+            except HybridfitError as err:
+                errors[f] = str(err)
+    lower, upper = search_boxes(structure, x0, search_radius_mm)
+    return weights, x0, lower, upper, errors
+
+
+@nb.njit(cache=True)
+def _aligned_guesses(canonical, proposals, weights, at, flat, inlier_mm, x):
+    """:func:`_aligned_guess` of each frame f with points flat[at[f]:at[f + 1]] (none: kept)."""
+    for f in range(x.shape[0]):
+        if at[f + 1] > at[f]:
+            _aligned_guess(canonical, proposals[f], weights[f], flat[at[f]:at[f + 1]], inlier_mm, x[f])
+
+
+@nb.njit(cache=True)
+def _aligned_guess(canonical, proposals, weights, use, inlier_mm, x):
+    """x[POSITION], x[ORIENTATION] = the robust alignment of canonical[use] (n, 3) mm onto
+    their proposals (Q, K, 3) with weights (Q, K)."""
+    n = use.shape[0]
+    k = proposals.shape[1]
+    source = np.empty((n, 3))
+    props = np.empty((n, k, 3))
+    w = np.empty((n, k))
+    for i in range(n):
+        source[i] = canonical[use[i]]
+        props[i] = proposals[use[i]]
+        w[i] = weights[use[i]]
+    R, t = np.empty((3, 3)), np.empty(3)
+    _robust_alignment(source, props, w, inlier_mm, R, t)
+    x[0], x[1], x[2] = t[0], t[1], t[2]
+    _matrix_quaternion(R, x[3:7])
+
+
+@nb.njit(cache=True)
+def _matrix_quaternion(R, q):
+    """q (4,) = the unit quaternion (w, x, y, z), w >= 0, of the rotation matrix R (3, 3)
+    (Shepperd's method: the largest of the trace and the diagonal picks the formula)."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    c = 3
+    best = tr
+    for i in range(3):
+        if R[i, i] > best:
+            best, c = R[i, i], i
+    v = np.empty(4)  # x, y, z, w
+    if c == 3:
+        v[0] = R[2, 1] - R[1, 2]
+        v[1] = R[0, 2] - R[2, 0]
+        v[2] = R[1, 0] - R[0, 1]
+        v[3] = 1.0 + tr
+    else:
+        i, j, m = c, (c + 1) % 3, (c + 2) % 3
+        v[i] = 1.0 - tr + 2.0 * R[i, i]
+        v[j] = R[j, i] + R[i, j]
+        v[m] = R[m, i] + R[i, m]
+        v[3] = R[m, j] - R[j, m]
+    norm = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2] + v[3] * v[3])
+    sign = 1.0 if v[3] >= 0 else -1.0
+    q[0] = sign * v[3] / norm
+    q[1] = sign * v[0] / norm
+    q[2] = sign * v[1] / norm
+    q[3] = sign * v[2] / norm
 
 
 def robust_alignment(source: np.ndarray, proposals: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

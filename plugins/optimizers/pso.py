@@ -8,7 +8,9 @@ chi = 2 / |2 - psi - sqrt(psi^2 - 4 psi)| = 0.7298).
 Initialisation: a share of the particles is drawn around the task's initial guess
 (Gaussian, ``init_sigma`` times the search range), the rest uniformly in the bounds.
 Positions are clipped to the bounds (a particle that hits a bound stops in that
-dimension). The whole swarm is evaluated in one batched call per generation; the last
+dimension). Every random number comes from a counter-based stream keyed by one draw from
+the run's generator (:mod:`hybridfit.fitting.streams`), which the compiled path computes
+inside its loop. The whole swarm is evaluated in one batched call per generation; the last
 generation is cut short so the budget is used exactly.
 """
 
@@ -18,6 +20,7 @@ import numpy as np
 from pydantic import Field
 
 from hybridfit.fitting.compiled import constriction, pso_step, update_bests
+from hybridfit.fitting.streams import Stream
 from hybridfit.optimizer import Optimizer, Task
 from hybridfit.plugin import Settings
 
@@ -67,9 +70,10 @@ class PSO(Optimizer):
         n, near = self.swarm(task.budget, task.remaining)
         lower, upper = task.lower, task.upper
         span = upper - lower
-        x = rng.uniform(lower, upper, size=(n, task.dim))
+        stream = Stream.from_generator(rng)  # one draw from rng keys all of this run's numbers
+        x = lower + span * stream.uniform((n, task.dim))
         if near:
-            x[:near] = task.x0 + rng.normal(0.0, s.init_sigma, size=(near, task.dim)) * span
+            x[:near] = task.x0 + (s.init_sigma * stream.normal((near, task.dim))) * span
             x[0] = task.x0  # the guess itself is always tried
         np.clip(x, lower, upper, out=x)
         v = np.zeros_like(x)
@@ -80,7 +84,7 @@ class PSO(Optimizer):
         vmax = s.max_velocity * span
         while task.remaining > 0:
             m = min(n, task.remaining)
-            r = rng.random((2, m, task.dim))
+            r = stream.uniform((2, m, task.dim))
             pso_step(x, v, pbest_x, pbest_x[g].copy(), r[0], r[1], chi, s.cognitive, s.social, vmax, lower, upper, m)
             f[:m] = task.evaluate(x[:m])
             g = update_bests(x, f, pbest_x, pbest_f, m)
