@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from ..datasets.results import read_proposals
-from ..io import check_output, save_npz
+from ..datasets.results import frames_of, read_proposals
+from ..io import check_output, frame_slice, save_npz
 
 
 def register(sub) -> None:
@@ -24,8 +24,8 @@ def register(sub) -> None:
 
 def run_from_results(args) -> int:
     check_output(args.out)
-    out = read_proposals(args.results, args.dataset, args.confidences, args.ground_truth, args.frames,
-                         "--confidences", "--frames")
+    out = read_proposals(args.results, args.dataset, args.confidences, args.ground_truth, "--confidences")
+    out = frames_of(out, frame_slice(args.frames, len(out["proposals"])))
     F, J, k, _ = out["proposals"].shape
     save_npz(args.out, **out)
     print(f"wrote {F} frames, {J} points, k={k} -> {args.out}")

@@ -111,14 +111,12 @@ def proposals_from_results(predictions, confidences=None) -> dict[str, np.ndarra
             "objective": np.asarray(ESTIMATES_OBJECTIVE)}
 
 
-def read_proposals(files, dataset: str, confidences=None, ground_truth=None, frames: str | None = None,
-                   confidences_option: str = "confidences", frames_option: str = "frames") -> dict[str, np.ndarray]:
+def read_proposals(files, dataset: str, confidences=None, ground_truth=None,
+                   confidences_option: str = "confidences") -> dict[str, np.ndarray]:
     """Results files (one method each) -> proposals in camera coordinates: the keys of
     :func:`proposals_from_results` plus ``joint_names`` (J,) (the skeleton's model points),
     ``dataset`` (the skeleton's name) and, given a ``ground_truth`` results file,
-    ``ground_truth`` (F, J, 3) mm; only the frames ``frames`` ('START:STOP', default all).
-    Errors name the file, or the option the confidences or frames came from."""
-    from ..io import frame_slice
+    ``ground_truth`` (F, J, 3) mm. Errors name the file, or the option the confidences came from."""
 
     sk = skeleton(dataset)
     files = list(files)
@@ -138,6 +136,10 @@ def read_proposals(files, dataset: str, confidences=None, ground_truth=None, fra
         if len(gt) != len(xyz[0]):
             raise HybridfitError(f"{ground_truth}: {len(gt)} frames, but the results have {len(xyz[0])}")
         out["ground_truth"] = gt
-    sel = frame_slice(frames, len(xyz[0]), frames_option)
-    return {key: value[sel] if key in ("proposals", "confidences", "ground_truth") else value
-            for key, value in out.items()}
+    return out
+
+
+def frames_of(proposals: dict[str, np.ndarray], frames: slice) -> dict[str, np.ndarray]:
+    """The frames ``frames`` of :func:`read_proposals`' per-frame arrays, the rest unchanged."""
+    return {key: value[frames] if key in ("proposals", "confidences", "ground_truth") else value
+            for key, value in proposals.items()}

@@ -16,6 +16,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..datasets.camera import Intrinsics
+from ..datasets.protocol import DepthDataset
 from .frames import FitResult, fit
 from ..forest import Forest, Proposals, dataset_masks
 
@@ -87,10 +88,11 @@ class HybridEstimator:
         props = self.propose(depths, intrinsics, masks, progress)
         return Estimate(props, self.fit_proposals(props, progress))
 
-    def propose_dataset(self, ds, indices: Sequence[int] | None = None, foreground: str = "auto",
+    def propose_dataset(self, ds: DepthDataset, indices: Sequence[int] | None = None, foreground: str = "auto",
                         progress: bool = False, chunk: int = 256) -> Proposals:
-        """Proposals for frames of a Dataset (``hybridfit.datasets.folder`` interface), read ``chunk``
-        at a time; foreground as in ``hybridfit.forest.dataset_masks``."""
+        """Proposals (camera coordinates, mm) for frames of a data set (synthetic folder or real
+        dataset: ``hybridfit.datasets.protocol``), read ``chunk`` at a time; foreground as in
+        ``hybridfit.forest.dataset_masks``."""
         from tqdm.auto import tqdm
 
         idx = np.arange(len(ds)) if indices is None else np.asarray(indices, np.int64)
@@ -106,9 +108,11 @@ class HybridEstimator:
         return Proposals(np.concatenate([p.proposals for p in parts]), np.concatenate([p.confidences for p in parts]),
                          np.concatenate([p.empty for p in parts]), parts[0].joint_names)
 
-    def estimate_dataset(self, ds, indices: Sequence[int] | None = None, foreground: str = "auto",
+    def estimate_dataset(self, ds: DepthDataset, indices: Sequence[int] | None = None, foreground: str = "auto",
                          progress: bool = False) -> Estimate:
-        """Proposals and fitted poses for frames of a Dataset."""
+        """Proposals and fitted poses (camera coordinates, mm) for frames of a data set. For a
+        real dataset's derived points, create the estimator with
+        ``model_config=hybridfit.datasets.protocol.model_config(ds, model, config)``."""
         props = self.propose_dataset(ds, indices, foreground, progress)
         return Estimate(props, self.fit_proposals(props, progress))
 
