@@ -156,7 +156,7 @@ class StudyData:
         return saved["settings"]
 
     def _file_proposals(self) -> ProposalSet:
-        from ..datasets.results import proposals_from_results
+        from ..datasets.results import read_proposals
         from ..io import read_results as read_xyz  # a binary file is named, not decoded
         from ..datasets.skeletons import skeleton
         from ..io import load_proposals
@@ -169,9 +169,8 @@ class StudyData:
             names = z.get("joint_names")
             truth = z.get("ground_truth")
         else:
-            fused = proposals_from_results([read_xyz(f, d.dataset) for f in files])  # equal confidences
-            props, conf = fused["proposals"], fused["confidences"]
-            names, truth = None, None
+            z = read_proposals(files, d.dataset)  # equal confidences, camera coordinates
+            props, conf, names, truth = z["proposals"], z["confidences"], z["joint_names"], None
         if names is None:
             if d.dataset is None:
                 raise HybridfitError(f"{files[0]}: no joint_names; set data.dataset to name its skeleton")
