@@ -180,7 +180,8 @@ def run(args) -> int:
                 pts = pts[sel]  # else: already the selected frames
             if len(pts) != len(truth[sel]):
                 raise HybridfitError(f"{path}: {len(pts)} frames, the ground truth has {len(truth[sel])}")
-            methods.append((label, in_order(pts, names, truth_names or [None] * truth.shape[1], path,
+            by_name = names if truth_names is not None else None  # else: taken in order, if the counts match
+            methods.append((label, in_order(pts, by_name, truth_names or [""] * truth.shape[1], path,
                                             "the ground truth")))
     truth = truth[sel]
     names = truth_names or [f"joint {j}" for j in range(truth.shape[1])]

@@ -26,7 +26,7 @@ def hand_points(dataset: str, frames: int, seed: int = 0) -> np.ndarray:
     params[:, 7:] = rng.uniform(lower[7:], upper[7:], size=(frames, 20)) * 0.5
     cam = model.points(params, sk.model_names)  # y-down camera frame
     c = convention(dataset)
-    return cam * np.array([1.0, c.y_sign, c.z_sign])
+    return c.from_camera(cam)
 
 
 def depth_image(dataset: str, xyz: np.ndarray) -> np.ndarray:
