@@ -70,16 +70,10 @@ def compiled_call(data, budget: int, schedule: str = "default") -> float:
     objective = hybridfit.create("objective", "clamped-confidence")
     fitter = compiled.CompiledFitter(model, objective, hybridfit.create("optimizer", "stepwise-pso", SCHEDULES[schedule]),
                                      model.joint_names, budget, 0)
-    problems = [Problem(model, objective, p, c) for p, c in zip(data["proposals"], data["confidences"])]
-    layouts = [fitter.layout(p) for p in problems]
-    at = np.cumsum([0] + [lay.random_count for lay in layouts])
-    random = np.empty(at[-1])
-    for f, lay in enumerate(layouts):
-        compiled.draw(np.random.default_rng([0, f]), lay, random[at[f]:at[f + 1]])
-    args = (data["proposals"], np.stack([p.weights for p in problems]), np.stack([p.x0 for p in problems]),
-            np.stack([p.lower for p in problems]), np.stack([p.upper for p in problems]), layouts, random, at)
+    chunk = fitter.prepare(range(len(data["proposals"])), data["proposals"], data["confidences"])
+    args = (chunk.proposals, chunk.weights, chunk.x0, chunk.lower, chunk.upper, chunk.layouts, chunk.keys)
     fitter.fit(*args)
-    return median_time(lambda: fitter.fit(*args), repeat=7, clock=time.process_time) / len(layouts)
+    return median_time(lambda: fitter.fit(*args), repeat=7, clock=time.process_time) / len(chunk.layouts)
 
 
 def fit_time(data, budget: int, jobs: int = 1, clock=time.process_time, schedule: str = "default") -> float:

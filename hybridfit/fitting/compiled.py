@@ -40,9 +40,10 @@ from ..optimizer import StagePlan, Task
 from .problem import Problem, prepare_frames
 from .streams import normal, uniform
 
-#: an objective's compiled kernel: (points (N, Q, 3) mm, subset (m,) point indices,
-#: proposals (Q, K, 3) mm, weights (Q, K), constants (c,), out (N,)) -> None; writes into
-#: ``out`` the loss of each row over the points in ``subset``.
+#: an objective's compiled kernel: (points (Q, 3, N) mm, the hypothesis innermost, subset
+#: (m,) point indices, proposals (Q, K, 3) mm, weights (Q, K), constants (c,), out (n,),
+#: n <= N) -> None; writes into ``out`` the loss of each of the first n hypotheses over the
+#: points in ``subset``.
 KERNEL_SIGNATURE = T.void(T.float64[:, :, ::1], T.int64[::1], T.float64[:, :, ::1], T.float64[:, ::1],
                           T.float64[::1], T.float64[::1])
 
@@ -202,6 +203,111 @@ def _points(Wp, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
         out[q, 2] = z
 
 
+# ---------------------------------------------------------------- a block of hypotheses
+
+
+@nb.njit(cache=True, fastmath=True)
+def _block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, rest, rest_identity, axes,
+                  axis_params, mirror, WB, WpB, GB):
+    """:func:`_joint_frames` for the first m hypotheses at once, the hypothesis innermost:
+    parameters pB (P, n), their sines and cosines sinB, cosB (P, n), rotations WB (J, 3, 3, n)
+    and positions WpB (J, 3, n) mm (entries of unlisted joints are read as fixed), GB
+    (3, 3, n) scratch space."""
+    if count and parents[joints[0]] < 0:  # the root moves: the global pose of each hypothesis
+        for i in range(m):
+            w, x, y, z = pB[3, i], pB[4, i], pB[5, i], pB[6, i]
+            nq = w * w + x * x + y * y + z * z
+            if nq < 1e-24:
+                w, x, y, z, nq = 1.0, 0.0, 0.0, 0.0, 1.0
+            sq = 2.0 / nq
+            GB[0, 0, i] = (1.0 - sq * (y * y + z * z)) * mirror
+            GB[0, 1, i] = sq * (x * y - w * z)
+            GB[0, 2, i] = sq * (x * z + w * y)
+            GB[1, 0, i] = sq * (x * y + w * z) * mirror
+            GB[1, 1, i] = 1.0 - sq * (x * x + z * z)
+            GB[1, 2, i] = sq * (y * z - w * x)
+            GB[2, 0, i] = sq * (x * z - w * y) * mirror
+            GB[2, 1, i] = sq * (y * z + w * x)
+            GB[2, 2, i] = 1.0 - sq * (x * x + y * y)
+    for c in range(count):
+        j = joints[c]
+        par = parents[j]
+        o0, o1, o2 = offsets[j, 0], offsets[j, 1], offsets[j, 2]
+        if par < 0:
+            for r in range(3):
+                for i in range(m):
+                    WpB[j, r, i] = GB[r, 0, i] * o0 + GB[r, 1, i] * o1 + GB[r, 2, i] * o2 + pB[r, i]
+            if not oriented[j]:
+                continue
+            for r in range(3):
+                for k in range(3):
+                    q0, q1, q2 = rest[j, 0, k], rest[j, 1, k], rest[j, 2, k]
+                    for i in range(m):
+                        WB[j, r, k, i] = GB[r, 0, i] * q0 + GB[r, 1, i] * q1 + GB[r, 2, i] * q2
+        else:
+            for r in range(3):
+                for i in range(m):
+                    WpB[j, r, i] = WpB[par, r, i] + WB[par, r, 0, i] * o0 + WB[par, r, 1, i] * o1 + WB[par, r, 2, i] * o2
+            if not oriented[j]:
+                continue
+            if rest_identity[j]:
+                for r in range(3):
+                    for k in range(3):
+                        for i in range(m):
+                            WB[j, r, k, i] = WB[par, r, k, i]
+            else:
+                for r in range(3):
+                    for k in range(3):
+                        q0, q1, q2 = rest[j, 0, k], rest[j, 1, k], rest[j, 2, k]
+                        for i in range(m):
+                            WB[j, r, k, i] = WB[par, r, 0, i] * q0 + WB[par, r, 1, i] * q1 + WB[par, r, 2, i] * q2
+        for a in range(axes.shape[1]):
+            ax = axes[j, a]
+            if ax < 0:
+                break
+            kp = axis_params[j, a]
+            if ax == 0:
+                i0, i1 = 1, 2
+            elif ax == 1:
+                i0, i1 = 2, 0
+            else:
+                i0, i1 = 0, 1
+            for r in range(3):
+                for i in range(m):
+                    a0 = WB[j, r, i0, i]
+                    a1 = WB[j, r, i1, i]
+                    WB[j, r, i0, i] = cosB[kp, i] * a0 + sinB[kp, i] * a1
+                    WB[j, r, i1, i] = cosB[kp, i] * a1 - sinB[kp, i] * a0
+
+
+@nb.njit(cache=True, fastmath=True)
+def _block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
+    """Points indices[lo:hi] of the first m hypotheses: out[q, :, i] = sum_j point_map[q, j]
+    WpB[j, :, i] (out (Q, 3, n) mm)."""
+    for t in range(lo, hi):
+        q = indices[t]
+        e0 = pm_ptr[q]
+        j0 = pm_joint[e0]
+        w0 = pm_weight[e0]
+        for c in range(3):
+            for i in range(m):
+                out[q, c, i] = w0 * WpB[j0, c, i]
+        for e in range(e0 + 1, pm_ptr[q + 1]):
+            j = pm_joint[e]
+            w = pm_weight[e]
+            for c in range(3):
+                for i in range(m):
+                    out[q, c, i] += w * WpB[j, c, i]
+
+
+@nb.njit(cache=True, fastmath=True)
+def _sincos_rows(rows, count, pB, sinB, cosB, m):
+    """sinB[k, :m], cosB[k, :m] = sin, cos of pB[k, :m] for k in rows[:count] (see ``sincos``)."""
+    for t in range(count):
+        k = rows[t]
+        sincos(pB[k, :m], sinB[k, :m], cosB[k, :m])
+
+
 # ---------------------------------------------------------------- one frame
 
 
@@ -210,12 +316,12 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
                pm_ptr, pm_joint, pm_weight, proposals, weights, consts, x0, lower, upper,
                stages, indices, pso, keys, out_params):
     """Stepwise PSO of one frame (see the module doc); returns (loss, evaluations). Stage s
-    draws its random numbers from the streams of ``keys[s]`` (:mod:`.streams`)."""
+    draws its random numbers from the streams of ``keys[s]`` (:mod:`.streams`). Each
+    generation's hypotheses are scored as one block, the hypothesis the innermost axis."""
     P = x0.shape[0]
     J = parents.shape[0]
     Q = proposals.shape[0]
     base = x0.copy()
-    p = x0.copy()
     W = np.zeros((J, 3, 3))
     Wp = np.zeros((J, 3))
     G = np.empty((3, 3))
@@ -227,6 +333,18 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
     frame_loss = np.inf
     committed = 0.0
     used = 0
+    nmax = 1
+    for s in range(stages.shape[0]):
+        nmax = max(nmax, stages[s, SWARM])
+    pB = np.empty((P, nmax))
+    sinB = np.empty((P, nmax))
+    cosB = np.empty((P, nmax))
+    WB = np.zeros((J, 3, 3, nmax))
+    WpB = np.zeros((J, 3, nmax))
+    GB = np.empty((3, 3, nmax))
+    ptsB = np.zeros((Q, 3, nmax))
+    one = np.zeros((Q, 3, 1))
+    one_loss = np.empty(1)
     for s in range(stages.shape[0]):
         key = keys[s]
         rpos = 0
@@ -236,7 +354,7 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
         own_lo, own_hi = stages[s, OWNED], stages[s, OWNED + 1]
         c1, c2, chi, sigma, vfrac = pso[s, 0], pso[s, 1], pso[s, 2], pso[s, 3], pso[s, 4]
         d = par_hi - par_lo
-        pidx = indices[par_lo:par_hi]
+        pidx = indices[par_lo:par_hi].copy()
         subset = indices[pts_lo:pts_hi].copy()
         owned = indices[own_lo:own_hi].copy()
         guided = own_hi - own_lo != pts_hi - pts_lo
@@ -246,9 +364,27 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
                     guided = True
         # fixed joints at the stage's start, then the joints each hypothesis recomputes
         sincos(base, sin_p, cos_p)
-        _joint_frames(base, sin_p, cos_p, all_joints, J, all_oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror, W, Wp, G)
+        _joint_frames(base, sin_p, cos_p, all_joints, J, all_oriented, parents, offsets, rest, rest_identity, axes,
+                      axis_params, mirror, W, Wp, G)
         count, oriented = _stage_joints(parents, axis_params, pm_ptr, pm_joint, indices, pts_lo, pts_hi, own_lo, own_hi,
-                                 par_lo, par_hi, P, order)
+                                        par_lo, par_hi, P, order)
+        # every block entry a listed joint or a point reads but the stage does not move
+        listed = np.zeros(J, dtype=np.bool_)
+        for c in range(count):
+            listed[order[c]] = True
+        for j in range(J):
+            if not listed[j]:
+                for r in range(3):
+                    for i in range(n):
+                        WpB[j, r, i] = Wp[j, r]
+                    for k in range(3):
+                        for i in range(n):
+                            WB[j, r, k, i] = W[j, r, k]
+        for k in range(P):
+            for i in range(n):
+                pB[k, i] = base[k]
+                sinB[k, i] = sin_p[k]
+                cosB[k, i] = cos_p[k]
         lo = np.empty(d)
         hi = np.empty(d)
         span = np.empty(d)
@@ -276,13 +412,9 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
                 x[i, k] = min(max(x[i, k], lo[k]), hi[k])
         v = np.zeros((n, d))
         f = np.empty(n)
-        sin_x = np.empty((n, d))
-        cos_x = np.empty((n, d))
-        pts = np.zeros((n, Q, 3))
         best_loss = np.inf
         best_owned = np.inf
         best_x = sx0.copy()
-        one = np.empty(1)
         left = budget
         m = n
         pbest_x = np.empty((n, d))
@@ -300,16 +432,15 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
                         r2[i, k] = uniform(key, rpos + (m + i) * d + k)
                 rpos += 2 * m * d
                 pso_step(x, v, pbest_x, pbest_x[g].copy(), r1, r2, chi, c1, c2, vmax, lo, hi, m)
-            # score the first m hypotheses
-            sincos(x[:m], sin_x[:m], cos_x[:m])
-            for i in range(m):
-                for k in range(d):
-                    p[pidx[k]] = x[i, k]
-                    sin_p[pidx[k]] = sin_x[i, k]
-                    cos_p[pidx[k]] = cos_x[i, k]
-                _joint_frames(p, sin_p, cos_p, order, count, oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror, W, Wp, G)
-                _points(Wp, pm_ptr, pm_joint, pm_weight, indices, pts_lo, pts_hi, pts[i])
-            kernel(pts[:m], subset, proposals, weights, consts, f[:m])
+            # score the first m hypotheses as one block
+            for k in range(d):
+                for i in range(m):
+                    pB[pidx[k], i] = x[i, k]
+            _sincos_rows(pidx, d, pB, sinB, cosB, m)
+            _block_frames(m, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
+                          axis_params, mirror, WB, WpB, GB)
+            _block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, pts_lo, pts_hi, ptsB)
+            kernel(ptsB, subset, proposals, weights, consts, f[:m])
             used += m
             left -= m
             i = np.argmin(f[:m])
@@ -317,15 +448,16 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
                 best_loss = f[i]
                 best_x[:] = x[i]
                 best_owned = best_loss
-                if guided:
-                    for k in range(d):
-                        p[pidx[k]] = x[i, k]
-                        sin_p[pidx[k]] = sin_x[i, k]
-                        cos_p[pidx[k]] = cos_x[i, k]
-                    _joint_frames(p, sin_p, cos_p, order, count, oriented, parents, offsets, rest, rest_identity, axes, axis_params, mirror, W, Wp, G)
-                    _points(Wp, pm_ptr, pm_joint, pm_weight, indices, own_lo, own_hi, pts[0])
-                    kernel(pts[:1], owned, proposals, weights, consts, one)
-                    best_owned = one[0]
+                if guided:  # the best's loss over the points the stage owns
+                    for t in range(own_lo, own_hi):
+                        q = indices[t]
+                        for c in range(3):
+                            acc = 0.0
+                            for e in range(pm_ptr[q], pm_ptr[q + 1]):
+                                acc += pm_weight[e] * WpB[pm_joint[e], c, i]
+                            one[q, c, 0] = acc
+                    kernel(one, owned, proposals, weights, consts, one_loss)
+                    best_owned = one_loss[0]
             if first:
                 pbest_x[:] = x
                 pbest_f[:] = f
@@ -336,14 +468,10 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
         # commit the stage's best
         if own_hi - own_lo == Q:
             if best_owned >= frame_loss:
-                for k in range(P):
-                    p[k] = base[k]
                 continue
             committed = 0.0
         for k in range(d):
             base[pidx[k]] = best_x[k]
-        for k in range(P):
-            p[k] = base[k]
         committed += best_owned
         frame_loss = committed
     out_params[:] = base

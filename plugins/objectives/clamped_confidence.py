@@ -29,25 +29,27 @@ class ClampedConfidenceSettings(Settings):
 
 @nb.njit(KERNEL_SIGNATURE, cache=True, fastmath=True)
 def clamped_confidence_kernel(points, subset, proposals, weights, consts, out):
-    """points (N, Q, 3), subset (m,), proposals (Q, K, 3), weights (Q, K), consts (1/d_max^2,)
-    -> out (N,) -E over the subset's points."""
-    N = points.shape[0]
+    """points (Q, 3, N) mm (the hypothesis innermost), subset (m,), proposals (Q, K, 3),
+    weights (Q, K), consts (1/d_max^2,) -> out (n,) -E of the first n hypotheses over the
+    subset's points."""
+    N = out.shape[0]
     K = proposals.shape[1]
     inv_d_max_sq = consts[0]
     best = np.empty(N)
     for n in range(N):
         out[n] = 0.0
-    for jj in range(subset.shape[0]):  # hypotheses innermost: the loops vectorise
+    for jj in range(subset.shape[0]):  # hypotheses innermost and contiguous: the loops vectorise
         j = subset[jj]
+        x, y, z = points[j, 0], points[j, 1], points[j, 2]
         for n in range(N):
             best[n] = 0.0
         for r in range(K):  # branch-free: a weight of 0 or a distance beyond d_max gives 0
             w = weights[j, r]
             px, py, pz = proposals[j, r, 0], proposals[j, r, 1], proposals[j, r, 2]
             for n in range(N):
-                dx = px - points[n, j, 0]
-                dy = py - points[n, j, 1]
-                dz = pz - points[n, j, 2]
+                dx = px - x[n]
+                dy = py - y[n]
+                dz = pz - z[n]
                 d2 = (dx * dx + dy * dy + dz * dz) * inv_d_max_sq
                 best[n] = max(best[n], w * max(1.0 - d2, 0.0))
         for n in range(N):
@@ -57,8 +59,15 @@ def clamped_confidence_kernel(points, subset, proposals, weights, consts, out):
 @nb.njit(cache=True)
 def clamped_confidence_loss(points, subset, proposals, weights, consts):
     """points (N, Q, 3), subset (m,), proposals (Q, K, 3), weights (Q, K) -> (N,) -E."""
-    out = np.empty(points.shape[0])
-    clamped_confidence_kernel(points, subset, proposals, weights, consts, out)
+    N, Q = points.shape[0], points.shape[1]
+    transposed = np.empty((Q, 3, N))
+    for jj in range(subset.shape[0]):
+        j = subset[jj]
+        for c in range(3):
+            for n in range(N):
+                transposed[j, c, n] = points[n, j, c]
+    out = np.empty(N)
+    clamped_confidence_kernel(transposed, subset, proposals, weights, consts, out)
     return out
 
 
