@@ -96,13 +96,13 @@ def traverse(buf, meta, s_frame, s_u, s_v, s_d, nodes, links, roots, fx, fy, bac
     out = np.empty((n, T), np.int32)
     L = lanes * T
     node = np.empty(L, np.int64)
-    sample = np.empty(L, np.int64)
+    frame, u, v = np.empty(L, np.int64), np.empty(L, np.int64), np.empty(L, np.int64)
     sx, sy = np.empty(L), np.empty(L)
     for i0 in range(0, n, lanes):
         nl = min(lanes, n - i0) * T
         for w in range(nl):
             i = i0 + w // T
-            node[w], sample[w] = roots[w % T], i
+            node[w], frame[w], u[w], v[w] = roots[w % T], s_frame[i], s_u[i], s_v[i]
             sx[w], sy[w] = fx / s_d[i], fy / s_d[i]
         busy = True
         while busy:
@@ -112,13 +112,42 @@ def traverse(buf, meta, s_frame, s_u, s_v, s_d, nodes, links, roots, fx, fy, bac
                 if links[k, 0] < 0:
                     continue
                 busy = True
-                i = sample[w]
-                f, u, v = s_frame[i], s_u[i], s_v[i]
-                a = _read(buf, meta, f, u + int(np.floor(nodes[k, 0] * sx[w] + 0.5)),
-                          v + int(np.floor(nodes[k, 1] * sy[w] + 0.5)), background)
-                b = _read(buf, meta, f, u + int(np.floor(nodes[k, 2] * sx[w] + 0.5)),
-                          v + int(np.floor(nodes[k, 3] * sy[w] + 0.5)), background)
+                a = _read(buf, meta, frame[w], u[w] + int(np.floor(nodes[k, 0] * sx[w] + 0.5)),
+                          v[w] + int(np.floor(nodes[k, 1] * sy[w] + 0.5)), background)
+                b = _read(buf, meta, frame[w], u[w] + int(np.floor(nodes[k, 2] * sx[w] + 0.5)),
+                          v[w] + int(np.floor(nodes[k, 3] * sy[w] + 0.5)), background)
                 node[w] = links[k, np.int64(np.float32(a - b) >= nodes[k, 4])]
         for w in range(nl):
             out[i0 + w // T, w % T] = links[node[w], 2]
     return out
+
+
+@njit(cache=True, nogil=True)
+def grid_pixels(mask, depth, frame, stride, cx, cy, fx, fy):
+    """The test pixels of one frame: foreground (mask (H, W) bool) on every ``stride``-th row
+    and column, ordered by a fixed hash of their position (so ties between equal votes are
+    broken evenly over the hand). Returns s_frame (n,) int32 (= frame), u, v (n,) int32,
+    d (n,) float32 mm and their camera points xyz (n, 3) float64 mm."""
+    H, W = mask.shape
+    u = np.empty((H // stride + 1) * (W // stride + 1), np.int32)
+    v = np.empty_like(u)
+    n = 0
+    for y in range(0, H, stride):
+        for x in range(0, W, stride):
+            u[n], v[n] = x, y
+            n += mask[y, x]
+    h = np.empty(n, np.uint32)
+    for i in range(n):
+        h[i] = (np.uint32(u[i]) * np.uint32(2654435761)) ^ (np.uint32(v[i]) * np.uint32(40503))
+    order = np.argsort(h, kind="mergesort")
+    s_frame = np.full(n, frame, np.int32)
+    su, sv, d = np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.float32)
+    xyz = np.empty((n, 3))
+    for r in range(n):
+        i = order[r]
+        su[r], sv[r] = u[i], v[i]
+        d[r] = np.float32(depth[v[i], u[i]])
+        xyz[r, 0] = (u[i] - cx) * np.float64(d[r]) / fx
+        xyz[r, 1] = (v[i] - cy) * np.float64(d[r]) / fy
+        xyz[r, 2] = d[r]
+    return s_frame, su, sv, d, xyz

@@ -29,7 +29,7 @@ from ..datasets.camera import Intrinsics
 from ..errors import HybridfitError
 from ..io import load_npz, save_npz
 from .config import ForestConfig
-from .features import pack_crops, pack_nodes, traverse
+from .features import grid_pixels, pack_nodes, traverse
 from .votes import frame_proposals
 
 FORMAT = "hybridfit-forest"
@@ -189,21 +189,20 @@ class Forest:
         masks = masks & (depths > 0)
         F, J = len(depths), self.n_joints
         out = Proposals(np.zeros((F, J, k, 3)), np.zeros((F, J, k)), np.zeros(F, bool), self.joint_names)
-        buf, meta = pack_crops(depths, masks)
+        H, W = depths.shape[1:]
+        buf = np.where(masks, depths, np.uint16(0)).reshape(-1)  # whole frames as the crops (features.py)
+        meta = np.zeros((F, 5), np.int64)
+        meta[:, 2], meta[:, 3], meta[:, 4] = H, W, np.arange(F) * H * W
         nodes, links = self.packed_nodes
         fx, fy, bg = float(intrinsics.fx), float(intrinsics.fy), np.float32(self.config.background_mm)
-        for f in tqdm(range(F), disable=not progress, unit="frame", desc="propose"):
-            v, u = np.nonzero(masks[f, ::stride, ::stride])
-            if len(v) == 0:
+        frames = tqdm(range(F), unit="frame", desc="propose") if progress else range(F)
+        for f in frames:
+            s_frame, u, v, d, xyz = grid_pixels(masks[f], depths[f], f, int(stride), float(intrinsics.cx),
+                                                float(intrinsics.cy), fx, fy)
+            if len(u) == 0:
                 out.empty[f] = True
                 continue
-            u, v = u.astype(np.int32) * stride, v.astype(np.int32) * stride
-            order = np.argsort((u.astype(np.uint32) * np.uint32(2654435761)) ^ (v.astype(np.uint32) * np.uint32(40503)), kind="stable")
-            u, v = u[order], v[order]
-            d = depths[f, v, u].astype(np.float32)
-            leaves = traverse(buf, meta, np.full(len(u), f, np.int32), u, v, d, nodes, links, self.roots, fx, fy, bg)
-            xyz = np.stack([(u - intrinsics.cx) * d / intrinsics.fx, (v - intrinsics.cy) * d / intrinsics.fy,
-                            d.astype(np.float64)], axis=-1)
+            leaves = traverse(buf, meta, s_frame, u, v, d, nodes, links, self.roots, fx, fy, bg)
             out.proposals[f], out.confidences[f] = frame_proposals(
                 xyz, leaves, self.leaf_offsets, self.leaf_weights, int(proposal_set), int(k), float(bandwidth_mm))
         return out
