@@ -219,7 +219,7 @@ class StudyData:
 
     def forest_path(self) -> Path:
         """The trained forest (cached by its training data and config)."""
-        from ..datasets.folder import load_dataset
+        from ..datasets import open_dataset
         from ..forest import train_forest_dataset
 
         d = self.data
@@ -229,7 +229,7 @@ class StudyData:
         payload = {"train": file_hash(train), "forest": d.forest.model_dump(mode="json"), "subset": d.train_subset}
 
         def make(tmp: Path) -> None:
-            ds = load_dataset(train)
+            ds = open_dataset(train)  # a synthetic folder or a real dataset's
             idx = None
             if isinstance(d, DatasetData) and d.train_subset is not None and d.train_subset < len(ds):
                 rng = np.random.default_rng(d.forest.seed)
@@ -241,7 +241,7 @@ class StudyData:
         return self.cache.get("forest", payload, make, ".npz")[1]
 
     def _forest_proposals(self, k: int, proposal_set: int) -> ProposalSet:
-        from ..datasets.folder import load_dataset
+        from ..datasets import open_dataset
         from ..fitting.estimator import HybridEstimator
 
         d = self.data
@@ -252,7 +252,7 @@ class StudyData:
                    "stride": d.stride, "bandwidth_mm": d.bandwidth_mm, "frames": frames}
 
         def make(tmp: Path) -> None:
-            ds = load_dataset(test)
+            ds = open_dataset(test)
             idx = np.arange(len(ds) if frames is None else min(frames, len(ds)))
             self.log(f"proposals for {len(idx)} test frames, k = {k}, |P~| = {proposal_set}")
             est = HybridEstimator(forest, k=k, proposal_set=proposal_set, stride=d.stride, bandwidth_mm=d.bandwidth_mm)
@@ -298,6 +298,11 @@ class StudyData:
             if d.calibrate is not None:
                 cfg = {**self._stress_calibration(skeleton), **cfg}
             return dataset_model_config(settings.model, cfg, skeleton)
+        if isinstance(d, DatasetData):  # a real dataset's folder: its skeleton's derived points
+            from ..datasets import detect
+
+            kind = detect(d.test)
+            return cfg if kind == "synthetic" else dataset_model_config(settings.model, cfg, kind)
         if settings.model != "hand26" or not isinstance(d, ProposalsData) or d.dataset is None:
             return cfg
         if d.calibrate is not None:

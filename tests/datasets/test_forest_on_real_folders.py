@@ -53,3 +53,16 @@ def test_propose_then_fit_is_estimate(folder, dataset, request, tmp_path):
         np.testing.assert_array_equal(p["ground_truth"], b["ground_truth"])
         np.testing.assert_array_equal(a["params"], b["params"])
         np.testing.assert_array_equal(a["joints"], b["joints"])
+
+
+def test_a_study_runs_on_a_real_folder(nyu_dir, tmp_path):
+    """The study's dataset kind reads any data set through the one protocol: NYU folders
+    train the forest, give proposals and ground truth, and trials fit its derived points."""
+    from hybridfit.study import parse_spec, run_study
+
+    spec = {"name": "nyu", "seeds": 1,
+            "data": {"kind": "dataset", "test": str(nyu_dir), "train": str(nyu_dir),
+                     "forest": {"n_trees": 1, "max_depth": 8, "pixels_per_frame": 60}},
+            "base": {"budget": 200, "proposal_set": 50}, "sweep": {"grid": {"k": [1, 2]}}}
+    s = run_study(parse_spec(spec), tmp_path / "out", cache_dir=tmp_path / "cache", report=False)
+    assert (s.ran, s.failed) == (2, 0)
