@@ -38,7 +38,7 @@ from ..model.kinematics import sincos
 from ..objective import normalise_confidences
 from ..optimizer import StagePlan, Task
 from .problem import Problem, prepare_frames
-from .streams import normal, uniform
+from .streams import frame_keys, int_words, normal, uniform
 
 #: an objective's compiled kernel: (points (Q, 3, N) mm, the hypothesis innermost, subset
 #: (m,) point indices, proposals (Q, K, 3) mm, weights (Q, K), constants (c,), out (n,),
@@ -588,10 +588,14 @@ def layout(stages: list[tuple[StagePlan, object]]) -> Layout:
                   np.concatenate(parts))
 
 
-def stage_keys(seed: int, frame: int, stages: int) -> np.ndarray:
-    """(stages,) uint64: the keys of a frame's stages' random streams, as the Task path's PSO
-    takes them (one raw draw per stage, in order) from ``default_rng([seed, frame])``."""
-    return np.random.default_rng([seed, frame]).bit_generator.random_raw(stages)
+def stage_keys(seed: int, frames, stages) -> np.ndarray:
+    """(sum(stages),) uint64: the keys of the frames' stages' random streams, as the Task
+    path's PSO takes them (one raw draw per stage, in order) from ``default_rng([seed, frame])``;
+    frames (F,) and their stage counts (F,)."""
+    at = np.cumsum(np.concatenate([[0], stages])).astype(np.int64)
+    out = np.empty(at[-1], dtype=np.uint64)
+    frame_keys(np.array(int_words(seed), dtype=np.uint64), np.asarray(frames, dtype=np.int64), at, out)
+    return out
 
 
 @dataclass
@@ -669,10 +673,9 @@ class CompiledFitter:
                 errors.append((f, None, str(err)))
                 continue
             kept.append(i)
-        keys_at = np.cumsum([0] + [len(lay.stages) for lay in layouts]).astype(np.int64)
-        keys = np.empty(keys_at[-1], dtype=np.uint64)
-        for n, i in enumerate(kept):
-            keys[keys_at[n]:keys_at[n + 1]] = stage_keys(self.seed, frames[i], keys_at[n + 1] - keys_at[n])
+        counts = [len(lay.stages) for lay in layouts]
+        keys_at = np.cumsum([0] + counts).astype(np.int64)
+        keys = stage_keys(self.seed, [frames[i] for i in kept], counts)
         return Chunk(frames, errors, layouts, kept, proposals[kept], weights[kept], x0[kept], lower[kept],
                      upper[kept], keys, keys_at)
 

@@ -375,25 +375,30 @@ def robust_alignment(source: np.ndarray, proposals: np.ndarray, weights: np.ndar
 
 
 @nb.njit(cache=True)
-def _weighted_kabsch(source, target, w, R, t):
+def _weighted_kabsch(source, target, w, R, t, scratch):
     """Weighted least-squares rotation and translation of source (n, 3) onto target (n, 3),
     w (n,) >= 0 (not all 0), into R, t: Horn's closed form (J. Opt. Soc. Am. A 4(4), 1987),
     the unit quaternion that is the top eigenvector of a symmetric 4 x 4 matrix (Jacobi
-    rotations here: a proper rotation always, and 20x faster than LAPACK's 3 x 3 SVD)."""
+    rotations here: a proper rotation always, and 20x faster than LAPACK's 3 x 3 SVD).
+    scratch: (4, 4, 4) working space."""
     n = source.shape[0]
-    total = w.sum()
-    ms, mt = np.zeros(3), np.zeros(3)
+    total = 0.0
+    ms, mt, S, N, V = scratch[0, 0, :3], scratch[0, 1, :3], scratch[1, :3, :3], scratch[2], scratch[3]
+    ms[:] = 0.0
+    mt[:] = 0.0
+    S[:] = 0.0
     for i in range(n):
-        ms += w[i] * source[i]
-        mt += w[i] * target[i]
-    ms /= total
-    mt /= total
-    S = np.zeros((3, 3))
+        total += w[i]
+        for a in range(3):
+            ms[a] += w[i] * source[i, a]
+            mt[a] += w[i] * target[i, a]
+    for a in range(3):
+        ms[a] /= total
+        mt[a] /= total
     for i in range(n):
         for a in range(3):
             for b in range(3):
                 S[a, b] += w[i] * (source[i, a] - ms[a]) * (target[i, b] - mt[b])
-    N = np.empty((4, 4))
     N[0, 0] = S[0, 0] + S[1, 1] + S[2, 2]
     N[1, 1] = S[0, 0] - S[1, 1] - S[2, 2]
     N[2, 2] = -S[0, 0] + S[1, 1] - S[2, 2]
@@ -404,7 +409,9 @@ def _weighted_kabsch(source, target, w, R, t):
     N[1, 2] = N[2, 1] = S[0, 1] + S[1, 0]
     N[1, 3] = N[3, 1] = S[2, 0] + S[0, 2]
     N[2, 3] = N[3, 2] = S[1, 2] + S[2, 1]
-    V = np.eye(4)
+    V[:] = 0.0
+    for a in range(4):
+        V[a, a] = 1.0
     _jacobi_eigen(N, V)
     top = 0
     for c in range(1, 4):
@@ -460,6 +467,7 @@ def _robust_alignment(source, proposals, weights, inlier_mm, R_out, t_out):
     choice = best.copy()
     target, w = np.empty((n, 3)), np.empty(n)
     R, t = np.empty((3, 3)), np.empty(3)
+    scratch = np.empty((4, 4, 4))
     best_inliers, best_cost = -1, np.inf
     for h in range(1 + n * k):  # h = 0: the top proposals; then point (h-1)//k takes proposal (h-1)%k
         if h > 0:
@@ -469,25 +477,32 @@ def _robust_alignment(source, proposals, weights, inlier_mm, R_out, t_out):
             choice[:] = best
             choice[q] = r
         for i in range(n):
-            target[i] = proposals[i, choice[i]]
+            for a in range(3):
+                target[i, a] = proposals[i, choice[i], a]
             w[i] = weights[i, choice[i]]
-        _weighted_kabsch(source, target, w, R, t)
+        _weighted_kabsch(source, target, w, R, t, scratch)
         inliers, cost, agree = 0, 0.0, True
         for i in range(n):
-            p = R @ source[i] + t
+            s0, s1, s2 = source[i, 0], source[i, 1], source[i, 2]
+            p0 = R[0, 0] * s0 + R[0, 1] * s1 + R[0, 2] * s2 + t[0]
+            p1 = R[1, 0] * s0 + R[1, 1] * s1 + R[1, 2] * s2 + t[1]
+            p2 = R[2, 0] * s0 + R[2, 1] * s1 + R[2, 2] * s2 + t[2]
             nearest = np.inf
             for r2 in range(k):
                 if weights[i, r2] > 0.0:
-                    d = np.sqrt(((p - proposals[i, r2]) ** 2).sum())
-                    nearest = min(nearest, d)
-            if np.sqrt(((p - target[i]) ** 2).sum()) >= 0.5 * inlier_mm:
+                    e0, e1, e2 = p0 - proposals[i, r2, 0], p1 - proposals[i, r2, 1], p2 - proposals[i, r2, 2]
+                    nearest = min(nearest, np.sqrt(e0 * e0 + e1 * e1 + e2 * e2))
+            e0, e1, e2 = p0 - target[i, 0], p1 - target[i, 1], p2 - target[i, 2]
+            if np.sqrt(e0 * e0 + e1 * e1 + e2 * e2) >= 0.5 * inlier_mm:
                 agree = False
             inliers += nearest < inlier_mm
             cost += min(nearest, 2.0 * inlier_mm)
         if inliers > best_inliers or (inliers == best_inliers and cost < best_cost):
             best_inliers, best_cost = inliers, cost
-            R_out[:] = R
-            t_out[:] = t
+            for a in range(3):
+                t_out[a] = t[a]
+                for b in range(3):
+                    R_out[a, b] = R[a, b]
         if h == 0 and agree:  # every top proposal agrees closely: nothing to try
             return
 
