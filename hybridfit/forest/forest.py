@@ -17,6 +17,8 @@ concatenated node arrays and the leaf modes (see ``Forest``).
 from __future__ import annotations
 
 import os
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -165,11 +167,12 @@ class Forest:
 
     def propose(self, depths: np.ndarray, intrinsics: Intrinsics, masks: np.ndarray | None = None, *,
                 k: int = 3, proposal_set: int = 200, stride: int = 2, bandwidth_mm: float = 10.0,
-                progress: bool = False) -> Proposals:
+                progress: bool = False, jobs: int = 1) -> Proposals:
         """Joint proposals for depth frames (n, H, W) or one frame (H, W), uint16 mm.
 
-        masks: foreground (same shape, bool); default depth > 0. Returns ``Proposals``
-        (a single frame still gives a leading frame axis of 1)."""
+        masks: foreground (same shape, bool); default depth > 0. jobs: frames proposed at
+        once on that many threads (the kernels release the GIL; the result does not depend
+        on it). Returns ``Proposals`` (a single frame still gives a leading frame axis of 1)."""
         depths = np.asarray(depths)
         if depths.ndim == 2:
             depths = depths[None]
@@ -181,7 +184,7 @@ class Forest:
         masks = depths > 0 if masks is None else np.asarray(masks)
         if masks.shape != depths.shape or masks.dtype != bool:
             raise HybridfitError(f"masks must be {depths.shape} bool, got {masks.shape} {masks.dtype}")
-        for name, value, lo in (("k", k, 1), ("proposal_set", proposal_set, 1), ("stride", stride, 1)):
+        for name, value, lo in (("k", k, 1), ("proposal_set", proposal_set, 1), ("stride", stride, 1), ("jobs", jobs, 1)):
             if int(value) != value or value < lo:
                 raise HybridfitError(f"{name} must be a positive integer, got {value!r}")
         if not bandwidth_mm > 0:
@@ -195,14 +198,19 @@ class Forest:
         meta[:, 2], meta[:, 3], meta[:, 4] = H, W, np.arange(F) * H * W
         nodes, links = self.packed_nodes
         fx, fy, bg = float(intrinsics.fx), float(intrinsics.fy), np.float32(self.config.background_mm)
-        frames = tqdm(range(F), unit="frame", desc="propose") if progress else range(F)
-        for f in frames:
+
+        def one(f: int) -> None:
             s_frame, u, v, d, xyz = grid_pixels(masks[f], depths[f], f, int(stride), float(intrinsics.cx),
                                                 float(intrinsics.cy), fx, fy)
             if len(u) == 0:
                 out.empty[f] = True
-                continue
+                return
             leaves = traverse(buf, meta, s_frame, u, v, d, nodes, links, self.roots, fx, fy, bg)
             out.proposals[f], out.confidences[f] = frame_proposals(
                 xyz, leaves, self.leaf_offsets, self.leaf_weights, int(proposal_set), int(k), float(bandwidth_mm))
+
+        with ThreadPoolExecutor(int(jobs)) if jobs > 1 and F > 1 else nullcontext() as pool:
+            done = pool.map(one, range(F)) if pool else map(one, range(F))
+            for _ in tqdm(done, total=F, unit="frame", desc="propose") if progress else done:
+                pass
         return out

@@ -45,6 +45,16 @@ def test_a_single_frame_and_masks(hands, hand_forest):
     assert np.array_equal(masked.proposals, many.proposals)
 
 
+def test_threads_give_the_same_proposals(hands, hand_forest):
+    depth = hands[0][40:].copy()
+    depth[3] = 0  # an empty frame among them
+    one = hand_forest.propose(depth, SMALL)
+    three = hand_forest.propose(depth, SMALL, jobs=3)
+    for key in ("proposals", "confidences", "empty"):
+        assert np.array_equal(getattr(one, key), getattr(three, key)), key
+    assert three.empty[3] and three.empty.sum() == 1
+
+
 def test_an_empty_frame_is_flagged_not_fatal(hands, hand_forest):
     depth = hands[0][:3].copy()
     depth[1] = 0
@@ -76,7 +86,7 @@ def test_bad_frames_are_refused(hands, hand_forest, depth, message):
 
 
 def test_bad_settings_are_refused(hands, hand_forest):
-    for kwargs in ({"k": 0}, {"proposal_set": 0}, {"stride": 0}, {"bandwidth_mm": 0.0}):
+    for kwargs in ({"k": 0}, {"proposal_set": 0}, {"stride": 0}, {"bandwidth_mm": 0.0}, {"jobs": 0}):
         with pytest.raises(HybridfitError):
             hand_forest.propose(hands[0][:1], SMALL, **kwargs)
     with pytest.raises(HybridfitError, match="masks"):
