@@ -9,7 +9,8 @@ Prints (the machine is shared: medians, and CPU time next to wall time):
    on all frames, wall and CPU time and peak resident memory;
 2. the load time of the forest file;
 3. proposals for one frame on one core at k = 3 (default |P~| = 200, stride 2, bandwidth 10 mm;
-   --proposal-set, --stride, --bandwidth change them; median over test frames);
+   --proposal-set, --stride, --bandwidth change them; median over test frames, wall and thread
+   CPU time), then for all test frames in one call on 1 and on --jobs threads;
 4. on the test sequence: the plain regression (top proposal per joint), the Oracle (the
    proposal closest to the truth among the top k, k = 1..5) and the fitted pose
    (hybridfit.fit, stepwise PSO, k = 3): mean joint error, fingertip error and success
@@ -91,15 +92,22 @@ def main() -> int:
 
     # speed: one frame at a time, one core (the kernels are single-threaded)
     forest.propose(depths[:1], K, masks[:1])
-    times = []
+    times, cpu = [], []
     for f in range(len(idx)):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.thread_time()
         forest.propose(depths[f:f + 1], K, masks[f:f + 1], k=3, **opts)
         times.append(time.perf_counter() - t)
+        cpu.append(time.thread_time() - c)
     print(f"proposals per {K.width}x{K.height} frame (k=3, |P~|={args.proposal_set}, stride {args.stride}, "
           f"bandwidth {args.bandwidth:g} mm, one core): median "
-          f"{1000 * np.median(times):.2f} ms, 90th percentile {1000 * np.percentile(times, 90):.2f} ms; "
-          f"foreground pixels per frame {masks.sum((1, 2)).mean():.0f}")
+          f"{1000 * np.median(times):.2f} ms, 90th percentile {1000 * np.percentile(times, 90):.2f} ms "
+          f"(CPU time: median {1000 * np.median(cpu):.2f} ms); foreground pixels per frame {masks.sum((1, 2)).mean():.0f}")
+    for jobs in sorted({1, args.jobs}):
+        t = time.perf_counter()
+        forest.propose(depths, K, masks, k=3, jobs=jobs, **opts)
+        wall = time.perf_counter() - t
+        print(f"proposals for all {len(idx)} frames in one call on {jobs} thread(s): {wall:.2f} s "
+              f"({len(idx) / wall:.0f} frames/s)")
 
     p5 = forest.propose(depths, K, masks, k=5, **opts)
     tips = fingertips(forest.joint_names)
