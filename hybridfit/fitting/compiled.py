@@ -34,7 +34,7 @@ from numba import types as T
 
 from ..errors import HybridfitError
 from ..model.rotations import quaternion_matrix
-from ..model.kinematics import sincos
+from ..model.kinematics import sincos, sincos_rows
 from ..objective import normalise_confidences
 from ..optimizer import StagePlan, Task
 from .problem import Problem, prepare_frames
@@ -300,14 +300,6 @@ def _block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
                     out[q, c, i] += w * WpB[j, c, i]
 
 
-@nb.njit(cache=True, fastmath=True)
-def _sincos_rows(rows, count, pB, sinB, cosB, m):
-    """sinB[k, :m], cosB[k, :m] = sin, cos of pB[k, :m] for k in rows[:count] (see ``sincos``)."""
-    for t in range(count):
-        k = rows[t]
-        sincos(pB[k, :m], sinB[k, :m], cosB[k, :m])
-
-
 # ---------------------------------------------------------------- one frame
 
 
@@ -421,6 +413,7 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
         pbest_f = np.empty(n)
         r1 = np.empty((n, d))
         r2 = np.empty((n, d))
+        gbest = np.empty(d)
         g = 0
         first = True
         while left > 0:
@@ -431,12 +424,13 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
                         r1[i, k] = uniform(key, rpos + i * d + k)
                         r2[i, k] = uniform(key, rpos + (m + i) * d + k)
                 rpos += 2 * m * d
-                pso_step(x, v, pbest_x, pbest_x[g].copy(), r1, r2, chi, c1, c2, vmax, lo, hi, m)
+                gbest[:] = pbest_x[g]
+                pso_step(x, v, pbest_x, gbest, r1, r2, chi, c1, c2, vmax, lo, hi, m)
             # score the first m hypotheses as one block
             for k in range(d):
                 for i in range(m):
                     pB[pidx[k], i] = x[i, k]
-            _sincos_rows(pidx, d, pB, sinB, cosB, m)
+            sincos_rows(pidx, d, pB, sinB, cosB, m)
             _block_frames(m, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
                           axis_params, mirror, WB, WpB, GB)
             _block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, pts_lo, pts_hi, ptsB)

@@ -57,31 +57,45 @@ _NO_REASSOC = {"nnan", "ninf", "nsz", "arcp", "contract", "afn"}
 _PIO2_1, _PIO2_2, _PIO2_3 = 1.5707963267341256, 6.077100506506192e-11, 2.0222662487959506e-21
 
 
+@nb.njit(cache=True, fastmath=_NO_REASSOC, inline="always")
+def sincos1(v):
+    """(sin v, cos v) for |v| < 1e6 radians: Cody-Waite reduction to [-pi/4, pi/4] and Taylor
+    polynomials, within a few ulp of libm. Branch-free, so loops over it vectorise (numba has
+    no vector sin/cos without SVML)."""
+    k = np.floor(v * 0.6366197723675814 + 0.5)
+    r = ((v - k * _PIO2_1) - k * _PIO2_2) - k * _PIO2_3
+    r2 = r * r
+    sr = r + r * r2 * (-0.16666666666666666 + r2 * (0.008333333333333333 + r2 * (-0.0001984126984126984 + r2 * (
+        2.7557319223985893e-06 + r2 * (-2.505210838544172e-08 + r2 * (1.6059043836821613e-10
+                                                                     + r2 * -7.647163731819816e-13))))))
+    cr = 1.0 + r2 * (-0.5 + r2 * (0.041666666666666664 + r2 * (-0.001388888888888889 + r2 * (
+        2.48015873015873e-05 + r2 * (-2.755731922398589e-07 + r2 * (2.08767569878681e-09 + r2 * (
+            -1.1470745597729725e-11 + r2 * 4.779477332387385e-14)))))))
+    q = np.int64(k) & 3
+    swap = (q & 1) == 1
+    a = cr if swap else sr
+    b = sr if swap else cr
+    return (-a if q >= 2 else a), (-b if q == 1 or q == 2 else b)
+
+
 @nb.njit(cache=True, fastmath=_NO_REASSOC)
 def sincos(x, s, c):
     """Elementwise s = sin(x), c = cos(x) of C-contiguous arrays of the same shape (radians,
-    |x| < 1e6): Cody-Waite reduction to [-pi/4, pi/4] and Taylor polynomials, within a few ulp
-    of libm. Branch-free, so the loop vectorises (numba has no vector sin/cos without SVML)."""
+    |x| < 1e6; see :func:`sincos1`)."""
     xf = x.reshape(-1)
     sf = s.reshape(-1)
     cf = c.reshape(-1)
     for i in range(xf.size):
-        v = xf[i]
-        k = np.floor(v * 0.6366197723675814 + 0.5)
-        r = ((v - k * _PIO2_1) - k * _PIO2_2) - k * _PIO2_3
-        r2 = r * r
-        sr = r + r * r2 * (-0.16666666666666666 + r2 * (0.008333333333333333 + r2 * (-0.0001984126984126984 + r2 * (
-            2.7557319223985893e-06 + r2 * (-2.505210838544172e-08 + r2 * (1.6059043836821613e-10
-                                                                         + r2 * -7.647163731819816e-13))))))
-        cr = 1.0 + r2 * (-0.5 + r2 * (0.041666666666666664 + r2 * (-0.001388888888888889 + r2 * (
-            2.48015873015873e-05 + r2 * (-2.755731922398589e-07 + r2 * (2.08767569878681e-09 + r2 * (
-                -1.1470745597729725e-11 + r2 * 4.779477332387385e-14)))))))
-        q = np.int64(k) & 3
-        swap = (q & 1) == 1
-        a = cr if swap else sr
-        b = sr if swap else cr
-        sf[i] = -a if q >= 2 else a
-        cf[i] = -b if q == 1 or q == 2 else b
+        sf[i], cf[i] = sincos1(xf[i])
+
+
+@nb.njit(cache=True, fastmath=_NO_REASSOC)
+def sincos_rows(rows, count, x, s, c, m):
+    """s[k, :m], c[k, :m] = sin, cos of x[k, :m] for k in rows[:count] (x, s, c (P, n))."""
+    for t in range(count):
+        k = rows[t]
+        for i in range(m):
+            s[k, i], c[k, i] = sincos1(x[k, i])
 
 
 #: hypotheses per block of :func:`tree_forward` (its loops over a block vectorise)
