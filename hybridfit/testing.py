@@ -15,7 +15,7 @@ one test id each::
 Optimiser checks fit small synthetic frames of the suite's own :class:`ToyHand` (a wrist and
 two 3-joint fingers, 13 parameters, 7 joints) with the reference objectives, so they take
 seconds and depend on no model plugin. (The checks of objectives that observe depth render
-the reference model, hand26.)
+the suite's ToyHand too.)
 """
 
 from __future__ import annotations
@@ -267,7 +267,7 @@ def _objective_frame(seed: int = 0, Q: int = 6, K: int = 3):
 
 
 def _observed_frame(seed: int = 0, K: int = 3):
-    """For objectives that observe depth: hand26, the depth Observation of a pose 400 mm in
+    """For objectives that observe depth: ToyHand, the depth Observation of a pose 400 mm in
     front of the camera, proposals (J, K, 3) around its joints, weights (J, K), and the joints
     (5, J, 3) of that pose perturbed (row 0 unperturbed)."""
     from .datasets.camera import Intrinsics
@@ -277,7 +277,7 @@ def _observed_frame(seed: int = 0, K: int = 3):
     from .model.rotations import matrix_to_quaternion
 
     rng = np.random.default_rng(seed)
-    model = registry.create("model", "hand26")
+    model = ToyHand()
     pose = model.default_params().astype(float)
     pose[:3] = (0.0, 0.0, 400.0)
     pose[3:7] = matrix_to_quaternion(PALM_TO_CAMERA)
@@ -378,7 +378,7 @@ def check_objective_observed(objective: Objective) -> None:
     _require(bool(values[0] <= values[1:].min()), f"{_label(objective)}: the observed pose scores {values[0]}, "
              f"worse than a perturbed pose ({values[1:].min()})")
     try:
-        Problem(registry.create("model", "hand26"), objective, proposals, weights)
+        Problem(ToyHand(), objective, proposals, weights)
     except HybridfitError as err:
         _require("depth" in str(err), f"{_label(objective)}: the error does not say the depth is missing: {err}")
     else:

@@ -34,6 +34,8 @@ def register(sub) -> None:
         c.add_argument("--seed", type=int, help="random seed (motions and noise; default 0)")
         c.add_argument("--distance", type=float, metavar="MM", help="palm distance from the camera, mm (default 400)")
         c.add_argument("--noise", action="store_true", help="add the default sensor noise model")
+        c.add_argument("--model", help="hand model plugin (default: the settings file's, else hand26)")
+        c.add_argument("--model-config", metavar="TOML", help="hand model settings (default: the settings file's)")
 
 
 def run_proposals(args) -> int:
@@ -50,7 +52,8 @@ def _config(cls, args):
 
     base = load_toml(args.config)
     options = {"seed": args.seed, "distance_mm": args.distance, "frames": getattr(args, "frames", None),
-               "noise": base.get("noise", {}) if args.noise else None}
+               "noise": base.get("noise", {}) if args.noise else None, "model": args.model,
+               "model_settings": load_toml(args.model_config) if args.model_config else None}
     return parse_config(cls, base, **{k: v for k, v in options.items() if v is not None})
 
 

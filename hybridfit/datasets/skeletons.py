@@ -249,20 +249,31 @@ def to_toml(sk: Skeleton) -> str:
     return tomli_w.dumps(doc)
 
 
-def with_derived_points(model_config: dict, dataset: str) -> dict:
-    """Model settings with the skeleton's derived points added where the config lacks them."""
-    derived = dict(model_config.get("derived_points", {}))
+def with_derived_points(model_config: dict, dataset: str, setting: str = "derived_points") -> dict:
+    """Model settings with the skeleton's derived points added where the config lacks them,
+    under the model's derived-points setting ``setting`` (``HandModel.derived_points_setting``)."""
+    derived = dict(model_config.get(setting, {}))
     for name, weights in skeleton(dataset).derived.items():
         derived.setdefault(name, weights)
-    return {**model_config, "derived_points": derived}
+    return {**model_config, setting: derived}
 
 
 def dataset_model_config(model: str, model_config: dict, dataset: str | None) -> dict:
-    """The fitting model's settings for a dataset's skeleton: the skeleton's own model gets
-    its derived points; other models and no dataset: unchanged."""
-    if not dataset or model != skeleton(dataset).model:
+    """The fitting model's settings for a dataset's skeleton: a model that declares a
+    derived-points setting and has every joint the skeleton's derived points weigh gets those
+    points (whichever model the skeleton file names: a model with the same joint names maps
+    the same way); any other model, a skeleton without derived points and no dataset:
+    unchanged (a point the model then lacks is named when it is used)."""
+    if not dataset or not skeleton(dataset).derived_weights:
         return dict(model_config)
-    return with_derived_points(model_config, dataset)
+    from .. import registry
+
+    instance = registry.create("model", model, model_config)
+    setting = instance.derived_points_setting
+    needed = {j for weights in skeleton(dataset).derived_weights.values() for j in weights}
+    if setting is None or not needed <= set(instance.joint_names):
+        return dict(model_config)
+    return with_derived_points(model_config, dataset, setting)
 
 
 def convention(dataset: str) -> Convention:

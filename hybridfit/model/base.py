@@ -125,6 +125,19 @@ class HandModel(Plugin, abc.ABC):
         joints: if given, only these joints are needed (a model may leave the others NaN
         to save time; computing all is always correct)."""
 
+    def named_poses_deg(self) -> Mapping[str, np.ndarray]:
+        """Named hand shapes, {name: (P - 7,) articulation angles in degrees, in parameter
+        order}: the key poses of the synthetic test sequence's motions
+        (``hybridfit.synthetic.poses.MOTIONS``). Default: none; the sequence then takes a
+        random shape within the bounds for every pose the model does not name."""
+        return {}
+
+    def grid_articulations_deg(self) -> Mapping[str, Sequence[Sequence[float]]]:
+        """The synthetic training grid's articulations, {stage name: [(that stage's angles in
+        degrees), ...]}; every combination across stages is one hand shape. Default: none; a
+        stage not given gets ``hybridfit.synthetic.poses.FALLBACK_SHARES`` of its ranges."""
+        return {}
+
     def geometry(self) -> Geometry:
         """The geometry calibration may change (see :class:`Geometry`); a model without
         calibratable geometry raises."""

@@ -40,8 +40,12 @@ class HandSurface(BaseModel):
             "thumb": (12.0, 8.0), "index": (9.5, 7.0), "middle": (9.5, 7.2),
             "ring": (9.0, 6.8), "little": (8.0, 6.0),
         },
-        description="per finger: radius at its base joint and at its tip (linear in between), mm",
+        description="per finger (a stage of the model, by name): radius at its base joint and at its tip (linear in "
+                    "between), mm",
     )
+    other_finger_radii_mm: tuple[float, float] | None = Field(
+        (9.0, 7.0), description="radii of a finger not in finger_radii_mm (None: such a finger is an error), mm")
+    thenar_finger: str = Field("thumb", description="the finger whose base the thenar eminence and the web join")
     palm_radius_mm: float = Field(11.0, gt=0, description="half the palm thickness, mm")
     palm_strands: int = Field(6, ge=2, le=32, description="rounded cones across the palm")
     wrist_width: float = Field(0.65, gt=0, le=1.5, description="carpal row width relative to the knuckle row")
@@ -58,6 +62,13 @@ class HandSurface(BaseModel):
         for name, (base, tip) in v.items():
             if not (base > 0 and tip > 0):
                 raise ValueError(f"radii of finger {name!r} must be positive, got ({base}, {tip})")
+        return v
+
+    @field_validator("other_finger_radii_mm")
+    @classmethod
+    def _other_radii(cls, v):
+        if v is not None and not (v[0] > 0 and v[1] > 0):
+            raise ValueError(f"radii must be positive, got {v}")
         return v
 
 
@@ -95,14 +106,17 @@ def build_primitives(model, surface: HandSurface):
         ra.append(r1 * scale)
         rb.append(r2 * scale)
 
+    stage_names = [s.name for s in model.stages()]
+    owner = model.stage_of_joint()
     knuckles, thumb = [], None
     for chain in _chains(parents):
-        finger = names[chain[0]].split("_")[0]
-        if finger not in surface.finger_radii_mm:
+        finger = stage_names[owner[chain[-1]]]  # the stage that moves the chain's tip
+        radii = surface.finger_radii_mm.get(finger, surface.other_finger_radii_mm)
+        if radii is None:
             raise HybridfitError(
-                f"hand surface: no radii for finger {finger!r} (joint {names[chain[0]]!r}); "
+                f"hand surface: no radii for finger {finger!r} (the model's stage moving {names[chain[-1]]!r}); "
                 f"known: {', '.join(surface.finger_radii_mm)}")
-        r_base, r_tip = surface.finger_radii_mm[finger]
+        r_base, r_tip = radii
         seg = np.array([np.linalg.norm(rest[b] - rest[a]) for a, b in zip(chain, chain[1:])])
         frac = np.concatenate([[0.0], np.cumsum(seg)]) / max(seg.sum(), 1e-9)
         radius = r_base + (r_tip - r_base) * frac
@@ -112,7 +126,7 @@ def build_primitives(model, surface: HandSurface):
                 w = min(surface.tip_inset * radius[-1] * scale / seg[k], 0.5)
                 end = (1 - w) * eye[b] + w * eye[a]
             add(eye[a], end, radius[k], radius[k + 1])
-        if finger == "thumb":
+        if finger == surface.thenar_finger:
             thumb = chain
         else:
             knuckles.append(chain[0])

@@ -56,7 +56,7 @@ class StudyData:
     def __init__(self, data, cache: Cache, jobs: int = 1, log: Callable[[str], None] = print, progress: bool = False):
         self.data, self.cache, self.jobs, self.log, self.progress = data, cache, jobs, log, progress
         self._sets: dict[tuple[int, int], ProposalSet] = {}
-        self._calibrated: dict[str, Any] | None = None
+        self._calibrated: dict[str, dict[str, Any]] = {}  # by model
         self._depth: dict[str, Any] | None = None
         self.key = self._key()
 
@@ -133,25 +133,27 @@ class StudyData:
         fitted["empty"] = np.zeros(d.frames, bool)
         return fitted, z["ground_truth"][:C]
 
-    def _stress_calibration(self, skeleton: str) -> dict[str, Any]:
-        """The model calibrated on the skeleton's calibration frames (cached)."""
+    def _stress_calibration(self, skeleton: str, model: str) -> dict[str, Any]:
+        """The model calibrated on the skeleton's calibration frames (cached per model)."""
         from ..fitting.calibrate import calibrate
-        from ..datasets.skeletons import with_derived_points
+        from ..datasets.skeletons import dataset_model_config
 
         d = self.data
         fitted, truth = self._stress(skeleton)
-        payload = {**d.model_dump(mode="json"), "skeleton": skeleton, "method": "prior-regularised, held out 20%"}
+        payload = {**d.model_dump(mode="json"), "skeleton": skeleton, "model": model,
+                   "method": "prior-regularised, held out 20%"}
 
         def make(tmp: Path) -> None:
-            self.log(f"calibrating on {len(truth)} stress frames, skeleton {skeleton}")
+            self.log(f"calibrating {model} on {len(truth)} stress frames, skeleton {skeleton}")
             c = d.calibrate
-            r = calibrate(truth, [str(n) for n in fitted["joint_names"]], model_config=with_derived_points({}, skeleton),
+            r = calibrate(truth, [str(n) for n in fitted["joint_names"]], model=model,
+                          model_config=dataset_model_config(model, {}, skeleton),
                           rounds=c.rounds, budget=c.budget, seed=c.seed, jobs=self.jobs)
             tmp.write_text(json.dumps({"settings": r.settings, "error_after_mm": r.error_after,
                                        "error_heldout_mm": r.error_heldout}, indent=1))
 
         saved = json.loads(self.cache.get("stress-calibration", payload, make, ".json")[1].read_text())
-        self.log(f"calibration ({skeleton}): fit error {saved['error_after_mm']:.2f} mm in-sample, "
+        self.log(f"calibration ({model}, {skeleton}): fit error {saved['error_after_mm']:.2f} mm in-sample, "
                  f"{saved['error_heldout_mm']:.2f} mm held out")
         return saved["settings"]
 
@@ -287,8 +289,9 @@ class StudyData:
     # ------------------------------------------------------------------ model
 
     def model_config(self, settings: TrialSettings) -> dict[str, Any]:
-        """The model config a trial runs with: the dataset's derived points and the calibration
-        (for hand26 on real-data skeletons) under the trial's own model_config."""
+        """The model config a trial runs with: the dataset's derived points and the trial's
+        model calibrated on the data's calibration frames (if asked), under the trial's own
+        model_config."""
         from ..datasets.skeletons import dataset_model_config
 
         cfg = dict(settings.model_settings)
@@ -296,37 +299,38 @@ class StudyData:
         if isinstance(d, SyntheticStressData):
             skeleton = settings.skeleton or "icvl"
             if d.calibrate is not None:
-                cfg = {**self._stress_calibration(skeleton), **cfg}
+                cfg = {**self._stress_calibration(skeleton, settings.model), **cfg}
             return dataset_model_config(settings.model, cfg, skeleton)
         if isinstance(d, DatasetData):  # a real dataset's folder: its skeleton's derived points
             from ..datasets import detect
 
             kind = detect(d.test)
             return cfg if kind == "synthetic" else dataset_model_config(settings.model, cfg, kind)
-        if settings.model != "hand26" or not isinstance(d, ProposalsData) or d.dataset is None:
+        if not isinstance(d, ProposalsData) or d.dataset is None:
             return cfg
         if d.calibrate is not None:
-            cfg = {**self.calibration(), **cfg}
+            cfg = {**self.calibration(settings.model), **cfg}
         return dataset_model_config(settings.model, cfg, d.dataset)
 
-    def calibration(self) -> dict[str, Any]:
-        """hand26 settings calibrated on the ground truth's frames (cached)."""
-        if self._calibrated is None:
+    def calibration(self, model: str) -> dict[str, Any]:
+        """The model's settings calibrated on the ground truth's frames (cached per model)."""
+        if model not in self._calibrated:
             from ..fitting.calibrate import calibrate
             from ..io import read_results as read_xyz
-            from ..datasets.skeletons import skeleton, with_derived_points
+            from ..datasets.skeletons import dataset_model_config, skeleton
 
             d, c = self.data, self.data.calibrate
             dataset = file_hash(Path(d.dataset)) if _skeleton_file(d) else d.dataset
             payload = {"ground_truth": file_hash(d.ground_truth), "dataset": dataset, **c.model_dump(mode="json"),
+                       "model": model,
                        "method": "prior-regularised, held out 20%"}  # calibrations made by the earlier code differ
 
             def make(tmp: Path) -> None:
                 sk = skeleton(d.dataset)
                 truth = read_xyz(d.ground_truth, d.dataset)
                 truth = truth[frame_slice(c.frames, len(truth), "data.calibrate.frames")]
-                self.log(f"calibrating hand26 on {len(truth)} frames of {d.ground_truth.name}")
-                r = calibrate(truth, sk.model_names, model_config=with_derived_points({}, d.dataset),
+                self.log(f"calibrating {model} on {len(truth)} frames of {d.ground_truth.name}")
+                r = calibrate(truth, sk.model_names, model=model, model_config=dataset_model_config(model, {}, d.dataset),
                               mirror={"auto": None, "right": False, "left": True}[c.hand], rounds=c.rounds,
                               budget=c.budget, seed=c.seed, jobs=self.jobs)
                 tmp.write_text(json.dumps({"settings": r.settings, "error_before_mm": r.error_before,
@@ -335,10 +339,10 @@ class StudyData:
 
             _, path = self.cache.get("calibration", payload, make, ".json")
             saved = json.loads(path.read_text())
-            self.log(f"calibration: fit error {saved['error_after_mm']:.2f} mm in-sample, "
+            self.log(f"calibration ({model}): fit error {saved['error_after_mm']:.2f} mm in-sample, "
                      f"{saved['error_heldout_mm']:.2f} mm on {saved['heldout_frames']} held-out frames")
-            self._calibrated = saved["settings"]
-        return self._calibrated
+            self._calibrated[model] = saved["settings"]
+        return self._calibrated[model]
 
 
 def _top_k(z: ProposalSet, k: int) -> ProposalSet:

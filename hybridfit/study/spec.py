@@ -139,7 +139,7 @@ class DatasetData(_Strict):
 
 
 class Calibration(_Strict):
-    """Calibrate hand26 on ground-truth frames (``hybridfit.fitting.calibrate``), a cached shared step."""
+    """Calibrate the trial's model on ground-truth frames (``hybridfit.fitting.calibrate``), a cached shared step."""
 
     frames: str = Field("0:100", description="START:STOP of the ground truth to calibrate on")
     rounds: int = Field(3, ge=0)

@@ -18,10 +18,6 @@ from .noise import SensorNoise
 #: names of the test sequence's motions (each a series of key poses, :data:`.poses.MOTIONS`)
 MOTION_NAMES = ("count", "pinch", "grasp", "wave", "ok")
 
-DEFAULT_ARTICULATIONS = {
-    "thumb": [(-10, -20, 5, 0), (10, 0, 20, 15), (40, 30, 30, 20), (55, 20, 60, 60)],
-    **{f: [(5, 0, 5, 5), (30, 0, 50, 30), (60, 0, 10, 5), (80, 0, 100, 70)] for f in ("index", "middle", "ring", "little")},
-}
 DEFAULT_VIEWPOINTS = [(0, 0, 0), (35, 0, 0), (-35, 0, 0), (0, 35, 0), (0, -35, 0), (0, 0, 35), (0, 0, -35)]
 
 
@@ -39,15 +35,16 @@ class _Common(BaseModel):
 
 
 class GridConfig(_Common):
-    """Training grid: per finger a list of articulations (degrees, the model's angle order
-    for that finger) and the viewpoints as rotations (degrees) about the camera's x, y and
+    """Training grid: per finger (a stage of the model) a list of articulations (degrees, the
+    model's angle order for that stage) and the viewpoints as rotations (degrees) about the camera's x, y and
     z axes applied to a palm facing the camera (fingers up). Each frame's rotations, palm
     position and distance are jittered at random (uniformly within the ``*_jitter_*``
     ranges, from the stream ``numpy.random.default_rng([seed, 2])``, so a seed gives the same
     grid); set the three jitters to 0 for the exact viewpoints of the paper."""
 
-    articulations_deg: dict[str, list[tuple[float, ...]]] = Field(
-        default_factory=lambda: {k: list(v) for k, v in DEFAULT_ARTICULATIONS.items()})
+    articulations_deg: dict[str, list[tuple[float, ...]]] | None = Field(
+        None, description="per stage (finger) of the model, its articulations (the stage's angles in degrees); a "
+        "stage not given stays at the default pose. None: the model's own (HandModel.grid_articulations_deg)")
     viewpoints_deg: list[tuple[float, float, float]] = Field(default_factory=lambda: list(DEFAULT_VIEWPOINTS), min_length=1)
     viewpoint_jitter_deg: float = Field(
         17.5, ge=0, le=90,
@@ -59,7 +56,7 @@ class GridConfig(_Common):
 
     @model_validator(mode="after")
     def _non_empty(self):
-        for finger, arts in self.articulations_deg.items():
+        for finger, arts in (self.articulations_deg or {}).items():
             if not arts:
                 raise ValueError(f"articulations_deg.{finger}: needs at least one articulation")
         if self.distance_jitter_mm >= self.distance_mm:

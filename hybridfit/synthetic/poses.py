@@ -1,7 +1,7 @@
 """The poses of the synthetic data sets: a training grid and a TrackSeq-like test sequence
 (settings in :mod:`.config`; rendered and written by :mod:`.sets`).
 
-Training grid: a few articulations per finger (default 4), every combination of them
+Training grid: a few articulations per finger (the default model's: 4), every combination of them
 (4^5 = 1024 hand shapes), each seen from several viewpoints (default 7: 7168 frames),
 the palm facing the camera at ``distance_mm``. Frame index = shape * viewpoints + viewpoint;
 shapes enumerate the fingers' articulations with the thumb slowest. By default every frame
@@ -18,6 +18,12 @@ jitter matters most: a depth feature with one probe on the background reads
 ``background_mm`` minus the hand's depth, so a forest trained at one distance splits on
 absolute depth (62% of its splits threshold such a reading) and fails once the hand moves
 by a few centimetres.
+
+Both ask the model, never a name: the grid's articulations per stage come from
+``HandModel.grid_articulations_deg`` (a stage it does not give: 4 articulations at
+``FALLBACK_SHARES`` of each angle's range), the sequence's key poses from
+``HandModel.named_poses_deg`` (a pose it does not name: a random shape, each angle uniform
+in the central ``RANDOM_SHAPE_SHARE`` of its range, drawn from the sequence's stream).
 
 Test sequence: natural motions (counting, pinching, grasping, finger waves, an OK sign)
 as key poses perturbed at random (so none is a training pose), interpolated smoothly in
@@ -44,40 +50,8 @@ from ..model.rotations import axis_angle_matrix, matrix_to_quaternion, slerp
 from .config import GridConfig, SequenceConfig, _Common, parse_config
 from .proposals import PALM_TO_CAMERA, palm_orientation
 
-# per-finger angles in degrees in the model's parameter order: thumb (CMC flexion, CMC
-# abduction, MCP, IP), fingers (MCP flexion, MCP abduction, PIP, DIP)
-_THUMB = {"open": (-12, -25, 5, 3), "rest": (8, 0, 12, 10), "across": (45, 35, 35, 25),
-          "pinch": (40, 10, 30, 25), "grasp": (25, 15, 20, 15)}
-_FINGER = {"straight": (3, 0, 3, 2), "fist": (85, 0, 95, 65), "rest": (15, 0, 20, 10), "half": (40, 0, 45, 25),
-           "grasp": (50, 0, 55, 35), "pinch": (45, 0, 35, 20), "wave": (60, 0, 70, 40)}
-_SPREAD = (-10, -2, 6, 12)  # abduction of index .. little in an open hand
-
-
-def _hand(thumb: str, *fingers: str, spread: bool = False) -> np.ndarray:
-    """(20,) degrees: a thumb state and four finger states (index .. little)."""
-    out = [_THUMB[thumb]]
-    for i, f in enumerate(fingers):
-        a = list(_FINGER[f])
-        if spread and f == "straight":
-            a[1] = _SPREAD[i]
-        out.append(a)
-    return np.array(out, float).ravel()
-
-
-KEY_POSES = {
-    "open": _hand("open", "straight", "straight", "straight", "straight", spread=True),
-    "rest": _hand("rest", "rest", "rest", "rest", "rest"),
-    "fist": _hand("across", "fist", "fist", "fist", "fist"),
-    "one": _hand("across", "straight", "fist", "fist", "fist"),
-    "two": _hand("across", "straight", "straight", "fist", "fist", spread=True),
-    "three": _hand("across", "straight", "straight", "straight", "fist", spread=True),
-    "four": _hand("across", "straight", "straight", "straight", "straight", spread=True),
-    "pinch_open": _hand("open", "half", "rest", "rest", "rest"),
-    "pinch": _hand("pinch", "pinch", "half", "half", "half"),
-    "grasp": _hand("grasp", "grasp", "grasp", "grasp", "grasp"),
-    "ok": _hand("pinch", "pinch", "straight", "straight", "straight", spread=True),
-    **{f"wave{i}": _hand("open", *["wave" if k == i else "straight" for k in range(4)]) for i in range(4)},
-}
+#: the test sequence's motions: series of key poses, named poses of the model
+#: (``HandModel.named_poses_deg``); a pose the model does not name becomes a random shape
 MOTIONS = {
     "count": ("fist", "one", "two", "three", "four", "open"),
     "pinch": ("rest", "pinch_open", "pinch", "pinch_open", "pinch", "rest"),
@@ -90,12 +64,36 @@ def _model(config: _Common):
     return registry.create("model", config.model, config.model_settings)
 
 
-def _finger_slices(model) -> dict[str, list[int]]:
-    """Finger name -> indices of its angle parameters (by the parameter name prefix)."""
-    out: dict[str, list[int]] = {}
-    for i, name in enumerate(model.parameter_names[7:], start=7):
-        out.setdefault(name.split("_")[0], []).append(i)
-    return out
+def _stage_angles(model) -> dict[str, list[int]]:
+    """Stage name -> indices of its angle parameters, for the stages after the global pose's."""
+    return {s.name: list(s.parameters) for s in model.stages() if min(s.parameters) >= 7}
+
+
+#: shares of each angle's range (lower to upper) of the 4 articulations a grid stage gets when
+#: neither the config nor the model gives it any
+FALLBACK_SHARES = (0.1, 0.37, 0.63, 0.9)
+#: share of each angle's range, about its middle, that the test sequence's random shapes use
+RANDOM_SHAPE_SHARE = 0.8
+
+
+def _fallback_articulations(model, idx: list[int]) -> np.ndarray:
+    """(4, n) degrees: a stage's angles at ``FALLBACK_SHARES`` of their ranges (an unbounded
+    angle stays at its default)."""
+    lower, upper = model.bounds()
+    lo, hi, x0 = lower[idx], upper[idx], model.default_params()[idx]
+    finite = np.isfinite(lo) & np.isfinite(hi)
+    shares = np.asarray(FALLBACK_SHARES)[:, None]
+    return np.degrees(np.where(finite, np.where(finite, lo, 0) + shares * np.where(finite, hi - lo, 0), x0))
+
+
+def _random_shape(model, rng: np.random.Generator) -> np.ndarray:
+    """(P - 7,) radians: every angle uniform in the central ``RANDOM_SHAPE_SHARE`` of its range
+    (an unbounded angle stays at its default)."""
+    lower, upper = model.bounds()
+    lo, hi, x0 = lower[7:], upper[7:], model.default_params()[7:]
+    finite = np.isfinite(lo) & np.isfinite(hi)
+    mid, half = np.where(finite, (lo + hi) / 2, x0), np.where(finite, (hi - lo) / 2, 0.0) * RANDOM_SHAPE_SHARE
+    return mid + half * rng.uniform(-1.0, 1.0, len(lo))
 
 
 def _orientation(about_xyz_deg) -> np.ndarray:
@@ -110,13 +108,18 @@ def grid_poses(config: GridConfig | Mapping | None = None, model=None) -> np.nda
     config = parse_config(GridConfig, config)
     model = model or _model(config)
     lower, upper = model.bounds()
-    fingers = _finger_slices(model)
-    unknown = set(config.articulations_deg) - set(fingers)
+    fingers = _stage_angles(model)
+    if config.articulations_deg is None:
+        given = dict(model.grid_articulations_deg())
+        given.update({f: _fallback_articulations(model, idx) for f, idx in fingers.items() if f not in given})
+    else:
+        given = config.articulations_deg
+    unknown = set(given) - set(fingers)
     if unknown:
         raise HybridfitError(f"articulations_deg: unknown fingers {sorted(unknown)} (the model has {', '.join(fingers)})")
     choices = []
     for finger, idx in fingers.items():
-        arts = np.radians(np.array(config.articulations_deg.get(finger, [np.degrees(model.default_params()[idx])]), float))
+        arts = np.radians(np.array(given.get(finger, [np.degrees(model.default_params()[idx])]), float))
         if arts.ndim != 2 or arts.shape[1] != len(idx):
             raise HybridfitError(f"articulations_deg.{finger}: each articulation needs {len(idx)} angles "
                                  f"({', '.join(model.parameter_names[i] for i in idx)})")
@@ -163,8 +166,11 @@ def sequence_poses(config: SequenceConfig | Mapping | None = None, model=None) -
     model = model or _model(config)
     lower, upper = model.bounds()
     angles = np.arange(7, model.n_params)
-    if len(angles) != 20:
-        raise HybridfitError(f"the test sequence's key poses need a model with 20 finger angles, {config.model} has {len(angles)}")
+    named = model.named_poses_deg()
+    for name, pose in named.items():
+        if np.shape(pose) != angles.shape:
+            raise HybridfitError(f"model {config.model}: named pose {name!r} has {np.size(pose)} angles, the model has "
+                                 f"{len(angles)}")
     # separate streams: a shorter sequence is a prefix of a longer one with the same seed
     rng = np.random.default_rng([config.seed, 0])
     rng_global = np.random.default_rng([config.seed, 1])
@@ -173,7 +179,11 @@ def sequence_poses(config: SequenceConfig | Mapping | None = None, model=None) -
     key_t, key_v, t = [], [], 0
     while not key_t or key_t[-1] <= end:  # until a key lies beyond the end
         for name in MOTIONS[config.motions[rng.integers(len(config.motions))]]:
-            pose = np.clip(np.radians(KEY_POSES[name] + rng.normal(0, config.jitter_deg, 20)), lower[angles], upper[angles])
+            if name in named:
+                pose = np.clip(np.radians(named[name] + rng.normal(0, config.jitter_deg, len(angles))),
+                               lower[angles], upper[angles])
+            else:
+                pose = _random_shape(model, rng)
             hold = int(rng.integers(config.hold_frames[0], config.hold_frames[1] + 1))
             key_t += [t, t + hold]
             key_v += [pose, pose]

@@ -181,4 +181,4 @@ def test_bad_input_is_refused(renderer, model):
     with pytest.raises(ValueError, match="positive"):
         HandSurface(finger_radii_mm={"index": (-1.0, 5.0)})
     with pytest.raises(HybridfitError, match="no radii for finger"):
-        Renderer(model, surface=HandSurface(finger_radii_mm={"index": (9.0, 7.0)}))
+        Renderer(model, surface=HandSurface(finger_radii_mm={"index": (9.0, 7.0)}, other_finger_radii_mm=None))
