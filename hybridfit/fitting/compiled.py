@@ -34,18 +34,11 @@ from numba import types as T
 
 from ..errors import HybridfitError
 from ..model.rotations import quaternion_matrix
-from ..model.kinematics import sincos, sincos_rows
+from ..model.kinematics import block_frames, block_points, sincos, sincos_rows
 from ..objective import normalise_confidences
 from ..optimizer import StagePlan, Task
-from .problem import Problem, prepare_frames
+from .problem import KERNEL_SIGNATURE, Problem, prepare_frames  # noqa: F401 (KERNEL_SIGNATURE: objectives import it here)
 from .streams import frame_keys, int_words, normal, uniform
-
-#: an objective's compiled kernel: (points (Q, 3, N) mm, the hypothesis innermost, subset
-#: (m,) point indices, proposals (Q, K, 3) mm, weights (Q, K), constants (c,), out (n,),
-#: n <= N) -> None; writes into ``out`` the loss of each of the first n hypotheses over the
-#: points in ``subset``.
-KERNEL_SIGNATURE = T.void(T.float64[:, :, ::1], T.int64[::1], T.float64[:, :, ::1], T.float64[:, ::1],
-                          T.float64[::1], T.float64[::1])
 
 #: columns of the integer stage table
 BUDGET, SWARM, NEAR, PARAMS, POINTS, OWNED = 0, 1, 2, 3, 5, 7
@@ -203,103 +196,6 @@ def _points(Wp, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
         out[q, 2] = z
 
 
-# ---------------------------------------------------------------- a block of hypotheses
-
-
-@nb.njit(cache=True, fastmath=True)
-def _block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, rest, rest_identity, axes,
-                  axis_params, mirror, WB, WpB, GB):
-    """:func:`_joint_frames` for the first m hypotheses at once, the hypothesis innermost:
-    parameters pB (P, n), their sines and cosines sinB, cosB (P, n), rotations WB (J, 3, 3, n)
-    and positions WpB (J, 3, n) mm (entries of unlisted joints are read as fixed), GB
-    (3, 3, n) scratch space."""
-    if count and parents[joints[0]] < 0:  # the root moves: the global pose of each hypothesis
-        for i in range(m):
-            w, x, y, z = pB[3, i], pB[4, i], pB[5, i], pB[6, i]
-            nq = w * w + x * x + y * y + z * z
-            if nq < 1e-24:
-                w, x, y, z, nq = 1.0, 0.0, 0.0, 0.0, 1.0
-            sq = 2.0 / nq
-            GB[0, 0, i] = (1.0 - sq * (y * y + z * z)) * mirror
-            GB[0, 1, i] = sq * (x * y - w * z)
-            GB[0, 2, i] = sq * (x * z + w * y)
-            GB[1, 0, i] = sq * (x * y + w * z) * mirror
-            GB[1, 1, i] = 1.0 - sq * (x * x + z * z)
-            GB[1, 2, i] = sq * (y * z - w * x)
-            GB[2, 0, i] = sq * (x * z - w * y) * mirror
-            GB[2, 1, i] = sq * (y * z + w * x)
-            GB[2, 2, i] = 1.0 - sq * (x * x + y * y)
-    for c in range(count):
-        j = joints[c]
-        par = parents[j]
-        o0, o1, o2 = offsets[j, 0], offsets[j, 1], offsets[j, 2]
-        if par < 0:
-            for r in range(3):
-                for i in range(m):
-                    WpB[j, r, i] = GB[r, 0, i] * o0 + GB[r, 1, i] * o1 + GB[r, 2, i] * o2 + pB[r, i]
-            if not oriented[j]:
-                continue
-            for r in range(3):
-                for k in range(3):
-                    q0, q1, q2 = rest[j, 0, k], rest[j, 1, k], rest[j, 2, k]
-                    for i in range(m):
-                        WB[j, r, k, i] = GB[r, 0, i] * q0 + GB[r, 1, i] * q1 + GB[r, 2, i] * q2
-        else:
-            for r in range(3):
-                for i in range(m):
-                    WpB[j, r, i] = WpB[par, r, i] + WB[par, r, 0, i] * o0 + WB[par, r, 1, i] * o1 + WB[par, r, 2, i] * o2
-            if not oriented[j]:
-                continue
-            if rest_identity[j]:
-                for r in range(3):
-                    for k in range(3):
-                        for i in range(m):
-                            WB[j, r, k, i] = WB[par, r, k, i]
-            else:
-                for r in range(3):
-                    for k in range(3):
-                        q0, q1, q2 = rest[j, 0, k], rest[j, 1, k], rest[j, 2, k]
-                        for i in range(m):
-                            WB[j, r, k, i] = WB[par, r, 0, i] * q0 + WB[par, r, 1, i] * q1 + WB[par, r, 2, i] * q2
-        for a in range(axes.shape[1]):
-            ax = axes[j, a]
-            if ax < 0:
-                break
-            kp = axis_params[j, a]
-            if ax == 0:
-                i0, i1 = 1, 2
-            elif ax == 1:
-                i0, i1 = 2, 0
-            else:
-                i0, i1 = 0, 1
-            for r in range(3):
-                for i in range(m):
-                    a0 = WB[j, r, i0, i]
-                    a1 = WB[j, r, i1, i]
-                    WB[j, r, i0, i] = cosB[kp, i] * a0 + sinB[kp, i] * a1
-                    WB[j, r, i1, i] = cosB[kp, i] * a1 - sinB[kp, i] * a0
-
-
-@nb.njit(cache=True, fastmath=True)
-def _block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
-    """Points indices[lo:hi] of the first m hypotheses: out[q, :, i] = sum_j point_map[q, j]
-    WpB[j, :, i] (out (Q, 3, n) mm)."""
-    for t in range(lo, hi):
-        q = indices[t]
-        e0 = pm_ptr[q]
-        j0 = pm_joint[e0]
-        w0 = pm_weight[e0]
-        for c in range(3):
-            for i in range(m):
-                out[q, c, i] = w0 * WpB[j0, c, i]
-        for e in range(e0 + 1, pm_ptr[q + 1]):
-            j = pm_joint[e]
-            w = pm_weight[e]
-            for c in range(3):
-                for i in range(m):
-                    out[q, c, i] += w * WpB[j, c, i]
-
-
 # ---------------------------------------------------------------- one frame
 
 
@@ -431,9 +327,9 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
                 for i in range(m):
                     pB[pidx[k], i] = x[i, k]
             sincos_rows(pidx, d, pB, sinB, cosB, m)
-            _block_frames(m, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
+            block_frames(m, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
                           axis_params, mirror, WB, WpB, GB)
-            _block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, pts_lo, pts_hi, ptsB)
+            block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, pts_lo, pts_hi, ptsB)
             kernel(ptsB, subset, proposals, weights, consts, f[:m])
             used += m
             left -= m

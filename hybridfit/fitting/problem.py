@@ -10,8 +10,17 @@ import numpy as np
 
 from ..errors import HybridfitError
 from ..model.base import ORIENTATION, POSITION, HandModel
+from ..model.kinematics import BLOCK, block_frames, block_points, sincos_rows
 from ..model.rotations import quaternion_matrix
 from ..objective import Objective, Observation, normalise_confidences
+
+
+#: an objective's compiled kernel: (points (Q, 3, N) mm, the hypothesis innermost, subset
+#: (m,) point indices, proposals (Q, K, 3) mm, weights (Q, K), constants (c,), out (n,),
+#: n <= N) -> None; writes into ``out`` the loss of each of the first n hypotheses over the
+#: points in ``subset``.
+KERNEL_SIGNATURE = nb.types.void(nb.types.float64[:, :, ::1], nb.types.int64[::1], nb.types.float64[:, :, ::1],
+                                 nb.types.float64[:, ::1], nb.types.float64[::1], nb.types.float64[::1])
 
 
 class Problem:
@@ -58,6 +67,12 @@ class Problem:
             self.loss = objective.bind(self.proposals, self.weights)
         self.all_points = np.arange(len(self.point_names), dtype=np.int64)
         self._needed: dict[bytes, np.ndarray | None] = {}
+        # a kinematic tree and a compiled kernel: points by :func:`tree_points`, then the kernel
+        self._kernel = (objective.compiled_kernel() if not self.observed and hasattr(objective, "compiled_kernel")
+                        and hasattr(model, "kinematic_tree") else None)
+        if self._kernel is not None:
+            self._kernel = (self._kernel[0], np.ascontiguousarray(self._kernel[1], dtype=np.float64))
+        self._compiled_parts = None
         self.x0 = initial_guess(self) if x0 is None else model.clip(np.asarray(x0, dtype=float)[None])[0]
         lower, upper = search_boxes(self._structure(), self.x0[None], search_radius_mm)
         self.lower, self.upper = lower[0], upper[0]
@@ -89,10 +104,33 @@ class Problem:
     def evaluate(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
         """(N, P) -> (N,) loss over the points in ``subset`` (all by default)."""
         subset = self.all_points if subset is None else subset
+        if self._kernel is not None and getattr(params, "ndim", 0) == 2 and params.shape[1] == self.model.n_params:
+            return self._evaluate_compiled(params, subset)
         if self.observed:  # an image term needs the whole hand
             joints = self.model.forward(params)
             return self.loss(self._from_joints(joints), subset, joints)
         return self.loss(self.points(params, subset), subset)
+
+    def _evaluate_compiled(self, params: np.ndarray, subset: np.ndarray) -> np.ndarray:
+        """:meth:`evaluate` by :func:`tree_points` and the objective's compiled kernel."""
+        kernel, consts, tree, points_of = self._compiled()
+        subset = np.ascontiguousarray(subset, dtype=np.int64)
+        key = subset.tobytes()
+        joints = points_of.get(key)
+        if joints is None:
+            joints = points_of[key] = tree.joints_for(subset)
+        points = np.empty((len(self.point_names), 3, len(params)))
+        tree_points(*tree.arrays, *tree.point_map, *joints, np.ascontiguousarray(params, dtype=np.float64), subset,
+                    points)
+        out = np.empty(len(params))
+        kernel(points, subset, self.proposals, self.weights, consts, out)
+        return out
+
+    def _compiled(self):
+        if self._compiled_parts is None:
+            tree = self._structure().tree()
+            self._compiled_parts = (*self._kernel, tree, tree._joints)
+        return self._compiled_parts
 
     def _from_joints(self, joints: np.ndarray) -> np.ndarray:
         """All model joints (N, J, 3) -> (N, Q, 3) points."""
@@ -149,6 +187,54 @@ class _Structure:
         joints = model.forward(self.default_params[None])
         self.canonical = np.ascontiguousarray(
             joints[0] if point_matrix is None else np.einsum("qj,njc->nqc", M, np.nan_to_num(joints, nan=0.0))[0])
+        self.point_matrix = point_matrix
+        self._tree: _Tree | None = None
+
+    def tree(self) -> "_Tree":
+        """The model's kinematic tree and point map as :func:`tree_points` reads them."""
+        if self._tree is None:
+            self._tree = _Tree(self.model.kinematic_tree(), self.point_matrix, self.model.n_joints)
+        return self._tree
+
+
+class _Tree:
+    """A kinematic tree's arrays, a point map (Q, J) in CSR form and, per subset of points,
+    the joints to compute (cached)."""
+
+    def __init__(self, tree, point_matrix: np.ndarray | None, n_joints: int) -> None:
+        req = lambda a, dtype: np.require(a, dtype=dtype, requirements=["C", "W"])  # noqa: E731
+        self.parents = req(tree.parents, np.int64)
+        self.axes, self.axis_params = req(tree.axes, np.int64), req(tree.axis_params, np.int64)
+        self.arrays = (self.parents, req(tree.offsets, np.float64), req(tree.rest, np.float64),
+                       req(tree.rest_is_identity, np.bool_), self.axes, self.axis_params, float(tree.mirror))
+        M = np.eye(n_joints) if point_matrix is None else point_matrix
+        rows, cols = np.nonzero(M)
+        self.point_map = (req(np.searchsorted(rows, np.arange(len(M) + 1)), np.int64), req(cols, np.int64),
+                          req(M[rows, cols], np.float64))
+        self._joints: dict[bytes, tuple] = {}
+
+    def joints_for(self, subset: np.ndarray) -> tuple:
+        """(order (J,), count, oriented (J,), angle rows (P,), angle count): the joints the
+        points ``subset`` need, parents first, those whose rotation a needed child reads, and
+        the parameters that are their angles."""
+        key = np.asarray(subset, dtype=np.int64).tobytes()
+        found = self._joints.get(key)
+        if found is None:
+            ptr, joint = self.point_map[0], self.point_map[1]
+            needed = np.zeros(len(self.parents), dtype=bool)
+            for q in np.asarray(subset, dtype=np.int64):
+                for j in joint[ptr[q]:ptr[q + 1]]:
+                    while j >= 0 and not needed[j]:
+                        needed[j] = True
+                        j = self.parents[j]
+            order = np.flatnonzero(needed).astype(np.int64)
+            oriented = np.zeros(len(self.parents), dtype=np.bool_)
+            oriented[self.parents[order][self.parents[order] >= 0]] = True
+            rows = np.unique(self.axis_params[order][self.axes[order] >= 0]).astype(np.int64)
+            order_full = np.zeros(len(self.parents), dtype=np.int64)
+            order_full[:len(order)] = order
+            found = self._joints[key] = (order_full, len(order), oriented, rows, len(rows))
+        return found
 
 
 _STRUCTURES: dict[tuple, _Structure] = {}
@@ -507,3 +593,37 @@ def _robust_alignment(source, proposals, weights, inlier_mm, R_out, t_out):
             return
 
 
+
+
+@nb.njit(cache=True, nogil=True)
+def tree_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
+                order, count, oriented, rows, n_rows, params, subset, out):
+    """out (Q, 3, N) mm = the points ``subset`` of params (N, P), the hypothesis innermost (a
+    compiled kernel's input): forward kinematics of the joints ``order[:count]`` (their
+    rotations where ``oriented``, angles ``rows[:n_rows]``), in blocks of ``BLOCK``."""
+    N, P = params.shape
+    J = parents.shape[0]
+    pB = np.empty((P, BLOCK))
+    sinB = np.empty((P, BLOCK))
+    cosB = np.empty((P, BLOCK))
+    WB = np.empty((J, 3, 3, BLOCK))
+    WpB = np.empty((J, 3, BLOCK))
+    GB = np.empty((3, 3, BLOCK))
+    pts = np.empty((out.shape[0], 3, BLOCK))
+    for n0 in range(0, N, BLOCK):
+        B = min(BLOCK, N - n0)
+        for i in range(B):
+            for k in range(P):
+                pB[k, i] = params[n0 + i, k]
+        sincos_rows(rows, n_rows, pB, sinB, cosB, B)
+        block_frames(B, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
+                     axis_params, mirror, WB, WpB, GB)
+        if N <= BLOCK:  # one block: straight into out
+            block_points(B, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out)
+            return
+        block_points(B, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], pts)
+        for t in range(subset.shape[0]):
+            q = subset[t]
+            for c in range(3):
+                for i in range(B):
+                    out[q, c, n0 + i] = pts[q, c, i]

@@ -19,7 +19,6 @@ from functools import cached_property
 import numba as nb
 import numpy as np
 
-from .rotations import quaternion_matrix
 from .base import HandModel
 
 X_AXIS, Y_AXIS, Z_AXIS, NO_AXIS = 0, 1, 2, -1
@@ -103,94 +102,148 @@ BLOCK = 64
 
 
 @nb.njit(cache=True, fastmath=True)
+def block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, rest, rest_identity, axes,
+                  axis_params, mirror, WB, WpB, GB):
+    """Camera-frame rotations and positions of the joints ``joints[:count]`` (parents first)
+    for the first m hypotheses at once, the hypothesis the innermost axis (every loop
+    vectorises): parameters pB (P, n), their sines and cosines sinB, cosB (P, n) (needed for
+    the listed joints' angles), rotations WB (J, 3, 3, n) (mirror included; only where
+    ``oriented[j]``: the joints whose rotation a listed child reads) and positions WpB
+    (J, 3, n) mm. The entries of joints not listed are read as they are (fixed joints); GB
+    (3, 3, n) is scratch space for the global rotation, computed when the root is listed."""
+    if count and parents[joints[0]] < 0:  # the root moves: the global pose of each hypothesis
+        for i in range(m):
+            w, x, y, z = pB[3, i], pB[4, i], pB[5, i], pB[6, i]
+            nq = w * w + x * x + y * y + z * z
+            if nq < 1e-24:
+                w, x, y, z, nq = 1.0, 0.0, 0.0, 0.0, 1.0
+            sq = 2.0 / nq
+            GB[0, 0, i] = (1.0 - sq * (y * y + z * z)) * mirror
+            GB[0, 1, i] = sq * (x * y - w * z)
+            GB[0, 2, i] = sq * (x * z + w * y)
+            GB[1, 0, i] = sq * (x * y + w * z) * mirror
+            GB[1, 1, i] = 1.0 - sq * (x * x + z * z)
+            GB[1, 2, i] = sq * (y * z - w * x)
+            GB[2, 0, i] = sq * (x * z - w * y) * mirror
+            GB[2, 1, i] = sq * (y * z + w * x)
+            GB[2, 2, i] = 1.0 - sq * (x * x + y * y)
+    for c in range(count):
+        j = joints[c]
+        par = parents[j]
+        o0, o1, o2 = offsets[j, 0], offsets[j, 1], offsets[j, 2]
+        if par < 0:
+            for r in range(3):
+                for i in range(m):
+                    WpB[j, r, i] = GB[r, 0, i] * o0 + GB[r, 1, i] * o1 + GB[r, 2, i] * o2 + pB[r, i]
+            if not oriented[j]:
+                continue
+            for r in range(3):
+                for k in range(3):
+                    q0, q1, q2 = rest[j, 0, k], rest[j, 1, k], rest[j, 2, k]
+                    for i in range(m):
+                        WB[j, r, k, i] = GB[r, 0, i] * q0 + GB[r, 1, i] * q1 + GB[r, 2, i] * q2
+        else:
+            for r in range(3):
+                for i in range(m):
+                    WpB[j, r, i] = WpB[par, r, i] + WB[par, r, 0, i] * o0 + WB[par, r, 1, i] * o1 + WB[par, r, 2, i] * o2
+            if not oriented[j]:
+                continue
+            if rest_identity[j]:
+                for r in range(3):
+                    for k in range(3):
+                        for i in range(m):
+                            WB[j, r, k, i] = WB[par, r, k, i]
+            else:
+                for r in range(3):
+                    for k in range(3):
+                        q0, q1, q2 = rest[j, 0, k], rest[j, 1, k], rest[j, 2, k]
+                        for i in range(m):
+                            WB[j, r, k, i] = WB[par, r, 0, i] * q0 + WB[par, r, 1, i] * q1 + WB[par, r, 2, i] * q2
+        for a in range(axes.shape[1]):
+            ax = axes[j, a]
+            if ax < 0:
+                break
+            kp = axis_params[j, a]
+            if ax == 0:
+                i0, i1 = 1, 2
+            elif ax == 1:
+                i0, i1 = 2, 0
+            else:
+                i0, i1 = 0, 1
+            for r in range(3):
+                for i in range(m):
+                    a0 = WB[j, r, i0, i]
+                    a1 = WB[j, r, i1, i]
+                    WB[j, r, i0, i] = cosB[kp, i] * a0 + sinB[kp, i] * a1
+                    WB[j, r, i1, i] = cosB[kp, i] * a1 - sinB[kp, i] * a0
+
+
+@nb.njit(cache=True, fastmath=True)
+def block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
+    """Points indices[lo:hi] of the first m hypotheses: out[q, :, i] = sum_j point_map[q, j]
+    WpB[j, :, i] (out (Q, 3, n) mm)."""
+    for t in range(lo, hi):
+        q = indices[t]
+        e0 = pm_ptr[q]
+        j0 = pm_joint[e0]
+        w0 = pm_weight[e0]
+        for c in range(3):
+            for i in range(m):
+                out[q, c, i] = w0 * WpB[j0, c, i]
+        for e in range(e0 + 1, pm_ptr[q + 1]):
+            j = pm_joint[e]
+            w = pm_weight[e]
+            for c in range(3):
+                for i in range(m):
+                    out[q, c, i] += w * WpB[j, c, i]
+
+
+@nb.njit(cache=True)
 def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, active, out):
     """params (N, P) -> out (N, J, 3) mm: forward kinematics of a KinematicTree.
 
     Only joints with ``active[j]`` are computed (the others are NaN); the active set must
     contain the parents of its joints. Works on blocks of hypotheses with the hypothesis as
-    the innermost, contiguous axis, so that every step is a vector operation."""
+    the innermost, contiguous axis (:func:`block_frames`)."""
     N, P = params.shape
     J = parents.shape[0]
     A = axes.shape[1]
-    G = np.empty((3, 3, BLOCK))
-    R = np.empty((J, 3, 3, BLOCK))
-    pos = np.empty((J, 3, BLOCK))
-    pT = np.empty((P, BLOCK))
-    sin_p = np.empty((P, BLOCK))
-    cos_p = np.empty((P, BLOCK))
-    world = np.empty((3, BLOCK))
-    angle = np.zeros(P, dtype=np.bool_)  # the parameters that are angles of active joints
+    pB = np.empty((P, BLOCK))
+    sinB = np.empty((P, BLOCK))
+    cosB = np.empty((P, BLOCK))
+    WB = np.empty((J, 3, 3, BLOCK))
+    WpB = np.empty((J, 3, BLOCK))
+    GB = np.empty((3, 3, BLOCK))
+    order = np.empty(J, dtype=np.int64)
+    count = 0
+    for j in range(J):
+        if active[j]:
+            order[count] = j
+            count += 1
+    oriented = np.ones(J, dtype=np.bool_)
+    rows = np.empty(P, dtype=np.int64)  # the parameters that are angles of active joints
+    angle = np.zeros(P, dtype=np.bool_)
     for j in range(J):
         for a in range(A):
             if active[j] and axes[j, a] >= 0:
                 angle[axis_params[j, a]] = True
+    n_rows = 0
+    for k in range(P):
+        if angle[k]:
+            rows[n_rows] = k
+            n_rows += 1
     for n0 in range(0, N, BLOCK):
         B = min(BLOCK, N - n0)
         for i in range(B):
             for k in range(P):
-                pT[k, i] = params[n0 + i, k]
-            quaternion_matrix(pT[3, i], pT[4, i], pT[5, i], pT[6, i], G[:, :, i])
-        for k in range(P):  # every angle of the block at once
-            if angle[k]:
-                sincos(pT[k], sin_p[k], cos_p[k])
-        for j in range(J):
-            if not active[j]:
-                continue
-            par = parents[j]
-            if par < 0:
-                for r in range(3):
-                    for i in range(B):
-                        pos[j, r, i] = offsets[j, r]
-                    for c in range(3):
-                        for i in range(B):
-                            R[j, r, c, i] = rest[j, r, c]
-            else:
-                o0, o1, o2 = offsets[j, 0], offsets[j, 1], offsets[j, 2]
-                for r in range(3):
-                    for i in range(B):
-                        pos[j, r, i] = pos[par, r, i] + R[par, r, 0, i] * o0 + R[par, r, 1, i] * o1 + R[par, r, 2, i] * o2
-                if rest_is_identity[j]:
-                    for r in range(3):
-                        for c in range(3):
-                            for i in range(B):
-                                R[j, r, c, i] = R[par, r, c, i]
-                else:
-                    for r in range(3):
-                        for c in range(3):
-                            q0, q1, q2 = rest[j, 0, c], rest[j, 1, c], rest[j, 2, c]
-                            for i in range(B):
-                                R[j, r, c, i] = R[par, r, 0, i] * q0 + R[par, r, 1, i] * q1 + R[par, r, 2, i] * q2
-            for a in range(A):
-                ax = axes[j, a]
-                if ax < 0:
-                    break
-                k = axis_params[j, a]
-                # right-multiplying by a rotation about a local axis mixes two columns
-                if ax == 0:
-                    i0, i1 = 1, 2
-                elif ax == 1:
-                    i0, i1 = 2, 0
-                else:
-                    i0, i1 = 0, 1
-                for r in range(3):
-                    for i in range(B):
-                        a0 = R[j, r, i0, i]
-                        a1 = R[j, r, i1, i]
-                        R[j, r, i0, i] = cos_p[k, i] * a0 + sin_p[k, i] * a1
-                        R[j, r, i1, i] = cos_p[k, i] * a1 - sin_p[k, i] * a0
-        for j in range(J):
-            if not active[j]:
-                for i in range(B):
-                    for c in range(3):
-                        out[n0 + i, j, c] = np.nan
-                continue
-            for c in range(3):  # to camera coordinates, vectorised, then stored per hypothesis
-                for i in range(B):
-                    world[c, i] = G[c, 0, i] * (mirror * pos[j, 0, i]) + G[c, 1, i] * pos[j, 1, i] \
-                        + G[c, 2, i] * pos[j, 2, i] + pT[c, i]
-            for i in range(B):
+                pB[k, i] = params[n0 + i, k]
+        sincos_rows(rows, n_rows, pB, sinB, cosB, B)
+        block_frames(B, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_is_identity, axes,
+                     axis_params, mirror, WB, WpB, GB)
+        for i in range(B):
+            for j in range(J):
                 for c in range(3):
-                    out[n0 + i, j, c] = world[c, i]
+                    out[n0 + i, j, c] = WpB[j, c, i] if active[j] else np.nan
     return out
 
 
