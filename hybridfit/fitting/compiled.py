@@ -611,9 +611,9 @@ class CompiledFitter:
 
     def fit_chunks(self, chunks, proposals: np.ndarray, confidences: np.ndarray, jobs: int = 1):
         """Yield :meth:`fit_chunk`'s result for each chunk of frame indices, in order. With
-        ``jobs`` > 1 the next chunk is prepared while the compiled half of the current one runs
-        on ``jobs - 1`` threads; an interrupt while preparing still yields the chunk that was
-        running."""
+        ``jobs`` > 1 the compiled half of each chunk runs on ``jobs`` threads sharing the
+        chunk's arrays (nothing is copied or pickled) while the next chunk is prepared; an
+        interrupt while preparing still yields the chunk that was running."""
         if jobs <= 1:
             for c in chunks:
                 yield self.fit_chunk(c, proposals[c], confidences[c])
@@ -629,7 +629,7 @@ class CompiledFitter:
                     raise
                 if running is not None:
                     yield self.finish(running[0], running[1].result())
-                running = (chunk, pool.submit(self.run, chunk, jobs - 1))
+                running = (chunk, pool.submit(self.run, chunk, jobs))
             if running is not None:
                 yield self.finish(running[0], running[1].result())
 

@@ -392,7 +392,7 @@ def prepare_frames(model: HandModel, objective: Objective, proposals: np.ndarray
     return weights, x0, lower, upper, errors
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _aligned_guesses(canonical, proposals, weights, at, flat, inlier_mm, x):
     """:func:`_aligned_guess` of each frame f with points flat[at[f]:at[f + 1]] (none: kept)."""
     for f in range(x.shape[0]):

@@ -189,7 +189,7 @@ def int_words(n: int) -> list[int]:
     return words
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def frame_keys(seed_words, frames, at, out):
     """out[at[f]:at[f + 1]] = the first raw outputs of ``default_rng([seed, frames[f]])``
     (seed_words: :func:`int_words` of the seed; frames (F,) non-negative int64)."""
