@@ -37,7 +37,8 @@ def register(sub) -> None:
                    help="with --track, frame 0's initial guess: its proposals, or the --depth folder's model "
                    "parameters")
     p.add_argument("--dataset", help="the proposals' skeleton when the npz has no joint_names (and its derived "
-                   "points for its model): icvl, nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file")
+                   "points for its model): icvl, nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file "
+                   "(default: the npz's dataset, which propose writes for real data)")
     p.set_defaults(func=run)
 
 
@@ -49,14 +50,15 @@ def run(args) -> int:
         args.objective = str(data["objective"])
     plugins = plugin_kwargs(args)
     extra = {}
-    if args.dataset:
-        sk = skeleton(args.dataset)
+    dataset = args.dataset or (str(data["dataset"]) if "dataset" in data else None)  # propose writes it
+    if dataset:
+        sk = skeleton(dataset)
         if names is None:
             if data["proposals"].shape[1] != len(sk):
                 raise HybridfitError(f"{args.proposals}: {data['proposals'].shape[1]} points, "
                                      f"but the {sk.dataset} skeleton has {len(sk)}")
             names = sk.model_names
-        plugins["model_config"] = dataset_model_config(plugins["model"], plugins["model_config"], args.dataset)
+        plugins["model_config"] = dataset_model_config(plugins["model"], plugins["model_config"], dataset)
         extra["dataset"] = np.asarray(sk.dataset)
     names = None if names is None else [str(n) for n in names]
     if names is not None:

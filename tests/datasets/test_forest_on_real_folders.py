@@ -38,7 +38,8 @@ def test_train_propose_estimate_on_a_real_folder(folder, request, tmp_path):
 @pytest.mark.parametrize("folder,dataset", [("icvl_dir", "icvl"), ("nyu_dir", "nyu"), ("msra_dir", "msra")])
 def test_propose_then_fit_is_estimate(folder, dataset, request, tmp_path):
     """`propose` + `fit` fits the very frames `estimate` fits: the same proposals, the same
-    poses bit for bit (same seed and budget), in the same coordinates."""
+    poses bit for bit (same seed and budget), in the same coordinates; `fit` takes the
+    dataset (its derived points) from the proposals file."""
     data = request.getfixturevalue(folder)
     forest, proposals = tmp_path / "forest.npz", tmp_path / "p.npz"
     two_step, one_step = tmp_path / "fit.npz", tmp_path / "estimate.npz"
@@ -46,7 +47,7 @@ def test_propose_then_fit_is_estimate(folder, dataset, request, tmp_path):
     assert main(["train", str(data), "--out", str(forest), *small]) == 0
     fit_options = ["--budget", "200", "--seed", "3"]
     assert main(["propose", str(forest), str(data), "--out", str(proposals), "-k", "2"]) == 0
-    assert main(["fit", str(proposals), "--out", str(two_step), "--dataset", dataset, *fit_options]) == 0
+    assert main(["fit", str(proposals), "--out", str(two_step), *fit_options]) == 0  # the npz names its dataset
     assert main(["estimate", str(forest), str(data), "--out", str(one_step), "-k", "2", *fit_options]) == 0
     with np.load(proposals) as p, np.load(two_step) as a, np.load(one_step) as b:
         np.testing.assert_array_equal(p["proposals"], b["proposals"])
