@@ -66,3 +66,62 @@ def test_the_initial_alignment_survives_one_decoy_on_the_palm_point():
     np.testing.assert_allclose(source @ R.T + t, truth, atol=1e-6)
     R_plain, t_plain = kabsch(source, proposals[:, 0], weights[:, 0])
     assert np.linalg.norm(source @ R_plain.T + t_plain - truth, axis=-1).max() > 10.0
+
+
+def test_frames_prepared_together_are_the_problems_built_one_by_one(hand26, clamped, frames):
+    from hybridfit.fitting.problem import prepare_frames
+
+    proposals, c = frames["proposals"], frames["confidences"].copy()
+    c[1] = 0.0  # no proposals: an error
+    c[2, 3:] = 0.0  # three points only: aligned on all of them
+    c[3, 2:] = 0.0  # two points: a translation
+    c[4, [0, 5, 9, 13]] = 0.0  # two palm points left: the root is guided by finger points
+    weights, x0, lower, upper, errors = prepare_frames(hand26, clamped, proposals, c, hand26.joint_names)
+    assert list(errors) == [1] and "no proposals" in errors[1]
+    for f in set(range(len(proposals))) - {1}:
+        p = Problem(hand26, clamped, proposals[f], c[f])
+        for got, want in ((weights[f], p.weights), (x0[f], p.x0), (lower[f], p.lower), (upper[f], p.upper)):
+            assert np.array_equal(got, want)
+
+
+def test_horns_rotation_is_the_svd_kabsch_rotation():
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+    from scipy.spatial.transform import Rotation
+
+    from hybridfit.fitting.problem import _weighted_kabsch
+    from hybridfit.model.rotations import kabsch
+
+    @settings(max_examples=60, deadline=None)
+    @given(seed=st.integers(0, 2**32 - 1), n=st.integers(3, 9), noise=st.sampled_from([0.0, 2.0, 30.0]),
+           flat=st.booleans())
+    def check(seed, n, noise, flat):
+        rng = np.random.default_rng(seed)
+        source = rng.normal(0.0, 40.0, (n, 3))
+        if flat:
+            source[:, 2] = 0.0
+        rotation = Rotation.random(random_state=seed).as_matrix()
+        target = source @ rotation.T + rng.normal(0, 100, 3) + rng.normal(0, noise + 1e-9, (n, 3))
+        w = rng.uniform(0.1, 1.0, n)
+        R, t = np.empty((3, 3)), np.empty(3)
+        _weighted_kabsch(source, target, w, R, t, np.empty((4, 4, 4)))
+        R_svd, t_svd = kabsch(source, target, w)
+        assert abs(np.linalg.det(R) - 1.0) < 1e-9
+        np.testing.assert_allclose(R, R_svd, atol=1e-8)
+        np.testing.assert_allclose(t, t_svd, atol=1e-6)
+
+    check()
+
+
+@pytest.mark.parametrize("names", [None, "derived"])
+def test_compiled_evaluation_is_the_objectives_loss_of_the_points(hand26, clamped, frames, names):
+    proposals, c = frames["proposals"][0], frames["confidences"][0]
+    point_names = None
+    if names == "derived":  # the wrist replaced by the palm centre
+        point_names = ["palm_centre"] + list(hand26.joint_names[1:])
+    p = Problem(hand26, clamped, proposals, c, point_names)
+    assert p._kernel is not None
+    X = p.x0 + np.random.default_rng(0).normal(0.0, 0.1, (150, hand26.n_params))  # more than one block
+    for subset in (None, np.array([0, 1, 5, 9]), np.array([6, 7, 8]), np.array([20])):
+        s = p.all_points if subset is None else subset
+        np.testing.assert_allclose(p.evaluate(X, subset), p.loss(p.points(X, s), s), rtol=0, atol=1e-12)
