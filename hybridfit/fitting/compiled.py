@@ -13,13 +13,16 @@ fit of a batch of frames in :func:`fit_batch` instead, with the same semantics:
   problem's initial guess), tries that start first, and commits its best evaluated
   hypothesis; the frame's loss is the sum of the stages' best losses over the points they
   own; a stage owning every point (a final refinement) replaces them only if it is better;
-- frame i draws every random number from ``numpy.random.default_rng([seed, i])`` in the
-  order the Task path's PSO draws them (drawn before the compiled call, so a frame's result
-  does not depend on the frames batched with it).
+- frame i's stages take their keys from ``numpy.random.default_rng([seed, i])`` as the Task
+  path's PSO does (one raw draw per stage, computed here by :func:`.streams.frame_keys`), and
+  every random number is a function of its stage's key and a counter (:mod:`.streams`),
+  computed inside the loop: a frame's result does not depend on the frames batched with it.
 
-Forward kinematics here works in camera coordinates and, per stage, computes only the
-joints that the stage's parameters move and its points need; the others are fixed for the
-whole stage and computed once.
+Each generation is scored as one block with the hypothesis as the innermost axis
+(:func:`~hybridfit.model.kinematics.block_frames`, then the objective's kernel on points
+(Q, 3, N)): forward kinematics in camera coordinates, per stage only the joints that the
+stage's parameters move and its points need (the others are fixed for the whole stage and
+computed once), each angle's sine and cosine once per hypothesis.
 """
 
 from __future__ import annotations
@@ -233,6 +236,12 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
     ptsB = np.zeros((Q, 3, nmax))
     one = np.zeros((Q, 3, 1))
     one_loss = np.empty(1)
+    is_angle = np.zeros(P, dtype=np.bool_)
+    for j in range(J):
+        for a in range(axes.shape[1]):
+            if axes[j, a] >= 0:
+                is_angle[axis_params[j, a]] = True
+    rows = np.empty(P, dtype=np.int64)
     for s in range(stages.shape[0]):
         key = keys[s]
         rpos = 0
@@ -283,6 +292,11 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
             span[k] = hi[k] - lo[k]
             sx0[k] = min(max(base[pidx[k]], lo[k]), hi[k])
         vmax = vfrac * span
+        n_rows = 0  # the stage's parameters that are angles: their sines and cosines per hypothesis
+        for k in range(d):
+            if is_angle[pidx[k]]:
+                rows[n_rows] = pidx[k]
+                n_rows += 1
         # the initial swarm, as the Task path's PSO draws it
         x = np.empty((n, d))
         for i in range(n):
@@ -326,7 +340,7 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
             for k in range(d):
                 for i in range(m):
                     pB[pidx[k], i] = x[i, k]
-            sincos_rows(pidx, d, pB, sinB, cosB, m)
+            sincos_rows(rows, n_rows, pB, sinB, cosB, m)
             block_frames(m, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
                           axis_params, mirror, WB, WpB, GB)
             block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, pts_lo, pts_hi, ptsB)
