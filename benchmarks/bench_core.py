@@ -11,7 +11,9 @@ Prints (medians of CPU time, so other jobs on a shared machine disturb little):
    ``hybridfit.fit`` end to end (problem set-up included) and the Task path
    (``Optimizer.run`` per frame);
 3. the compiled against the Task path over ``--seeds`` seeds x ``--frames`` frames: mean
-   joint error, and how many fits are identical;
+   joint error, and how many fits are identical; and PSO's counter-based random streams
+   against numpy's generator drawn directly (hybridfit's streams before the compiled path
+   computed them in its loop): mean joint error, paired over seeds;
 4. ``hybridfit.fit`` with ``--jobs`` 1 and 2 (threads), wall time (without taskset);
 5. start-up: a fresh process's import + first fit, compiling and from numba's cache.
 """
@@ -31,6 +33,7 @@ import hybridfit
 from hybridfit.fitting import compiled, frames as fitting
 from hybridfit.metrics import joint_errors
 from hybridfit.fitting.problem import Problem
+from hybridfit_plugins.optimizers.pso import PSO
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
 from _util import median_time, table  # noqa: E402
@@ -49,12 +52,49 @@ def throughput(problem: Problem, n: int) -> float:
 SCHEDULES = {"default": {}, "paper": {"refine_share": 0.0}}
 
 
-def task_path(data, budget: int, seed: int, schedule: str = "default") -> tuple[np.ndarray, float]:
+class NumpyStreamPSO(PSO):
+    """The ``pso`` plugin drawing straight from numpy's generator, as it did before its
+    counter-based streams (uniform initial swarm, Gaussian share around the guess, r1, r2)."""
+
+    def minimize(self, task, rng: np.random.Generator) -> None:
+        s = self.settings
+        n, near = self.swarm(task.budget, task.remaining)
+        lower, upper = task.lower, task.upper
+        span = upper - lower
+        x = rng.uniform(lower, upper, size=(n, task.dim))
+        if near:
+            x[:near] = task.x0 + rng.normal(0.0, s.init_sigma, size=(near, task.dim)) * span
+            x[0] = task.x0
+        np.clip(x, lower, upper, out=x)
+        v = np.zeros_like(x)
+        f = task.evaluate(x)
+        pbest_x, pbest_f = x.copy(), f.copy()
+        g = int(np.argmin(pbest_f))
+        chi = compiled.constriction(s.cognitive, s.social)
+        vmax = s.max_velocity * span
+        while task.remaining > 0:
+            m = min(n, task.remaining)
+            r = rng.random((2, m, task.dim))
+            compiled.pso_step(x, v, pbest_x, pbest_x[g].copy(), r[0], r[1], chi, s.cognitive, s.social, vmax, lower,
+                              upper, m)
+            f[:m] = task.evaluate(x[:m])
+            g = compiled.update_bests(x, f, pbest_x, pbest_f, m)
+
+
+def stepwise_pso(schedule: str = "default", numpy_streams: bool = False):
+    """stepwise-pso with a schedule; its PSOs draw from numpy's generator with numpy_streams."""
+    optimizer = hybridfit.create("optimizer", "stepwise-pso", SCHEDULES[schedule])
+    if numpy_streams:
+        optimizer.__dict__["inner"] = NumpyStreamPSO(**optimizer.inner.get_params())
+    return optimizer
+
+
+def task_path(data, budget: int, seed: int, schedule: str = "default",
+              numpy_streams: bool = False) -> tuple[np.ndarray, float]:
     """(params (F, P), median CPU seconds per frame) of Optimizer.run per frame."""
     model = hybridfit.create("model", "hand26")
     spec = fitting._Spec(model, hybridfit.create("objective", "clamped-confidence"),
-                         hybridfit.create("optimizer", "stepwise-pso", SCHEDULES[schedule]), budget, seed,
-                         tuple(model.joint_names), 60.0)
+                         stepwise_pso(schedule, numpy_streams), budget, seed, tuple(model.joint_names), 60.0)
     params, times = [], []
     for f in range(len(data["proposals"])):
         t = time.process_time()
@@ -120,20 +160,26 @@ def main() -> None:
                  f"{fit_time(data, budget, schedule=schedule) * 1e3:.3f}"],
                 [f"{name}, Task path, CPU ms/frame", f"{task_path(small, budget, 0, schedule)[1] * 1e3:.3f}"],
             ]
-    errors, identical, total = {"compiled": [], "task": []}, 0, 0
+    errors, identical, total = {"compiled": [], "task": [], "numpy": []}, 0, 0
     for seed in range(args.seeds):
         fast = hybridfit.fit(data["proposals"], data["confidences"], seed=seed)
         slow, _ = task_path(data, 3400, seed)
-        errors["compiled"].append(joint_errors(model.forward(fast.params), data["ground_truth"]).mean())
-        errors["task"].append(joint_errors(model.forward(slow), data["ground_truth"]).mean())
+        old, _ = task_path(data, 3400, seed, numpy_streams=True)
+        for name, params in (("compiled", fast.params), ("task", slow), ("numpy", old)):
+            errors[name].append(joint_errors(model.forward(params), data["ground_truth"]).mean())
         identical += int((np.abs(fast.params - slow).max(axis=1) <= 1e-9).sum())
         total += len(slow)
     diff = np.array(errors["compiled"]) - np.array(errors["task"])
+    streams = np.array(errors["compiled"]) - np.array(errors["numpy"])
     rows += [
         [f"mean joint error over {args.seeds} seeds x {args.frames} frames, compiled / Task path (mm)",
          f"{np.mean(errors['compiled']):.3f} / {np.mean(errors['task']):.3f} (paired difference "
          f"{diff.mean():+.4f} +- {diff.std():.4f})"],
         ["fits identical to 1e-9 (compiled vs Task path)", f"{identical} of {total}"],
+        ["the same, counter-based streams / numpy's generator (Task path) (mm)",
+         f"{np.mean(errors['compiled']):.3f} / {np.mean(errors['numpy']):.3f} (paired difference "
+         f"{streams.mean():+.4f} +- {streams.std(ddof=1) / np.sqrt(len(streams)):.4f} standard error, "
+         f"seed-to-seed sd {np.std(errors['numpy'], ddof=1):.4f})"],
     ]
     one = fit_time(data, 3400, 1, time.perf_counter)
     two = fit_time(data, 3400, 2, time.perf_counter)
