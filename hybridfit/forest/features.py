@@ -124,8 +124,8 @@ def traverse(buf, meta, s_frame, s_u, s_v, s_d, nodes, links, roots, fx, fy, bac
 
 @njit(cache=True, nogil=True)
 def grid_pixels(mask, depth, frame, stride, cx, cy, fx, fy):
-    """The test pixels of one frame: foreground (mask (H, W) bool) on every ``stride``-th row
-    and column, ordered by a fixed hash of their position (so ties between equal votes are
+    """The test pixels of one frame: foreground (mask (H, W) bool, and depth (H, W) uint16 mm
+    > 0) on every ``stride``-th row and column, ordered by a fixed hash of their position (so ties between equal votes are
     broken evenly over the hand). Returns s_frame (n,) int32 (= frame), u, v (n,) int32,
     d (n,) float32 mm and their camera points xyz (n, 3) float64 mm."""
     H, W = mask.shape
@@ -135,7 +135,7 @@ def grid_pixels(mask, depth, frame, stride, cx, cy, fx, fy):
     for y in range(0, H, stride):
         for x in range(0, W, stride):
             u[n], v[n] = x, y
-            n += mask[y, x]
+            n += mask[y, x] and depth[y, x] > 0
     h = np.empty(n, np.uint32)
     for i in range(n):
         h[i] = (np.uint32(u[i]) * np.uint32(2654435761)) ^ (np.uint32(v[i]) * np.uint32(40503))

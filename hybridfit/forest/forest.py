@@ -189,11 +189,10 @@ class Forest:
                 raise HybridfitError(f"{name} must be a positive integer, got {value!r}")
         if not bandwidth_mm > 0:
             raise HybridfitError(f"bandwidth_mm must be positive, got {bandwidth_mm!r}")
-        masks = masks & (depths > 0)
         F, J = len(depths), self.n_joints
         out = Proposals(np.zeros((F, J, k, 3)), np.zeros((F, J, k)), np.zeros(F, bool), self.joint_names)
         H, W = depths.shape[1:]
-        buf = np.where(masks, depths, np.uint16(0)).reshape(-1)  # whole frames as the crops (features.py)
+        buf = np.where(masks, depths, np.uint16(0)).reshape(-1)  # whole masked frames as the crops (features.py)
         meta = np.zeros((F, 5), np.int64)
         meta[:, 2], meta[:, 3], meta[:, 4] = H, W, np.arange(F) * H * W
         nodes, links = self.packed_nodes

@@ -43,6 +43,8 @@ def test_a_single_frame_and_masks(hands, hand_forest):
     assert np.array_equal(one.proposals[0], many.proposals[3])
     masked = hand_forest.propose(depth[:5], SMALL, masks=depth[:5] > 0)
     assert np.array_equal(masked.proposals, many.proposals)
+    everything = hand_forest.propose(depth[:5], SMALL, masks=np.ones(depth[:5].shape, bool))  # depth 0 is never a hand
+    assert np.array_equal(everything.proposals, many.proposals)
 
 
 def test_threads_give_the_same_proposals(hands, hand_forest):
