@@ -3,9 +3,10 @@
 Used twice: at the leaves on training offsets, and at test time on the votes for a joint.
 Seeding by bins (as scikit-learn's ``bin_seeding``): the points are binned on a grid of
 cell size ``2 * bandwidth`` and each occupied cell's weighted centroid seeds one search, the
-heaviest cells first; a search stops as soon as it comes within ``bandwidth / 2`` of a mode
-already found. The support of a mode is the number of points whose nearest mode it is
-(the number of votes supporting it).
+heaviest cells first (ties: by cell position); a search stops as soon as it comes within
+``bandwidth / 2`` of a mode already found. The kernel is cut at 2 sigma. The support of a
+mode is the number of points whose nearest mode it is (the number of votes supporting it).
+Every sum runs over the points in index order, so a result depends only on its input.
 """
 
 from __future__ import annotations
