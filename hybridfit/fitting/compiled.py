@@ -36,8 +36,7 @@ import numpy as np
 from numba import types as T
 
 from ..errors import HybridfitError
-from ..model.rotations import quaternion_matrix
-from ..model.kinematics import block_frames, block_points, sincos, sincos_rows
+from ..model.kinematics import block_frames, block_points, sincos_rows
 from ..objective import normalise_confidences
 from ..optimizer import StagePlan, Task
 from .problem import KERNEL_SIGNATURE, Problem, prepare_frames  # noqa: F401 (KERNEL_SIGNATURE: objectives import it here)
@@ -126,79 +125,6 @@ def _stage_joints(parents, axis_params, pm_ptr, pm_joint, indices, pts_lo, pts_h
     return count, oriented
 
 
-@nb.njit(cache=True, fastmath=True, inline="always")
-def _joint_frames(p, sin_p, cos_p, joints, count, oriented, parents, offsets, rest, rest_identity, axes, axis_params,
-                  mirror, W, Wp, G):
-    """Camera-frame rotation W (J, 3, 3) (mirror included) and position Wp (J, 3) mm of the
-    listed joints for parameters p (P,) with sines and cosines sin_p, cos_p (P,), the
-    rotation only where ``oriented``; the other joints' entries are read as fixed. G (3, 3) is
-    scratch space."""
-    if count and parents[joints[0]] < 0:  # the root moves: the global pose is needed
-        quaternion_matrix(p[3], p[4], p[5], p[6], G)
-        for r in range(3):
-            G[r, 0] *= mirror
-    for c in range(count):
-        j = joints[c]
-        par = parents[j]
-        if par < 0:
-            for r in range(3):
-                Wp[j, r] = G[r, 0] * offsets[j, 0] + G[r, 1] * offsets[j, 1] + G[r, 2] * offsets[j, 2] + p[r]
-            if not oriented[j]:
-                continue
-            for r in range(3):
-                for k in range(3):
-                    W[j, r, k] = G[r, 0] * rest[j, 0, k] + G[r, 1] * rest[j, 1, k] + G[r, 2] * rest[j, 2, k]
-        else:
-            for r in range(3):
-                Wp[j, r] = Wp[par, r] + W[par, r, 0] * offsets[j, 0] + W[par, r, 1] * offsets[j, 1] + W[par, r, 2] * offsets[j, 2]
-            if not oriented[j]:
-                continue
-            if rest_identity[j]:
-                for r in range(3):
-                    for k in range(3):
-                        W[j, r, k] = W[par, r, k]
-            else:
-                for r in range(3):
-                    for k in range(3):
-                        W[j, r, k] = W[par, r, 0] * rest[j, 0, k] + W[par, r, 1] * rest[j, 1, k] + W[par, r, 2] * rest[j, 2, k]
-        for a in range(axes.shape[1]):
-            ax = axes[j, a]
-            if ax < 0:
-                break
-            co = cos_p[axis_params[j, a]]
-            si = sin_p[axis_params[j, a]]
-            if ax == 0:
-                i0, i1 = 1, 2
-            elif ax == 1:
-                i0, i1 = 2, 0
-            else:
-                i0, i1 = 0, 1
-            for r in range(3):
-                a0 = W[j, r, i0]
-                a1 = W[j, r, i1]
-                W[j, r, i0] = co * a0 + si * a1
-                W[j, r, i1] = co * a1 - si * a0
-
-
-@nb.njit(cache=True, fastmath=True, inline="always")
-def _points(Wp, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
-    """Points indices[lo:hi] from joint positions: out[q] = sum_j point_map[q, j] Wp[j]."""
-    for t in range(lo, hi):
-        q = indices[t]
-        x = 0.0
-        y = 0.0
-        z = 0.0
-        for e in range(pm_ptr[q], pm_ptr[q + 1]):
-            j = pm_joint[e]
-            w = pm_weight[e]
-            x += w * Wp[j, 0]
-            y += w * Wp[j, 1]
-            z += w * Wp[j, 2]
-        out[q, 0] = x
-        out[q, 1] = y
-        out[q, 2] = z
-
-
 # ---------------------------------------------------------------- one frame
 
 
@@ -213,14 +139,9 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
     J = parents.shape[0]
     Q = proposals.shape[0]
     base = x0.copy()
-    W = np.zeros((J, 3, 3))
-    Wp = np.zeros((J, 3))
-    G = np.empty((3, 3))
     order = np.empty(J, dtype=np.int64)
     all_joints = np.arange(J)
     all_oriented = np.ones(J, dtype=np.bool_)
-    sin_p = np.empty(P)
-    cos_p = np.empty(P)
     frame_loss = np.inf
     committed = 0.0
     used = 0
@@ -242,6 +163,8 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
             if axes[j, a] >= 0:
                 is_angle[axis_params[j, a]] = True
     rows = np.empty(P, dtype=np.int64)
+    all_rows = np.flatnonzero(is_angle)
+    n_all_rows = all_rows.shape[0]
     for s in range(stages.shape[0]):
         key = keys[s]
         rpos = 0
@@ -259,10 +182,13 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
             for t in range(own_hi - own_lo):
                 if owned[t] != subset[t]:
                     guided = True
-        # fixed joints at the stage's start, then the joints each hypothesis recomputes
-        sincos(base, sin_p, cos_p)
-        _joint_frames(base, sin_p, cos_p, all_joints, J, all_oriented, parents, offsets, rest, rest_identity, axes,
-                      axis_params, mirror, W, Wp, G)
+        # every joint at the stage's start (in column 0, by the same code as the hypotheses'),
+        # then the joints each hypothesis recomputes
+        for k in range(P):
+            pB[k, 0] = base[k]
+        sincos_rows(all_rows, n_all_rows, pB, sinB, cosB, 1)
+        block_frames(1, pB, sinB, cosB, all_joints, J, all_oriented, parents, offsets, rest, rest_identity, axes,
+                     axis_params, mirror, WB, WpB, GB)
         count, oriented = _stage_joints(parents, axis_params, pm_ptr, pm_joint, indices, pts_lo, pts_hi, own_lo, own_hi,
                                         par_lo, par_hi, P, order)
         # every block entry a listed joint or a point reads but the stage does not move
@@ -272,16 +198,16 @@ def _fit_frame(kernel, parents, offsets, rest, rest_identity, axes, axis_params,
         for j in range(J):
             if not listed[j]:
                 for r in range(3):
-                    for i in range(n):
-                        WpB[j, r, i] = Wp[j, r]
+                    for i in range(1, n):
+                        WpB[j, r, i] = WpB[j, r, 0]
                     for k in range(3):
-                        for i in range(n):
-                            WB[j, r, k, i] = W[j, r, k]
+                        for i in range(1, n):
+                            WB[j, r, k, i] = WB[j, r, k, 0]
         for k in range(P):
-            for i in range(n):
-                pB[k, i] = base[k]
-                sinB[k, i] = sin_p[k]
-                cosB[k, i] = cos_p[k]
+            for i in range(1, n):
+                pB[k, i] = pB[k, 0]
+                sinB[k, i] = sinB[k, 0]
+                cosB[k, i] = cosB[k, 0]
         lo = np.empty(d)
         hi = np.empty(d)
         span = np.empty(d)
