@@ -8,7 +8,8 @@ out-of-image pixels read the large constant ``background_mm``.
 Depth frames are held as foreground crops packed into one flat uint16 buffer: frame f is
 ``buf[meta[f, 4] : meta[f, 4] + h * w]`` laid out row-major, where ``meta[f] = (y0, x0,
 h, w, offset)``. Everything outside the crop is background, so a crop is exact as long as
-it covers every foreground pixel. Training and test use the same code path.
+it covers every foreground pixel. At test time (``traverse``) a frame is read directly as
+an image, 0 off the foreground: the same values as its crop.
 """
 
 from __future__ import annotations
@@ -85,24 +86,34 @@ def pack_nodes(node_feature: np.ndarray, node_threshold: np.ndarray, node_left: 
     return nodes, bits[:, 5:]
 
 
-@njit(cache=True, nogil=True)
-def traverse(buf, meta, s_frame, s_u, s_v, s_d, nodes, links, roots, fx, fy, background, lanes=16):
-    """Leaf index (n, T) int32 of every sample in every tree (left when f < threshold);
-    nodes, links from ``pack_nodes``.
+@njit(cache=True, nogil=True, inline="always")
+def _pixel(image, x, y, background):
+    if x < 0 or y < 0 or x >= image.shape[1] or y >= image.shape[0]:
+        return background
+    d = image[y, x]
+    return background if d == 0 else np.float32(d)
 
-    ``lanes`` samples go down all trees in lockstep, one level per step, and the child is
+
+@njit(cache=True, nogil=True)
+def traverse(image, s_u, s_v, s_d, nodes, links, roots, fx, fy, background, lanes=16):
+    """Leaf index (n, T) int32 of pixels (s_u, s_v) with depths s_d (n,) float32 mm of one
+    frame in every tree (left when f < threshold). image: the frame (H, W) uint16 mm, 0
+    off the foreground (the features read as on a packed crop of it); nodes, links from
+    ``pack_nodes``.
+
+    ``lanes`` pixels go down all trees in lockstep, one level per step, and the child is
     picked without a branch: the memory reads of independent walks overlap."""
-    n, T = s_frame.shape[0], roots.shape[0]
+    n, T = s_u.shape[0], roots.shape[0]
     out = np.empty((n, T), np.int32)
     L = lanes * T
     node = np.empty(L, np.int64)
-    frame, u, v = np.empty(L, np.int64), np.empty(L, np.int64), np.empty(L, np.int64)
+    u, v = np.empty(L, np.int64), np.empty(L, np.int64)
     sx, sy = np.empty(L), np.empty(L)
     for i0 in range(0, n, lanes):
         nl = min(lanes, n - i0) * T
         for w in range(nl):
             i = i0 + w // T
-            node[w], frame[w], u[w], v[w] = roots[w % T], s_frame[i], s_u[i], s_v[i]
+            node[w], u[w], v[w] = roots[w % T], s_u[i], s_v[i]
             sx[w], sy[w] = fx / s_d[i], fy / s_d[i]
         busy = True
         while busy:
@@ -112,10 +123,10 @@ def traverse(buf, meta, s_frame, s_u, s_v, s_d, nodes, links, roots, fx, fy, bac
                 if links[k, 0] < 0:
                     continue
                 busy = True
-                a = _read(buf, meta, frame[w], u[w] + int(np.floor(nodes[k, 0] * sx[w] + 0.5)),
-                          v[w] + int(np.floor(nodes[k, 1] * sy[w] + 0.5)), background)
-                b = _read(buf, meta, frame[w], u[w] + int(np.floor(nodes[k, 2] * sx[w] + 0.5)),
-                          v[w] + int(np.floor(nodes[k, 3] * sy[w] + 0.5)), background)
+                a = _pixel(image, u[w] + int(np.floor(nodes[k, 0] * sx[w] + 0.5)),
+                           v[w] + int(np.floor(nodes[k, 1] * sy[w] + 0.5)), background)
+                b = _pixel(image, u[w] + int(np.floor(nodes[k, 2] * sx[w] + 0.5)),
+                           v[w] + int(np.floor(nodes[k, 3] * sy[w] + 0.5)), background)
                 node[w] = links[k, np.int64(np.float32(a - b) >= nodes[k, 4])]
         for w in range(nl):
             out[i0 + w // T, w % T] = links[node[w], 2]
@@ -123,11 +134,11 @@ def traverse(buf, meta, s_frame, s_u, s_v, s_d, nodes, links, roots, fx, fy, bac
 
 
 @njit(cache=True, nogil=True)
-def grid_pixels(mask, depth, frame, stride, cx, cy, fx, fy):
+def grid_pixels(mask, depth, stride, cx, cy, fx, fy):
     """The test pixels of one frame: foreground (mask (H, W) bool, and depth (H, W) uint16 mm
     > 0) on every ``stride``-th row and column, ordered by a fixed hash of their position (so ties between equal votes are
-    broken evenly over the hand). Returns s_frame (n,) int32 (= frame), u, v (n,) int32,
-    d (n,) float32 mm and their camera points xyz (n, 3) float64 mm."""
+    broken evenly over the hand). Returns u, v (n,) int32, d (n,) float32 mm and their
+    camera points xyz (n, 3) float64 mm."""
     H, W = mask.shape
     u = np.empty((H // stride + 1) * (W // stride + 1), np.int32)
     v = np.empty_like(u)
@@ -140,7 +151,6 @@ def grid_pixels(mask, depth, frame, stride, cx, cy, fx, fy):
     for i in range(n):
         h[i] = (np.uint32(u[i]) * np.uint32(2654435761)) ^ (np.uint32(v[i]) * np.uint32(40503))
     order = np.argsort(h, kind="mergesort")
-    s_frame = np.full(n, frame, np.int32)
     su, sv, d = np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.float32)
     xyz = np.empty((n, 3))
     for r in range(n):
@@ -150,4 +160,4 @@ def grid_pixels(mask, depth, frame, stride, cx, cy, fx, fy):
         xyz[r, 0] = (u[i] - cx) * np.float64(d[r]) / fx
         xyz[r, 1] = (v[i] - cy) * np.float64(d[r]) / fy
         xyz[r, 2] = d[r]
-    return s_frame, su, sv, d, xyz
+    return su, sv, d, xyz

@@ -191,20 +191,17 @@ class Forest:
             raise HybridfitError(f"bandwidth_mm must be positive, got {bandwidth_mm!r}")
         F, J = len(depths), self.n_joints
         out = Proposals(np.zeros((F, J, k, 3)), np.zeros((F, J, k)), np.zeros(F, bool), self.joint_names)
-        H, W = depths.shape[1:]
-        buf = np.where(masks, depths, np.uint16(0)).reshape(-1)  # whole masked frames as the crops (features.py)
-        meta = np.zeros((F, 5), np.int64)
-        meta[:, 2], meta[:, 3], meta[:, 4] = H, W, np.arange(F) * H * W
+        images = np.where(masks, depths, np.uint16(0))  # what the features read (features.py)
         nodes, links = self.packed_nodes
         fx, fy, bg = float(intrinsics.fx), float(intrinsics.fy), np.float32(self.config.background_mm)
 
         def one(f: int) -> None:
-            s_frame, u, v, d, xyz = grid_pixels(masks[f], depths[f], f, int(stride), float(intrinsics.cx),
-                                                float(intrinsics.cy), fx, fy)
+            u, v, d, xyz = grid_pixels(masks[f], depths[f], int(stride), float(intrinsics.cx), float(intrinsics.cy),
+                                       fx, fy)
             if len(u) == 0:
                 out.empty[f] = True
                 return
-            leaves = traverse(buf, meta, s_frame, u, v, d, nodes, links, self.roots, fx, fy, bg)
+            leaves = traverse(images[f], u, v, d, nodes, links, self.roots, fx, fy, bg)
             out.proposals[f], out.confidences[f] = frame_proposals(
                 xyz, leaves, self.leaf_offsets, self.leaf_weights, int(proposal_set), int(k), float(bandwidth_mm))
 

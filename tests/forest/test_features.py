@@ -26,15 +26,22 @@ def reference_traverse(buf, meta, s_frame, s_u, s_v, s_d, node_feature, node_thr
 
 def test_traverse_finds_the_leaves_of_a_plain_walk(hands, hand_forest):
     f, depth = hand_forest, hands[0][50:54]
-    buf, meta = pack_crops(depth, depth > 0)
-    frame, v, u = np.nonzero(depth > 0)
-    frame, v, u = frame.astype(np.int32)[::3], v.astype(np.int32)[::3], u.astype(np.int32)[::3]
-    d = depth[frame, v, u].astype(np.float32)
-    bg = np.float32(f.config.background_mm)
-    want = reference_traverse(buf, meta, frame, u, v, d, f.node_feature, f.node_threshold, f.node_left, f.node_right,
-                              f.node_leaf, f.roots, SMALL.fx, SMALL.fy, bg)
+    depth = np.concatenate([depth, np.roll(depth, (60, 80), axis=(1, 2))])  # hands cut by the image borders
+    masks = depth > 0
+    masks[:, :, 70:75] = False  # a cut through the hand: those pixels read as background
+    buf, meta = pack_crops(depth, masks)
     nodes, links = pack_nodes(f.node_feature, f.node_threshold, f.node_left, f.node_right, f.node_leaf)
-    for lanes in (1, 7, 16):  # 7: the last group of samples is partial
-        got = traverse(buf, meta, frame, u, v, d, nodes, links, f.roots, SMALL.fx, SMALL.fy, bg, lanes)
-        assert np.array_equal(got, want)
-    assert len(np.unique(want)) > 20  # the samples spread over many leaves
+    bg = np.float32(f.config.background_mm)
+    spread = set()
+    for i in range(len(depth)):
+        v, u = np.nonzero(masks[i])
+        v, u = v.astype(np.int32)[::3], u.astype(np.int32)[::3]
+        d = depth[i, v, u].astype(np.float32)
+        want = reference_traverse(buf, meta, np.full(len(u), i, np.int32), u, v, d, f.node_feature, f.node_threshold,
+                                  f.node_left, f.node_right, f.node_leaf, f.roots, SMALL.fx, SMALL.fy, bg)
+        image = np.where(masks[i], depth[i], np.uint16(0))
+        for lanes in (1, 7, 16):  # 7: the last group of pixels is partial
+            got = traverse(image, u, v, d, nodes, links, f.roots, SMALL.fx, SMALL.fy, bg, lanes)
+            assert np.array_equal(got, want)
+        spread |= set(want.ravel().tolist())
+    assert len(spread) > 20  # the pixels reach many leaves
