@@ -112,7 +112,8 @@ class Problem:
         return self.loss(self.points(params, subset), subset)
 
     def _evaluate_compiled(self, params: np.ndarray, subset: np.ndarray) -> np.ndarray:
-        """:meth:`evaluate` by :func:`tree_points` and the objective's compiled kernel."""
+        """:meth:`evaluate` by :func:`tree_points` and the objective's compiled kernel (in
+        this problem's working buffer: one thread at a time per problem)."""
         kernel, consts, tree, points_of = self._compiled()
         subset = np.ascontiguousarray(subset, dtype=np.int64)
         key = subset.tobytes()
@@ -121,7 +122,7 @@ class Problem:
             joints = points_of[key] = tree.joints_for(subset)
         points = np.empty((len(self.point_names), 3, len(params)))
         tree_points(*tree.arrays, *tree.point_map, *joints, np.ascontiguousarray(params, dtype=np.float64), subset,
-                    points)
+                    points, self._scratch)
         out = np.empty(len(params))
         kernel(points, subset, self.proposals, self.weights, consts, out)
         return out
@@ -130,6 +131,7 @@ class Problem:
         if self._compiled_parts is None:
             tree = self._structure().tree()
             self._compiled_parts = (*self._kernel, tree, tree._joints)
+            self._scratch = np.empty(scratch_size(self.model.n_params, len(tree.parents), len(self.point_names)))
         return self._compiled_parts
 
     def _from_joints(self, joints: np.ndarray) -> np.ndarray:
@@ -595,21 +597,35 @@ def _robust_alignment(source, proposals, weights, inlier_mm, R_out, t_out):
 
 
 
+def scratch_size(P: int, J: int, Q: int) -> int:
+    """Floats of :func:`tree_points`' working space for P parameters, J joints and Q points."""
+    return BLOCK * (3 * P + 12 * J + 9 + 3 * Q)
+
+
 @nb.njit(cache=True, nogil=True)
 def tree_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
-                order, count, oriented, rows, n_rows, params, subset, out):
+                order, count, oriented, rows, n_rows, params, subset, out, scratch):
     """out (Q, 3, N) mm = the points ``subset`` of params (N, P), the hypothesis innermost (a
     compiled kernel's input): forward kinematics of the joints ``order[:count]`` (their
-    rotations where ``oriented``, angles ``rows[:n_rows]``), in blocks of ``BLOCK``."""
+    rotations where ``oriented``, angles ``rows[:n_rows]``), in blocks of ``BLOCK``; scratch:
+    working space of :func:`scratch_size` (P, J, Q) floats."""
     N, P = params.shape
     J = parents.shape[0]
-    pB = np.empty((P, BLOCK))
-    sinB = np.empty((P, BLOCK))
-    cosB = np.empty((P, BLOCK))
-    WB = np.empty((J, 3, 3, BLOCK))
-    WpB = np.empty((J, 3, BLOCK))
-    GB = np.empty((3, 3, BLOCK))
-    pts = np.empty((out.shape[0], 3, BLOCK))
+    Q = out.shape[0]
+    at = 0
+    pB = scratch[at:at + P * BLOCK].reshape((P, BLOCK))
+    at += P * BLOCK
+    sinB = scratch[at:at + P * BLOCK].reshape((P, BLOCK))
+    at += P * BLOCK
+    cosB = scratch[at:at + P * BLOCK].reshape((P, BLOCK))
+    at += P * BLOCK
+    WB = scratch[at:at + J * 9 * BLOCK].reshape((J, 3, 3, BLOCK))
+    at += J * 9 * BLOCK
+    WpB = scratch[at:at + J * 3 * BLOCK].reshape((J, 3, BLOCK))
+    at += J * 3 * BLOCK
+    GB = scratch[at:at + 9 * BLOCK].reshape((3, 3, BLOCK))
+    at += 9 * BLOCK
+    pts = scratch[at:at + Q * 3 * BLOCK].reshape((Q, 3, BLOCK))
     for n0 in range(0, N, BLOCK):
         B = min(BLOCK, N - n0)
         for i in range(B):
