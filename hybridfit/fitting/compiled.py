@@ -37,7 +37,6 @@ from numba import types as T
 
 from ..errors import HybridfitError
 from ..model.kinematics import block_frames, block_points, sincos_rows
-from ..objective import normalise_confidences
 from ..optimizer import StagePlan, Task
 from .problem import KERNEL_SIGNATURE, Problem, prepare_frames  # noqa: F401 (KERNEL_SIGNATURE: objectives import it here)
 from .streams import frame_keys, int_words, normal, uniform
