@@ -23,7 +23,7 @@ def per_joint_table(out: Path) -> str:
     finally:
         store.close()
     names = list(rows[0]["joint_names"])
-    lines = ["| joint | " + " | ".join(r["variant"] for r in rows) + " |", "|---" * (len(rows) + 1) + "|"]
+    lines = ["| joint | " + " | ".join(r["variant"].replace("|", "\\|") for r in rows) + " |", "|---" * (len(rows) + 1) + "|"]
     for j, name in enumerate(names):
         lines.append(f"| {name} | " + " | ".join(f"{r['per_joint'][j]:.2f}" for r in rows) + " |")
     return "\n".join(lines)
