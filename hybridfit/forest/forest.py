@@ -193,6 +193,7 @@ class Forest:
         out = Proposals(np.zeros((F, J, k, 3)), np.zeros((F, J, k)), np.zeros(F, bool), self.joint_names)
         images = np.where(masks, depths, np.uint16(0))  # what the features read (features.py)
         nodes, links = self.packed_nodes
+        weights = np.ascontiguousarray(self.leaf_weights, np.float32)  # votes.py reads their float32 bits
         fx, fy, bg = float(intrinsics.fx), float(intrinsics.fy), np.float32(self.config.background_mm)
 
         def one(f: int) -> None:
@@ -203,7 +204,7 @@ class Forest:
                 return
             leaves = traverse(images[f], u, v, d, nodes, links, self.roots, fx, fy, bg)
             out.proposals[f], out.confidences[f] = frame_proposals(
-                xyz, leaves, self.leaf_offsets, self.leaf_weights, int(proposal_set), int(k), float(bandwidth_mm))
+                xyz, leaves, self.leaf_offsets, weights, int(proposal_set), int(k), float(bandwidth_mm))
 
         with ThreadPoolExecutor(int(jobs)) if jobs > 1 and F > 1 else nullcontext() as pool:
             done = pool.map(one, range(F)) if pool else map(one, range(F))

@@ -118,3 +118,12 @@ def test_bad_files_are_refused_naming_the_file(tmp_path, hand_forest):
         Forest.load(lying)
     with pytest.raises(HybridfitError, match="missing.npz"):
         Forest.load(tmp_path / "missing.npz")
+
+
+def test_a_forest_of_float64_arrays_proposes_the_same(hands, hand_forest):
+    arrays = {k: getattr(hand_forest, k) for k in ("node_feature", "node_threshold", "node_left", "node_right",
+                                                   "node_leaf", "roots", "leaf_offsets", "leaf_weights")}
+    wide = Forest(hand_forest.config, hand_forest.joint_names, hand_forest.intrinsics,
+                  **{k: a.astype(np.float64) if a.dtype == np.float32 else a.astype(np.int64) for k, a in arrays.items()})
+    a, b = hand_forest.propose(hands[0][50:53], SMALL), wide.propose(hands[0][50:53], SMALL)
+    assert np.array_equal(a.proposals, b.proposals) and np.array_equal(a.confidences, b.confidences)
