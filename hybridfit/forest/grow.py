@@ -17,7 +17,7 @@ from tqdm.auto import tqdm
 from .features import eval_features, feature
 from .leaves import leaf_modes
 from .sampling import TrainingSet
-from .split import balanced_subsample, random_features, best_split
+from .split import balanced_subsample, best_split, random_features
 
 
 @njit(cache=True, nogil=True)

@@ -89,6 +89,8 @@ def balanced_subsample(rows: np.ndarray, labels: np.ndarray, size: int, rng: np.
 
 
 def random_features(rng: np.random.Generator, cfg: ForestConfig) -> np.ndarray:
+    """Candidate features (n_features, 4) float32: offsets (ux, uy, vx, vy) mm uniform in
+    [-r, r]; a share p_unary has v = 0 (the pixel itself)."""
     r = cfg.max_feature_offset_mm
     feats = rng.uniform(-r, r, size=(cfg.n_features, 4)).astype(np.float32)
     feats[rng.random(cfg.n_features) < cfg.p_unary, 2:] = 0.0
