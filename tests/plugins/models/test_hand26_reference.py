@@ -6,7 +6,9 @@ tables hard-coded) and is the contract: never regenerate it from the current cod
 for the default model and a customised one (scale, mirror, bone, base, limit and derived-point
 settings), the kinematic tree, bounds, default pose, stages, geometry, ``with_geometry`` and
 the forward kinematics of 64 parameter vectors (a third of them with angles far outside the
-limits).
+limits). The kinematic tree is compared bit for bit (so hand26 gives bit-identical joints
+through any kernel); the recorded joints to 1e-9 mm, since the kinematics kernel shared by
+all models was optimised after they were recorded (ulp-level changes).
 """
 
 from __future__ import annotations
@@ -45,7 +47,9 @@ def test_hand26_is_bit_identical_to_the_reference(reference, tag):
     np.testing.assert_array_equal(lower, reference[f"{tag}.lower"])
     np.testing.assert_array_equal(upper, reference[f"{tag}.upper"])
     np.testing.assert_array_equal(model.default_params(), reference[f"{tag}.default"])
-    np.testing.assert_array_equal(model.forward(reference[f"{tag}.X"]), reference[f"{tag}.forward"])
+    # the tree being equal, the outputs are bit for bit those of the old model through today's
+    # kernel; the kernel (shared by every model) has since been optimised, to within ulps
+    np.testing.assert_allclose(model.forward(reference[f"{tag}.X"]), reference[f"{tag}.forward"], rtol=0, atol=1e-9)
     assert repr(model.stages()) == str(reference[f"{tag}.stages"])
     geo = model.geometry()
     np.testing.assert_array_equal(
