@@ -1,0 +1,50 @@
+"""The core names no hand model except as a default value (issue 12): every "hand26" in
+hybridfit/ is a function's default argument, a ``default=`` keyword, a pydantic ``Field``
+default or the value of a (module, class or dict) default setting, never a comparison or a
+model the core builds for itself."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+import hybridfit
+
+CORE = Path(hybridfit.__file__).parent
+MODELS = ("hand26", "hand27")
+
+
+def _as_default(node: ast.AST, parents: dict[ast.AST, ast.AST]) -> bool:
+    parent = parents.get(node)
+    if isinstance(parent, ast.arguments):
+        return node in parent.defaults or node in parent.kw_defaults
+    if isinstance(parent, ast.keyword):
+        return parent.arg == "default"
+    if isinstance(parent, ast.Call):
+        return getattr(parent.func, "id", None) == "Field" and parent.args[:1] == [node]
+    if isinstance(parent, (ast.Assign, ast.AnnAssign)):
+        return True  # a named default: MODEL = "hand26", model: str = "hand26"
+    if isinstance(parent, ast.Dict):
+        return isinstance(parents.get(parent), (ast.Assign, ast.AnnAssign)) and node in parent.values
+    return False
+
+
+def offending(source: str) -> list[int]:
+    """Line numbers of model names used other than as a default value."""
+    tree = ast.parse(source)
+    parents = {child: node for node in ast.walk(tree) for child in ast.iter_child_nodes(node)}
+    return [n.lineno for n in ast.walk(tree)
+            if isinstance(n, ast.Constant) and n.value in MODELS and not _as_default(n, parents)]
+
+
+@pytest.mark.parametrize("path", sorted(CORE.rglob("*.py")), ids=lambda p: str(p.relative_to(CORE)))
+def test_the_core_names_models_only_as_defaults(path):
+    assert offending(path.read_text()) == [], f"{path}: a model named other than as a default value"
+
+
+def test_the_check_finds_a_comparison_and_a_model_built_by_name():
+    assert offending('def f(model="hand26", x=1):\n    return x\nDEFAULT = {"model": "hand26"}\n') == []
+    assert offending('if settings.model != "hand26":\n    pass\n') == [1]
+    assert offending('m = registry.create("model", "hand26")\n') == [1]
