@@ -25,7 +25,7 @@ from ..errors import HybridfitError
 #: fast-math flags that keep inf and NaN semantics (the z-buffer uses inf for "no surface")
 _FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
-#: sum of hand26's default bone lengths (mm): the hand the default radii are given for
+#: total bone length (mm) of the hand the default radii are given for (the default model's default bones)
 REFERENCE_BONE_LENGTH_MM = 439.0
 
 
