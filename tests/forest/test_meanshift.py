@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from numba import njit
 
 from hybridfit.forest import mean_shift
 
@@ -43,49 +44,35 @@ def test_support_counts_every_point_once():
     assert support.sum() == len(pts) and (np.diff(support) <= 0).all()
 
 
-@njit(cache=True)
 def reference_mean_shift(points, weights, bandwidth, max_iter=30, tol=0.1):
-    """The documented algorithm written plainly (sorted bin seeding, every point tested in
-    every shift): the optimised kernel must give the same bits."""
-    n = points.shape[0]
-    cell = 2.0 * bandwidth
-    keys = np.empty(n, np.int64)
-    for i in range(n):
-        a = np.int64(np.floor(points[i, 0] / cell)) + 1048576
-        b = np.int64(np.floor(points[i, 1] / cell)) + 1048576
-        c = np.int64(np.floor(points[i, 2] / cell)) + 1048576
-        keys[i] = (a << 42) | (b << 21) | c
-    order = np.argsort(keys, kind="mergesort")
-    seeds, mass, s = np.zeros((n, 3)), np.zeros(n), -1
-    for r in range(n):
-        i = order[r]
-        if r == 0 or keys[i] != keys[order[r - 1]]:
-            s += 1
-        w = weights[i] + 1e-12
+    """The documented algorithm written plainly in Python (sorted bin seeding, every point
+    tested in every shift, sums in index order): the kernel must give the same bits."""
+    n = len(points)
+    keys = [tuple(int(math.floor(c / (2.0 * bandwidth))) for c in p) for p in points.tolist()]
+    cells = sorted(set(keys))
+    seeds, mass = np.zeros((len(cells), 3)), np.zeros(len(cells))
+    for i in range(n):  # each cell sums its points in index order
+        s, w = cells.index(keys[i]), weights[i] + 1e-12
         seeds[s] += w * points[i]
         mass[s] += w
-    S = s + 1
-    modes, m = np.empty((S, 3)), 0
-    for s in np.argsort(-mass[:S], kind="mergesort"):
-        x = seeds[s] / mass[s]
-        hit = -1
+    modes = []
+
+    def near(x):
+        return next((q for q, y in enumerate(modes) if ((x - y) ** 2).sum() < 0.25 * bandwidth ** 2), -1)
+
+    for s in np.argsort(-mass, kind="stable"):
+        x, hit = seeds[s] / mass[s], -1
         for _ in range(max_iter):
-            hit = -1
-            for q in range(m):
-                if ((x - modes[q]) ** 2).sum() < 0.25 * bandwidth ** 2 and hit < 0:
-                    hit = q
+            hit = near(x)
             if hit >= 0:
                 break
+            d = points - x
+            r2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
             acc, sw = np.zeros(3), 0.0
-            for p in range(n):
-                d = points[p] - x
-                r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
-                if r2 < 4.0 * bandwidth * bandwidth:
-                    w = weights[p] * np.exp(-r2 * (0.5 / (bandwidth * bandwidth)))
-                    acc[0] += w * points[p, 0]
-                    acc[1] += w * points[p, 1]
-                    acc[2] += w * points[p, 2]
-                    sw += w
+            for p in np.flatnonzero(r2 < 4.0 * bandwidth * bandwidth):
+                w = weights[p] * math.exp(-r2[p] * (0.5 / (bandwidth * bandwidth)))
+                acc += w * points[p]
+                sw += w
             if sw <= 0.0:
                 break
             y = acc / sw
@@ -93,23 +80,14 @@ def reference_mean_shift(points, weights, bandwidth, max_iter=30, tol=0.1):
             x = y
             if step < (tol * bandwidth) ** 2:
                 break
-        if hit < 0:
-            for q in range(m):
-                if ((x - modes[q]) ** 2).sum() < 0.25 * bandwidth ** 2 and hit < 0:
-                    hit = q
-        if hit < 0:
-            modes[m] = x
-            m += 1
-    support = np.zeros(m, np.int64)
-    for p in range(n):
-        best, best_d = 0, np.inf
-        for q in range(m):
-            d = ((points[p] - modes[q]) ** 2).sum()
-            if d < best_d:
-                best, best_d = q, d
-        support[best] += 1
-    rank = np.argsort(-support, kind="mergesort")
-    return modes[:m][rank], support[rank]
+        if hit < 0 and near(x) < 0:
+            modes.append(x)
+    modes = np.array(modes).reshape(-1, 3)
+    support = np.zeros(len(modes), np.int64)
+    for p in points:  # each point supports its nearest mode (the first of equals)
+        support[np.argmin(((p - modes) ** 2).sum(1))] += 1
+    rank = np.argsort(-support, kind="stable")
+    return modes[rank], support[rank]
 
 
 @settings(max_examples=60, deadline=None)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from numba import njit
 
+from hybridfit.forest.features import traverse
 from hybridfit.forest.votes import _select_votes, frame_proposals
 
 from .helpers import SMALL
@@ -43,55 +43,40 @@ def test_selection_matches_the_reference(nv, proposal_set, seed, kind):
     assert np.array_equal(chosen[:p], reference_choice(w, proposal_set))
 
 
-@njit(cache=True)
 def reference_frame_proposals(xyz, leaves, leaf_offsets, leaf_weights, proposal_set, k, bandwidth):
-    """The kernel written plainly: every vote's weight per joint, the cut by np.partition,
-    the reference mean-shift."""
-    n, T = leaves.shape
-    J, M = leaf_weights.shape[1], leaf_weights.shape[2]
+    """The kernel written plainly: every vote's weight per joint, ``reference_choice``, the
+    reference mean-shift."""
+    J, M = leaf_weights.shape[1:]
     props, conf = np.zeros((J, k, 3)), np.zeros((J, k))
-    centre = np.zeros(3)
-    for i in range(n):
-        centre += xyz[i]
-    centre /= max(n, 1)
-    nv = n * T * M
+    pixel, tree, mode = np.unravel_index(np.arange(leaves.size * M), (*leaves.shape, M))  # vote order
+    leaf = leaves[pixel, tree]
     for j in range(J):
-        w = np.empty(nv)
-        for i in range(n):
-            for t in range(T):
-                for m in range(M):
-                    w[(i * T + t) * M + m] = leaf_weights[leaves[i, t], j, m]
-        cut = max(np.partition(w, nv - proposal_set)[nv - proposal_set], 0.0) if nv > proposal_set else 0.0
-        pts, wts, p = np.empty((proposal_set, 3)), np.empty(proposal_set), 0
-        for strict in (True, False):
-            for c in range(nv):
-                if p < proposal_set and ((w[c] > cut) if strict else (w[c] == cut and w[c] > 0.0)):
-                    i, r = c // (T * M), c % (T * M)
-                    pts[p] = xyz[i] + leaf_offsets[leaves[i, r // M], j, r % M]
-                    wts[p] = w[c]
-                    p += 1
-        if p == 0:
-            for q in range(k):
-                props[j, q] = centre
+        chosen = reference_choice(leaf_weights[leaf, j, mode], proposal_set)
+        if len(chosen) == 0:
+            props[j] = sum(xyz, np.zeros(3)) / max(len(xyz), 1)  # the pixels' centroid, summed in order
             continue
-        modes, support = reference_mean_shift(pts[:p], wts[:p], bandwidth)
-        kk = min(k, modes.shape[0])
-        total = support[:kk].sum()
-        for q in range(k):
-            props[j, q] = modes[q] if q < kk else modes[0]
-            conf[j, q] = support[q] / total if q < kk else 0.0
+        pts = xyz[pixel[chosen]] + leaf_offsets[leaf[chosen], j, mode[chosen]]
+        modes, support = reference_mean_shift(pts, leaf_weights[leaf[chosen], j, mode[chosen]].astype(np.float64),
+                                              bandwidth)
+        kk = min(k, len(modes))
+        props[j] = modes[np.where(np.arange(k) < kk, np.arange(k), 0)]  # the top mode repeated past kk
+        conf[j, :kk] = support[:kk] / support[:kk].sum()
     return props, conf
 
 
 def test_frame_kernel_gives_the_reference_bits(hands, hand_forest):
     f, rng = hand_forest, np.random.default_rng(5)
-    for frame, (pixels, proposal_set, k) in enumerate(((800, 200, 3), (300, 50, 5), (100, 500, 2))):
-        depth = hands[0][50 + frame]  # proposal_set 500 > votes 100 * T * M: every vote counts
+    nodes, links = f.packed_nodes
+    for frame, (pixels, proposal_set, k) in enumerate(((300, 200, 3), (150, 50, 30), (60, 300, 2))):
+        depth = hands[0][50 + frame]  # k 30: fewer modes, padded; |P~| 300 > votes 60 * T * M: every vote counts
         v, u = np.nonzero(depth > 0)
         pick = np.sort(rng.choice(len(v), min(pixels, len(v)), replace=False))
-        d = depth[v[pick], u[pick]].astype(np.float64)
-        xyz = np.stack([(u[pick] - SMALL.cx) * d / SMALL.fx, (v[pick] - SMALL.cy) * d / SMALL.fy, d], -1)
-        leaves = rng.integers(0, len(f.leaf_weights), (len(pick), f.n_trees)).astype(np.int32)
+        u, v = u[pick].astype(np.int32), v[pick].astype(np.int32)
+        d = depth[v, u].astype(np.float32)
+        xyz = np.stack([(u - SMALL.cx) * d / SMALL.fx, (v - SMALL.cy) * d / SMALL.fy, d.astype(np.float64)], -1)
+        leaves = traverse(depth, u, v, d, nodes, links, f.roots, SMALL.fx, SMALL.fy, np.float32(f.config.background_mm))
         args = (xyz, leaves, f.leaf_offsets, f.leaf_weights, proposal_set, k, 10.0)
         got, want = frame_proposals(*args), reference_frame_proposals(*args)
         assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+        if k == 30:
+            assert ((want[1] > 0).sum(1) < k).all() and ((want[1] > 0).sum(1) > 1).any()  # padding is tested
