@@ -64,9 +64,11 @@ class HybridEstimator:
 
     def propose(self, depths: np.ndarray, intrinsics: Intrinsics, masks: np.ndarray | None = None,
                 progress: bool = False) -> Proposals:
-        """Proposals (F, J, k, 3) mm / confidences (F, J, k) for depth frames (F, H, W) uint16 mm."""
+        """Proposals (F, J, k, 3) mm / confidences (F, J, k) for depth frames (F, H, W) uint16 mm
+        (frames on ``jobs`` threads; the result does not depend on it)."""
         return self.get_forest().propose(depths, intrinsics, masks, k=self.k, proposal_set=self.proposal_set,
-                                         stride=self.stride, bandwidth_mm=self.bandwidth_mm, progress=progress)
+                                         stride=self.stride, bandwidth_mm=self.bandwidth_mm, progress=progress,
+                                         jobs=self.jobs)
 
     def fit_proposals(self, proposals: Proposals, progress: bool = False) -> FitResult:
         """Fit every frame; empty frames (all confidences 0) come back failed (``EMPTY_FRAME``).

@@ -34,6 +34,13 @@ def test_estimate_fits_the_model_to_the_proposals(forest):
     assert np.array_equal(again.fit.params, res.fit.params, equal_nan=True)
 
 
+def test_jobs_give_the_same_estimates(forest):
+    depth, _, _, _ = hand_frames(5, seed=3)
+    one, two = (hybridfit.HybridEstimator(forest, budget=300, seed=2, jobs=jobs).estimate(depth, SMALL) for jobs in (1, 2))
+    assert np.array_equal(one.proposals.proposals, two.proposals.proposals)
+    assert np.array_equal(one.fit.params, two.fit.params)
+
+
 def test_all_frames_empty(forest):
     res = hybridfit.HybridEstimator(forest, budget=600).estimate(np.zeros((2, 120, 160), np.uint16), SMALL)
     assert res.fit.failed.all() and res.fit.joints.shape == (2, 21, 3) and len(res.fit.errors) == 2
