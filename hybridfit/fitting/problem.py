@@ -31,6 +31,8 @@ class Problem:
     bounds, with the position limited to ``search_radius_mm`` around the initial guess.
     observation: the frame's depth (needed by objectives that ``observes_depth``); x0: (P,)
     an initial guess (tracking: the previous frame's fit) instead of the proposals' one.
+    When the model has a ``kinematic_tree`` and the objective a ``compiled_kernel`` (which
+    must score as its ``bind`` does), :meth:`evaluate` runs compiled (:func:`tree_points`).
     """
 
     def __init__(
