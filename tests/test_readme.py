@@ -32,3 +32,20 @@ def test_every_command_in_the_readme_table_exists():
     parser = build_parser()
     commands = set(parser._subparsers._group_actions[0].choices)
     assert documented and documented <= commands, documented - commands
+
+
+def test_the_folder_tree_names_every_module():
+    """Every module of the package (the CLI's subcommands aside) is named in the README's tree."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "README.md").read_text()
+    tree = text[text.index("## The folder tree is the architecture"):text.index("## Command line")]
+    words = set(re.findall(r"[a-z_0-9]+", tree.lower()))
+    modules = [p for p in (root / "hybridfit").rglob("*.py")
+               if p.stem not in ("__init__", "__main__") and "cli" not in p.parts]
+    missing = sorted(str(p.relative_to(root)) for p in modules if p.stem not in words)
+    assert not missing, f"modules missing from the README's folder tree: {missing}"
+    packages = sorted({p.parent.name for p in modules} - {"hybridfit"})
+    assert all(f"{name}/" in tree for name in packages)
