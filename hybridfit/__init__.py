@@ -18,7 +18,7 @@ from .registry import available, create
 from .synthetic.stress import stress_proposals
 from .synthetic.proposals import synthetic_proposals
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 __all__ = [
     "FitResult", "HandModel", "HybridEstimator", "HybridfitError", "Objective", "OptimizeResult", "Optimizer",
