@@ -32,7 +32,7 @@ import numpy as np
 import hybridfit
 from hybridfit.fitting import compiled, frames as fitting
 from hybridfit.metrics import joint_errors
-from hybridfit.fitting.problem import Problem
+from hybridfit.problem import Problem
 from hybridfit_plugins.optimizers.pso import PSO
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])

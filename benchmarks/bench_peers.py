@@ -34,7 +34,7 @@ import numpy as np
 import hybridfit
 from hybridfit.metrics import joint_errors
 from hybridfit.optimizer import Optimizer, Task
-from hybridfit.fitting.problem import Problem
+from hybridfit.problem import Problem
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
 from _util import table  # noqa: E402

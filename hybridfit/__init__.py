@@ -13,7 +13,7 @@ from .model.base import HandModel, Stage
 from .objective import Objective
 from .optimizer import OptimizeResult, Optimizer, Task
 from .plugin import Plugin, Settings
-from .fitting.problem import Problem
+from .problem import Problem
 from .registry import available, create
 from .synthetic.stress import stress_proposals
 from .synthetic.proposals import synthetic_proposals

@@ -16,7 +16,7 @@ import numpy as np
 
 from .errors import BudgetExceeded, HybridfitError
 from .plugin import Plugin
-from .fitting.problem import Problem
+from .problem import Problem
 
 
 @dataclass(frozen=True)

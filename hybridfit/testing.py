@@ -35,7 +35,7 @@ from .model.base import HandModel, Stage
 from .objective import Objective, normalise_confidences
 from .optimizer import Optimizer, Task
 from .plugin import Settings
-from .fitting.problem import Problem
+from .problem import Problem
 from .synthetic.proposals import synthetic_proposals
 
 __all__ = [

@@ -78,3 +78,16 @@ def test_no_module_imports_itself_back():
 def test_the_cycle_check_finds_a_cycle():
     graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
     assert cycles(graph) == [["a", "b", "c"]]
+
+
+def test_the_package_layers_import_one_way():
+    """No cycle between hybridfit's top-level parts (model/, objective, problem, optimizer,
+    fitting/, forest/, synthetic/, datasets/, study/, ...): each imports only lower ones."""
+    from pathlib import Path
+
+    graph = import_graph(Path(__file__).resolve().parents[1])
+    part = lambda module: module.split(".")[1]  # noqa: E731
+    parts: dict[str, set[str]] = {}
+    for module, imported in graph.items():
+        parts.setdefault(part(module), set()).update(part(m) for m in imported if part(m) != part(module))
+    assert cycles(parts) == []

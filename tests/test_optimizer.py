@@ -7,7 +7,7 @@ import pytest
 
 import hybridfit
 from hybridfit.optimizer import Task
-from hybridfit.fitting.problem import Problem
+from hybridfit.problem import Problem
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Fitting a model to proposals: one frame's problem (:mod:`.problem`), every frame
-(:mod:`.frames`, the compiled path in :mod:`.compiled`), a model's geometry
+"""Fitting a model to proposals: every frame (:mod:`.frames`, the compiled path in
+:mod:`.compiled`, PSO's random streams in :mod:`.streams`), a model's geometry
 (:mod:`.calibrate`), a depth frame end to end (:mod:`.estimator`) and a sequence
-(:mod:`.tracking`)."""
+(:mod:`.tracking`). One frame's problem is :mod:`hybridfit.problem`."""

@@ -38,7 +38,7 @@ from numba import types as T
 from ..errors import HybridfitError
 from ..model.kinematics import block_frames, block_points, sincos_rows
 from ..optimizer import StagePlan, Task
-from .problem import KERNEL_SIGNATURE, Problem, prepare_frames  # noqa: F401 (KERNEL_SIGNATURE: objectives import it here)
+from ..problem import KERNEL_SIGNATURE, Problem, prepare_frames  # noqa: F401 (KERNEL_SIGNATURE: objectives import it here)
 from .streams import frame_keys, int_words, normal, uniform
 
 #: columns of the integer stage table

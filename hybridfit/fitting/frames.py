@@ -26,7 +26,7 @@ from ..errors import HybridfitError, PluginError
 from ..io import validate_proposals
 from ..metrics import inliers
 from ..optimizer import Task
-from .problem import Problem
+from ..problem import Problem
 
 
 #: frames per call of the compiled path (progress and Ctrl-C granularity; with jobs > 1

@@ -2,7 +2,7 @@
 
 Frame t's initial guess (the centre of the optimiser's search) is frame t-1's fitted
 parameters; frame 0 starts from ``first_params`` (the paper's FORTH set-up: the ground
-truth) or, without them, from its proposals (``hybridfit.fitting.problem.initial_guess``). Frame
+truth) or, without them, from its proposals (``hybridfit.problem.initial_guess``). Frame
 t is optimised with ``numpy.random.default_rng([seed, t])``, like ``hybridfit.fit``; frames
 depend on each other, so a sequence runs in one process.
 
@@ -28,7 +28,7 @@ from .frames import INLIER_DISTANCE_MM, FitResult, _first_problem, check_fit_opt
 from ..io import validate_proposals
 from ..metrics import inliers
 from ..optimizer import Task
-from .problem import Problem
+from ..problem import Problem
 
 
 class TrackingSettings(BaseModel):

@@ -33,7 +33,7 @@ from hybridfit import registry
 from hybridfit.errors import HybridfitError, UnknownPluginError
 from hybridfit.optimizer import Optimizer, StagePlan, Task
 from hybridfit.plugin import Settings
-from hybridfit.fitting.problem import MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, guide_points
+from hybridfit.problem import MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, guide_points
 
 
 class StepwiseSettings(Settings):

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 import hybridfit
 from hybridfit.fitting import compiled, frames as fitting
 from hybridfit.optimizer import Task
-from hybridfit.fitting.problem import Problem
+from hybridfit.problem import Problem
 
 
 def task_path(data, optimizer, budget, seed, frames, names=None, model=None):

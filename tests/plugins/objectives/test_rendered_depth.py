@@ -13,7 +13,7 @@ from hybridfit import testing
 from hybridfit.datasets.camera import Intrinsics
 from hybridfit.errors import HybridfitError
 from hybridfit.objective import Observation
-from hybridfit.fitting.problem import Problem
+from hybridfit.problem import Problem
 from hybridfit.model.render import Renderer
 from hybridfit.synthetic.poses import sequence_poses
 from hybridfit_plugins.objectives.rendered_depth import RenderedDepth

@@ -114,7 +114,7 @@ def test_optimises_the_objective_itself_when_it_offers_casadi_symbols():
 
     data = _exact()
     model = registry.create("model", "hand26")
-    from hybridfit.fitting.problem import Problem
+    from hybridfit.problem import Problem
 
     problem = Problem(model, SymbolicLeastSquares(), data["proposals"][0], data["confidences"][0])
     with warnings.catch_warnings():

@@ -9,7 +9,7 @@ import hybridfit
 from hybridfit.errors import BudgetExceeded, HybridfitError
 from hybridfit.metrics import joint_errors
 from hybridfit.optimizer import Task
-from hybridfit.fitting.problem import Problem
+from hybridfit.problem import Problem
 
 
 def problem(model, objective, data, f):

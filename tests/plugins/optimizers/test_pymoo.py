@@ -7,7 +7,7 @@ import hybridfit
 from hybridfit import registry, testing
 from hybridfit.cli import main
 from hybridfit.errors import HybridfitError
-from hybridfit.fitting.problem import Problem
+from hybridfit.problem import Problem
 from hybridfit_plugins.optimizers.pymoo_ import ALGORITHMS
 
 

@@ -9,8 +9,8 @@ from hypothesis import given, settings, strategies as st
 import hybridfit
 from hybridfit.datasets.skeletons import dataset_model_config, skeleton
 from hybridfit.optimizer import Task
-from hybridfit.fitting.problem import Problem
-from hybridfit.fitting.problem import rotation_lever_mm
+from hybridfit.problem import Problem
+from hybridfit.problem import rotation_lever_mm
 
 
 def nyu_problem(frames_data, f=0, confidences=None):

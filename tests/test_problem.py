@@ -7,7 +7,7 @@ import pytest
 
 from hybridfit.errors import HybridfitError
 from hybridfit.metrics import joint_errors
-from hybridfit.fitting.problem import Problem
+from hybridfit.problem import Problem
 
 
 def test_initial_guess_recovers_the_global_pose_of_a_default_hand(hand26, clamped):
@@ -50,7 +50,7 @@ def test_the_initial_alignment_survives_one_decoy_on_the_palm_point():
     import hybridfit
     from hybridfit.datasets.skeletons import dataset_model_config, skeleton
     from hybridfit.model.rotations import kabsch
-    from hybridfit.fitting.problem import robust_alignment
+    from hybridfit.problem import robust_alignment
 
     model = hybridfit.create("model", "hand26", dataset_model_config("hand26", {}, "icvl"))
     names = list(skeleton("icvl").model_names)
@@ -69,7 +69,7 @@ def test_the_initial_alignment_survives_one_decoy_on_the_palm_point():
 
 
 def test_frames_prepared_together_are_the_problems_built_one_by_one(hand26, clamped, frames):
-    from hybridfit.fitting.problem import prepare_frames
+    from hybridfit.problem import prepare_frames
 
     proposals, c = frames["proposals"], frames["confidences"].copy()
     c[1] = 0.0  # no proposals: an error
@@ -89,7 +89,7 @@ def test_horns_rotation_is_the_svd_kabsch_rotation():
     from hypothesis import strategies as st
     from scipy.spatial.transform import Rotation
 
-    from hybridfit.fitting.problem import _weighted_kabsch
+    from hybridfit.problem import _weighted_kabsch
     from hybridfit.model.rotations import kabsch
 
     @settings(max_examples=60, deadline=None)

@@ -8,11 +8,11 @@ from typing import Sequence
 import numba as nb
 import numpy as np
 
-from ..errors import HybridfitError
-from ..model.base import ORIENTATION, POSITION, HandModel
-from ..model.kinematics import BLOCK, block_frames, block_points, sincos_rows
-from ..model.rotations import quaternion_matrix
-from ..objective import Objective, Observation, normalise_confidences
+from .errors import HybridfitError
+from .model.base import ORIENTATION, POSITION, HandModel
+from .model.kinematics import BLOCK, block_frames, block_points, sincos_rows
+from .model.rotations import quaternion_matrix
+from .objective import Objective, Observation, normalise_confidences
 
 
 #: an objective's compiled kernel: (points (Q, 3, N) mm, the hypothesis innermost, subset
