@@ -131,14 +131,31 @@ def plot_variants(out: Path, rows: list[dict]) -> str:
     colors = ["tab:blue" if r["method"] == "fit" else "tab:grey" for r in rows]
     means = [r["mean_error_mm_mean"] for r in rows]
     ax.barh(y, means, xerr=[r["mean_error_mm_std"] for r in rows], color=colors, capsize=3)
-    for yi, r, m in zip(y, rows, means):
-        ax.text(m + max(means) * 0.02 + r["mean_error_mm_std"], yi, f"{m:.1f} mm, success@40 "
-                f"{r['success_40mm_mean']:.2f}", va="center", fontsize=7)
+    labels = [ax.text(m + max(means) * 0.02 + r["mean_error_mm_std"], yi, f"{m:.1f} mm, success@40 "
+                      f"{r['success_40mm_mean']:.2f}", va="center", fontsize=7) for yi, r, m in zip(y, rows, means)]
     ax.set_yticks(y, [r["variant"] for r in rows], fontsize=7)
     ax.set(xlabel="mean joint error (mm)", title="Mean joint error per variant (bars: std over seeds)",
            xlim=(0, max(means) * 1.45))
     ax.grid(axis="x", alpha=0.3)
+    fig.tight_layout()
+    _fit_labels(fig, ax, labels)
     return _save(fig, out, "variants.png")
+
+
+def _fit_labels(fig, ax, labels) -> None:
+    """Widen the x axis (from 0) so that every label written beside a bar ends inside the
+    axes: a label starting at x (data) and w pixels wide needs x / hi * W + w <= W for an
+    axes W pixels wide, so hi >= x * W / (W - w); a label wider than 90 % of the axes gets
+    one tenth of them."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    width = ax.get_window_extent(renderer).width
+    lo, hi = ax.get_xlim()
+    for label in labels:
+        start, w = label.get_position()[0], label.get_window_extent(renderer).width
+        hi = max(hi, start * width / max(width - w, 0.1 * width) * 1.02)
+    ax.set_xlim(lo, hi)
 
 
 def plot_per_joint(out: Path, rows: list[dict], limit: int) -> str:
