@@ -117,15 +117,16 @@ class Problem:
         """:meth:`evaluate` by :func:`tree_points` and the objective's compiled kernel (in
         this problem's working buffer: one thread at a time per problem)."""
         kernel, consts, tree, points_of = self._compiled()
-        subset = np.ascontiguousarray(subset, dtype=np.int64)
+        if subset is not self.all_points:
+            subset = np.ascontiguousarray(subset, dtype=np.int64)
         key = subset.tobytes()
         joints = points_of.get(key)
         if joints is None:
             joints = points_of[key] = tree.joints_for(subset)
         points = np.empty((len(self.point_names), 3, len(params)))
+        out = np.empty(len(params))
         tree_points(*tree.arrays, *tree.point_map, *joints, np.ascontiguousarray(params, dtype=np.float64), subset,
                     points, self._scratch)
-        out = np.empty(len(params))
         kernel(points, subset, self.proposals, self.weights, consts, out)
         return out
 
