@@ -7,8 +7,7 @@ import sys
 import numpy as np
 
 from .. import fit as fit_frames
-from ..datasets.skeletons import dataset_model_config, skeleton
-from .. import registry
+from ..datasets.skeletons import fit_settings, skeleton
 from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK, HybridfitError, PluginError
 from ..io import check_output, load_proposals, save_npz
 from ..datasets.folder import load_dataset
@@ -45,24 +44,15 @@ def register(sub) -> None:
 def run(args) -> int:
     check_output(args.out)
     data = load_proposals(args.proposals)
-    names = data.get("joint_names")
     if args.objective is None and "objective" in data:  # the objective the file names (other methods' estimates)
         args.objective = str(data["objective"])
     plugins = plugin_kwargs(args)
     extra = {}
     dataset = args.dataset or (str(data["dataset"]) if "dataset" in data else None)  # propose writes it
+    names, plugins["model_config"] = fit_settings(data.get("joint_names"), data["proposals"].shape[1], dataset,
+                                                  plugins["model"], plugins["model_config"], args.proposals)
     if dataset:
-        sk = skeleton(dataset)
-        if names is None:
-            if data["proposals"].shape[1] != len(sk):
-                raise HybridfitError(f"{args.proposals}: {data['proposals'].shape[1]} points, "
-                                     f"but the {sk.dataset} skeleton has {len(sk)}")
-            names = sk.model_names
-        plugins["model_config"] = dataset_model_config(plugins["model"], plugins["model_config"], dataset)
-        extra["dataset"] = np.asarray(sk.dataset)
-    names = None if names is None else [str(n) for n in names]
-    if names is not None:
-        check_point_names(plugins, names, args.proposals)
+        extra["dataset"] = np.asarray(skeleton(dataset).dataset)
     if "ground_truth" in data:
         extra["ground_truth"] = data["ground_truth"]
     depth = depth_frames(args, len(data["proposals"]))
@@ -111,16 +101,6 @@ def depth_frames(args, frames: int) -> dict:
             raise HybridfitError(f"{args.depth}: labels.npz has no model parameters for --first-frame ground-truth")
         out["first_params"] = ds.params[0]
     return out
-
-
-def check_point_names(plugins: dict, names, where: str) -> None:
-    """An unknown point name fails before any work, naming the input file."""
-    model = registry.create("model", plugins["model"], plugins["model_config"])
-    if list(names) != list(model.joint_names):
-        try:
-            model.point_matrix(names)
-        except HybridfitError as err:
-            raise HybridfitError(f"{where}: joint_names: {err}") from None
 
 
 def report_failures(errors: dict[int, str], limit: int = 10) -> None:

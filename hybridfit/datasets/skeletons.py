@@ -283,3 +283,29 @@ def convention(dataset: str) -> Convention:
         raise HybridfitError(f"the {sk.dataset} skeleton names no camera convention, needed for results files "
                              f"in pixels (u, v, d); a skeleton file sets one: convention = {' or '.join(map(repr, CONVENTIONS))}")
     return CONVENTIONS[sk.convention]
+
+
+def fit_settings(names, n_points: int, dataset: str | None, model: str, model_config: dict,
+                 where: str) -> tuple[list[str] | None, dict]:
+    """The point names and model settings to fit a proposals file with: its own ``names``
+    (or, without them, the dataset skeleton's model names, which must number ``n_points``)
+    and ``model_config`` with the skeleton's derived points. Every name must be a point of
+    the model; errors name ``where`` (the file)."""
+    if dataset:
+        sk = skeleton(dataset)
+        if names is None:
+            if n_points != len(sk):
+                raise HybridfitError(f"{where}: {n_points} points, but the {sk.dataset} skeleton has {len(sk)}")
+            names = sk.model_names
+        model_config = dataset_model_config(model, model_config, dataset)
+    names = None if names is None else [str(n) for n in names]
+    if names is not None:
+        from .. import registry
+
+        instance = registry.create("model", model, model_config)
+        if names != list(instance.joint_names):
+            try:
+                instance.point_matrix(names)
+            except HybridfitError as err:
+                raise HybridfitError(f"{where}: joint_names: {err}") from None
+    return names, model_config

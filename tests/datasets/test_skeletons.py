@@ -365,3 +365,15 @@ def test_a_studys_data_key_follows_its_skeleton_files_content(tmp_path):
     assert key("b.toml") == first  # moved: same content, same data
     skel.write_text(skel.read_text().replace("wrist = 0.4", "wrist = 0.6").replace("index_mcp = 0.15", "index_mcp = -0.05"))
     assert key("a.toml") != first
+
+
+def test_fit_settings_name_the_points_and_the_file():
+    from hybridfit.datasets.skeletons import fit_settings
+
+    names, config = fit_settings(None, 16, "icvl", "hand26", {}, "p.npz")
+    assert names == list(skeleton("icvl").model_names) and "icvl_palm" in config["derived_points"]
+    assert fit_settings(None, 21, None, "hand26", {}, "p.npz") == (None, {})
+    with pytest.raises(hybridfit.HybridfitError, match=r"^p\.npz: 15 points, but the icvl skeleton has 16$"):
+        fit_settings(None, 15, "icvl", "hand26", {}, "p.npz")
+    with pytest.raises(hybridfit.HybridfitError, match=r"^p\.npz: joint_names: point 'elbow'"):
+        fit_settings(["wrist", "elbow"], 2, None, "hand26", {}, "p.npz")
