@@ -40,16 +40,19 @@ def _varying(rows: list[dict], skip: str | None = None) -> list[str]:
 
 def _series(rows: list[dict], x: str) -> dict[str, list[dict]]:
     """Fitted variants grouped by their settings other than ``x``, labelled with the variant
-    names the study file gives (without the ``x=value`` part the sweep adds)."""
+    name the study file gives (without the ``x=value`` part the sweep adds) when the group's
+    variants share one, else with the settings that define the group."""
     vary = _varying(rows, x)
-    groups: dict[str, list[dict]] = {}
-    labels: dict[str, str] = {}
+    members: dict[str, list[dict]] = {}
     for r in rows:
         f = _flat(r["settings"])
-        key = json.dumps([str(f.get(k)) for k in vary])
-        name = ", ".join(p for p in r["variant"].split(", ") if not p.startswith(f"{x}="))
-        labels.setdefault(key, name or "Optimised")
-        groups.setdefault(labels[key], []).append(r)
+        members.setdefault(json.dumps([str(f.get(k)) for k in vary]), []).append(r)
+    groups: dict[str, list[dict]] = {}
+    for key, rs in members.items():
+        names = {", ".join(p for p in r["variant"].split(", ") if not p.startswith(f"{x}=")) for r in rs}
+        defining = ", ".join(f"{k}={v}" for k, v in zip(vary, json.loads(key)) if v != "None")
+        label = names.pop() if len(names) == 1 else defining
+        groups[label or "Optimised"] = rs
     return groups
 
 

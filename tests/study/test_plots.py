@@ -38,3 +38,19 @@ def test_labels_beside_the_bars_end_inside_the_axes():
     plots._fit_labels(fig, ax, labels)
     renderer = FigureCanvasAgg(fig).get_renderer()
     assert all(label.get_window_extent(renderer).x1 <= ax.get_window_extent(renderer).x1 + 0.5 for label in labels)
+
+
+def test_a_series_of_differently_named_variants_is_labelled_by_its_settings():
+    """Variants named with their budget ("joint (3400)", "joint (8281)") form one line of the
+    budget plot; its label must not be the first variant's name, which quotes one budget."""
+    from hybridfit.study import plots
+
+    def row(name, budget, schedule):
+        return {"variant": name, "settings": {"budget": budget, "optimizer_config": {"schedule": schedule}}}
+
+    rows = [row("joint (8281)", 8281, "joint"), row("joint (3400)", 3400, "joint"),
+            row("stepwise (3400)", 3400, "stepwise"), row("stepwise (8301)", 8301, "stepwise"),
+            row("sweep, budget=300", 300, "refined"), row("sweep, budget=600", 600, "refined")]
+    series = plots._series(rows, "budget")
+    assert set(series) == {"optimizer_config.schedule=joint", "optimizer_config.schedule=stepwise", "sweep"}
+    assert [r["settings"]["budget"] for r in series["optimizer_config.schedule=joint"]] == [8281, 3400]
