@@ -86,10 +86,8 @@ def dataset_xyz(xyz: np.ndarray, dataset: str) -> np.ndarray:
 #: Each proposal is then an independent estimate of the point, not an alternative mode of
 #: one forest, so a smooth mixture likelihood (which averages estimates that agree and
 #: follows the majority where they do not) fits them better than the paper's clamped
-#: maximum. Measured on ICVL frames 0-99 with the model calibrated on them (fusing LRF and
-#: the paper's top-1: 10.51 mm against 11.69 mm with clamped-confidence, the better input
-#: 10.65 mm; refining LRF alone: 13.09 against 13.18 mm) and on synthetic stress
-#: predictors (two inputs: 7.44 against 9.21 mm).
+#: maximum. Chosen by measurement on ICVL frames 0-99 and synthetic stress predictors: the
+#: docs' robust-fitting page, section "Other methods' predictions".
 ESTIMATES_OBJECTIVE = "gaussian-mixture"
 
 

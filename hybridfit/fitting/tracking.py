@@ -9,7 +9,7 @@ depend on each other, so a sequence runs in one process.
 Lost track: a fit is *lost* when its points lie, in the median over the points that have
 proposals, further than ``lost_distance_mm`` from their nearest proposal (frames without
 any proposal are never called lost). The default, 20 mm, is about three times the forest's
-mean top-1 error on the synthetic sequence (6.6 mm) and was not tuned. ``on_lost = "reinit"`` starts the next frame from its own
+mean top-1 error on the synthetic sequence (the docs' results page) and was not tuned. ``on_lost = "reinit"`` starts the next frame from its own
 proposals instead of the lost fit; ``"continue"`` (FORTH) keeps tracking from it.
 """
 

@@ -17,10 +17,8 @@ class ForestConfig(BaseModel):
     min_samples: int = Field(40, ge=2, description="a node with fewer samples becomes a leaf (paper: 40)")
     pixels_per_frame: int = Field(
         400, ge=1,
-        description="foreground pixels sampled per training frame (the paper gives no value; 400 rather than 200: on the "
-                    "default 7168-frame grid and test sequence the top proposal's mean error went from 6.0 to 5.0 mm, "
-                    "the fitted pose's from 4.0 to 3.6 mm, for 1.7x the training time (344 s on 2 cores), 1.6 GiB peak "
-                    "memory and a 232 MiB forest file)")
+        description="foreground pixels sampled per training frame (the paper gives no value; 400 rather than 200, "
+                    "chosen by measurement: the docs' results page, section \"Forest training pixels\")")
     node_subsample: int = Field(1000, ge=10, description="class-balanced sub-sample size for split selection")
     n_features: int = Field(100, ge=1, description="candidate features per node")
     n_thresholds: int = Field(20, ge=1, description="candidate thresholds per feature (drawn from the sub-sample)")

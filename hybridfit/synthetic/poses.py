@@ -8,16 +8,12 @@ shapes enumerate the fingers' articulations with the thumb slowest. By default e
 also gets its own deterministic random change of the global pose (``viewpoint_jitter_deg``
 +-17.5 degrees about each camera axis, half the spacing of the default viewpoints;
 ``position_jitter_mm`` +-30 and ``distance_jitter_mm`` +-40, the test sequence's drift), so
-the 7168 frames cover the orientations and positions between the 7 exact viewpoints. With
-the exact viewpoints and distance (all three 0) the paper's forest (3 trees, depth 23)
-memorises the grid (1 mm top-proposal error on training frames) and generalises poorly: on
-the test sequence with tilt 35 / roll 40 degrees its top proposal is off by 34.0 mm on
-average (Oracle k=3 17.1 mm), with the jitter by 7.7 mm (Oracle 4.9 mm); on the default
-sequence 33.7 -> 5.0 mm (benchmarks/bench_forest.py, default ForestConfig). The distance
-jitter matters most: a depth feature with one probe on the background reads
-``background_mm`` minus the hand's depth, so a forest trained at one distance splits on
-absolute depth (62% of its splits threshold such a reading) and fails once the hand moves
-by a few centimetres.
+the 7168 frames cover the orientations and positions between the 7 exact viewpoints.
+Without the jitter (all three 0: the paper's exact viewpoints) the forest memorises the
+grid and generalises poorly (the figures: the docs' results page, section "Training-grid
+jitter"). The distance jitter matters most: a depth feature with one probe on the
+background reads ``background_mm`` minus the hand's depth, so a forest trained at one
+distance splits on absolute depth and fails once the hand moves by a few centimetres.
 
 Both ask the model, never a name: the grid's articulations per stage come from
 ``HandModel.grid_articulations_deg`` (a stage it does not give: 4 articulations at

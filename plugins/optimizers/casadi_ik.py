@@ -25,10 +25,9 @@ counter): IPOPT's objective and gradient calls are computed once per distinct po
 new point costs 1 evaluation: the task's own objective is evaluated at that point, so the
 task's best hypothesis and loss are always real ones. Each gradient costs
 ``gradient_cost`` more evaluations, charged as evaluations of the same point. The default,
-2, is conservative: reverse-mode differentiation costs a small multiple of the function
-(at most about 4, Griewank's cheap-gradient bound), and on hand26 CasADi's value-and-
-gradient function has 2.2 times the instructions of the value alone (4839 vs 2194), so a
-gradient costs about 1.2 function evaluations. An IPOPT
+2, is meant to be conservative: reverse-mode differentiation costs a small multiple of the
+function (at most about 4, Griewank's cheap-gradient bound); what a gradient costs on
+hand26 is on the docs' results page, section "casadi-ik's gradient cost". An IPOPT
 iteration callback stops the solver while the evaluations left still cover an iteration;
 a request that would overrun the budget anyway is answered without computing (and
 without charge) and ends the run. So the reported evaluations are exact and never exceed
