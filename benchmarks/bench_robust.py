@@ -1,4 +1,4 @@
-"""The robust-fitting choices on stress data (README "Fitting real data robustly").
+"""The robust-fitting choices on stress data (docs/robust-fitting.md).
 
 Two 60-frame stress sets (seeds 7 and 101) per skeleton, of a subject the model matches in
 size (no scale or proportion change, derived-point weights unperturbed, 2 mm annotation

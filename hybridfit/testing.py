@@ -577,12 +577,15 @@ def check_plugin(kind: str, plugin) -> None:
 
 
 def check_model(model: HandModel) -> None:
+    """Run every model check on a configured model (raises on the first failure; ``checks("model")`` lists them)."""
     check_plugin("model", model)
 
 
 def check_objective(objective: Objective) -> None:
+    """Run every objective check on a configured objective (raises on the first failure; ``checks("objective")`` lists them)."""
     check_plugin("objective", objective)
 
 
 def check_optimizer(optimizer: Optimizer) -> None:
+    """Run every optimizer check on a configured optimizer (raises on the first failure; ``checks("optimizer")`` lists them)."""
     check_plugin("optimizer", optimizer)

@@ -1,24 +1,37 @@
-"""README.md's two set-up commands are exactly what CI runs, and its CLI table is real."""
+"""README.md: its two set-up commands are exactly what CI runs, it stays short, and its
+Python and command-line examples run."""
 
 from __future__ import annotations
 
 import re
+import shlex
+import subprocess
+import sys
 from pathlib import Path
 
 from hybridfit.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+SETUP = 'pip install -e ".[all,test,docs]" && hybridfit study studies/stepwise_vs_joint.toml --quick --out runs/stepwise_vs_joint'
+
+
+def code_blocks(text: str, language: str) -> list[list[str]]:
+    return [[line for line in block.splitlines() if line.strip()]
+            for block in re.findall(rf"```{language}\n(.*?)```", text, re.S)]
 
 
 def readme_commands() -> list[str]:
-    text = (ROOT / "README.md").read_text()
-    block = re.search(r"```bash\n(.*?)```", text, re.S).group(1)
-    return [line for line in block.splitlines() if line.strip()]
+    return code_blocks(README, "bash")[0]
 
 
 def test_readme_starts_with_install_and_test_commands():
-    install, test = readme_commands()
-    assert install.startswith('pip install -e ".[test]"') and test == "python -m pytest"
+    assert readme_commands() == [SETUP, "python -m pytest"]
+
+
+def test_getting_started_gives_the_same_two_commands():
+    page = (ROOT / "docs" / "getting-started.md").read_text()
+    assert code_blocks(page, "bash")[0] == readme_commands()
 
 
 def test_ci_runs_the_readme_commands_in_order():
@@ -26,26 +39,30 @@ def test_ci_runs_the_readme_commands_in_order():
     assert ci == readme_commands()
 
 
-def test_every_command_in_the_readme_table_exists():
-    text = (ROOT / "README.md").read_text()
+def test_readme_is_short():
+    assert len(README.splitlines()) <= 250
+
+
+def test_every_command_in_the_cli_page_table_exists():
+    text = (ROOT / "docs" / "cli.md").read_text()
     documented = set(re.findall(r"^\| `hybridfit ([a-z-]+)", text, re.M))
-    parser = build_parser()
-    commands = set(parser._subparsers._group_actions[0].choices)
+    commands = set(build_parser()._subparsers._group_actions[0].choices)
     assert documented and documented <= commands, documented - commands
 
 
-def test_the_folder_tree_names_every_module():
-    """Every module of the package (the CLI's subcommands aside) is named in the README's tree."""
-    import re
-    from pathlib import Path
+def test_the_python_example_runs(tmp_path):
+    (example,) = code_blocks(README, "python")
+    done = subprocess.run([sys.executable, "-c", "\n".join(example)], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert re.search(r"50 frames, mean joint error \d+\.\d\d mm\n\(50, 27\)", done.stdout), done.stdout
 
-    root = Path(__file__).resolve().parents[1]
-    text = (root / "README.md").read_text()
-    tree = text[text.index("## The folder tree is the architecture"):text.index("## Command line")]
-    words = set(re.findall(r"[a-z_0-9]+", tree.lower()))
-    modules = [p for p in (root / "hybridfit").rglob("*.py")
-               if p.stem not in ("__init__", "__main__") and "cli" not in p.parts]
-    missing = sorted(str(p.relative_to(root)) for p in modules if p.stem not in words)
-    assert not missing, f"modules missing from the README's folder tree: {missing}"
-    packages = sorted({p.parent.name for p in modules} - {"hybridfit"})
-    assert all(f"{name}/" in tree for name in packages)
+
+def test_the_command_line_example_runs(tmp_path):
+    example = code_blocks(README, "bash")[1]
+    assert len(example) == 3 and all(line.startswith("hybridfit ") for line in example)
+    for line in example:
+        done = subprocess.run([sys.executable, "-m", "hybridfit", *shlex.split(line)[1:]], cwd=tmp_path,
+                              capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, (line, done.stderr)
+    assert "fits.npz" in done.stdout and "mean" in done.stdout

@@ -335,12 +335,12 @@ def test_a_study_takes_a_skeleton_file_relative_to_it(tmp_path):
         load_spec(study)
 
 
-def test_the_readmes_example_is_a_valid_skeleton(tmp_path):
+def test_the_docs_example_is_a_valid_skeleton(tmp_path):
     import re
     from pathlib import Path
 
-    text = (Path(__file__).resolve().parents[2] / "README.md").read_text()
-    text = text[text.index("### Your own skeleton"):]
+    text = (Path(__file__).resolve().parents[2] / "docs" / "conventions.md").read_text()
+    text = text[text.index("## Your own skeleton"):]
     (tmp_path / "example.toml").write_text(re.search(r"```toml\n(.*?)```", text, re.S).group(1))
     sk = skeleton(str(tmp_path / "example.toml"))
     assert sk.dataset == "mydata" and sk.derived == {"my_palm": {"wrist": 0.5, "middle_mcp": 0.5}}

@@ -1,0 +1,99 @@
+"""The docs site builds strictly (a broken link or a missing API reference fails it), its
+images are small, and its architecture page names every module of the package."""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+HAVE_MKDOCS = all(importlib.util.find_spec(m) for m in ("mkdocs", "material", "mkdocstrings", "mkdocstrings_handlers"))
+needs_mkdocs = pytest.mark.skipif(not HAVE_MKDOCS, reason='mkdocs, mkdocs-material or mkdocstrings[python] is not '
+                                  'installed: pip install -e ".[docs]"')
+
+
+def build(config: Path, site: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(config), "-d", str(site)],
+                          cwd=config.parent, capture_output=True, text=True, timeout=300,
+                          env={**__import__("os").environ, "NO_MKDOCS_2_WARNING": "1"})
+
+
+@needs_mkdocs
+def test_the_site_builds_strictly_within_a_minute(tmp_path):
+    start = time.perf_counter()
+    done = build(ROOT / "mkdocs.yml", tmp_path / "site")
+    seconds = time.perf_counter() - start
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert seconds < 60, f"mkdocs build took {seconds:.0f} s"
+    api = (tmp_path / "site" / "api" / "index.html").read_text()
+    for name in ("hybridfit.fit", "hybridfit.FitResult", "hybridfit.HybridEstimator", "hybridfit.HandModel",
+                 "hybridfit.Objective", "hybridfit.Optimizer", "hybridfit.Task", "hybridfit.Problem",
+                 "hybridfit.registry.create", "hybridfit.testing.check_optimizer", "hybridfit.study.run_study"):
+        assert f'id="{name}"' in api, name
+    cli = (tmp_path / "site" / "cli" / "index.html").read_text()
+    from hybridfit.cli import build_parser
+
+    for command in build_parser()._subparsers._group_actions[0].choices:
+        assert f"usage: hybridfit {command}" in cli, command
+
+
+@pytest.fixture()
+def small_site(tmp_path):
+    """The real mkdocs.yml (theme, plugins, strict validation) on two small pages."""
+    import yaml
+
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text())
+    config.pop("nav")
+    config["hooks"] = [str(ROOT / h) for h in config.get("hooks", [])]
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "mkdocs.yml").write_text(yaml.safe_dump(config))
+    (tmp_path / "docs" / "index.md").write_text("# Home\n\nThe [API](api.md#hybridfit.fit).\n")
+    (tmp_path / "docs" / "api.md").write_text("# API\n\n::: hybridfit.fit\n")
+    return tmp_path
+
+
+@needs_mkdocs
+@pytest.mark.parametrize("page, injected, message", [
+    (None, "", None),  # the control: the small site builds
+    ("index.md", "A [broken link](no-such-page.md).", "no-such-page.md"),
+    ("index.md", "A [broken anchor](api.md#no-such-heading).", "no-such-heading"),
+    ("api.md", "::: hybridfit.no_such_function", "no_such_function"),
+])
+def test_a_broken_link_or_a_missing_reference_fails_the_build(small_site, page, injected, message):
+    if page:
+        path = small_site / "docs" / page
+        path.write_text(path.read_text() + "\n" + injected + "\n")
+    done = build(small_site / "mkdocs.yml", small_site / "site")
+    if message is None:
+        assert done.returncode == 0, done.stdout + done.stderr
+    else:
+        assert done.returncode != 0 and message in done.stdout + done.stderr, done.stdout + done.stderr
+
+
+def test_every_image_is_small_and_shown():
+    pages = "".join(p.read_text() for p in (ROOT / "docs").glob("*.md")) + (ROOT / "README.md").read_text()
+    images = sorted((ROOT / "docs" / "images").glob("*.png"))
+    assert images
+    for image in images:
+        assert image.stat().st_size < 300_000, image.name
+        assert f"images/{image.name}" in pages, f"{image.name} is on no page"
+
+
+def test_the_architecture_tree_names_every_module():
+    """Every module of the package (the CLI's subcommands aside) is named in the folder tree
+    of docs/architecture.md."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    tree = re.search(r"```\n(hybridfit/.*?)```", text, re.S).group(1)
+    words = set(re.findall(r"[a-z_0-9]+", tree.lower()))
+    modules = [p for p in (ROOT / "hybridfit").rglob("*.py")
+               if p.stem not in ("__init__", "__main__") and "cli" not in p.parts]
+    missing = sorted(str(p.relative_to(ROOT)) for p in modules if p.stem not in words)
+    assert not missing, f"modules missing from docs/architecture.md's folder tree: {missing}"
+    packages = sorted({p.parent.name for p in modules} - {"hybridfit"})
+    assert all(f"{name}/" in tree for name in packages)
