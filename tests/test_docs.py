@@ -97,3 +97,12 @@ def test_the_architecture_tree_names_every_module():
     assert not missing, f"modules missing from docs/architecture.md's folder tree: {missing}"
     packages = sorted({p.parent.name for p in modules} - {"hybridfit"})
     assert all(f"{name}/" in tree for name in packages)
+
+
+def test_the_getting_started_python_examples_run(tmp_path):
+    """The page's first three Python blocks (a fit, plugins by name, stress data) run as one script."""
+    page = (ROOT / "docs" / "getting-started.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", page, re.S)[:3]
+    script = "".join(blocks) + "\nassert result.evaluations.tolist() == [8281] * 20 and joints.shape == (20, 21, 3)\n"
+    done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
