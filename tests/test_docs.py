@@ -4,6 +4,7 @@ images are small, and its architecture page names every module of the package.""
 from __future__ import annotations
 
 import importlib.util
+import os
 import re
 import subprocess
 import sys
@@ -21,7 +22,7 @@ needs_mkdocs = pytest.mark.skipif(not HAVE_MKDOCS, reason='mkdocs, mkdocs-materi
 def build(config: Path, site: Path) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(config), "-d", str(site)],
                           cwd=config.parent, capture_output=True, text=True, timeout=300,
-                          env={**__import__("os").environ, "NO_MKDOCS_2_WARNING": "1"})
+                          env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
 
 
 @needs_mkdocs
@@ -106,3 +107,16 @@ def test_the_getting_started_python_examples_run(tmp_path):
     script = "".join(blocks) + "\nassert result.evaluations.tolist() == [8281] * 20 and joints.shape == (20, 21, 3)\n"
     done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
+
+
+def test_the_docs_sections_that_docstrings_point_to_exist():
+    """A docstring that moved its figures to the docs names the page and section; both exist."""
+    pointers = []
+    for path in [*(ROOT / "hybridfit").rglob("*.py"), *(ROOT / "plugins").rglob("*.py")]:
+        text = re.sub(r"\n\s*(#:?)?\s*", " ", path.read_text()).replace('\\"', '"')
+        pointers += [(path.name, page, section)
+                     for page, section in re.findall(r"""docs' ([a-z-]+) page, section "([^"]+)\"""", text)]
+    assert len(pointers) >= 5, pointers
+    for module, page, section in pointers:
+        headings = re.findall(r"^#+ (.+)$", (ROOT / "docs" / f"{page}.md").read_text(), re.M)
+        assert section in headings, f"{module} points to docs/{page}.md, section {section!r}, which is not a heading"
