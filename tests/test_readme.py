@@ -18,7 +18,7 @@ def readme_commands() -> list[str]:
 
 def test_readme_starts_with_install_and_test_commands():
     install, test = readme_commands()
-    assert install.startswith('pip install -e ".[test]"') and test == "python -m pytest"
+    assert install.startswith('pip install -e ".[all,test]"') and test == "python -m pytest"  # [all]: every extra
 
 
 def test_ci_runs_the_readme_commands_in_order():
