@@ -24,7 +24,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "hybridfit-random-restart"
 #: what building the wheel reads (a file pyproject.toml needs and this list lacks fails the build)
-BUILD_INPUTS = ("pyproject.toml", "setup.py", "README.md", "hybridfit", "plugins")
+BUILD_INPUTS = ("pyproject.toml", "setup.py", "README.md", "LICENSE", "hybridfit", "plugins")
 _BUILD_LEFTOVERS = shutil.ignore_patterns("build", "dist", "*.egg-info", "__pycache__")
 PIP_OFFLINE = ["-m", "pip", "--disable-pip-version-check", "--no-input"]
 PIP_INSTALL = [*PIP_OFFLINE, "install", "--quiet", "--no-deps", "--no-build-isolation", "--no-index"]
@@ -90,13 +90,15 @@ def test_the_wheel_is_what_is_imported(env):
         "from hybridfit.datasets.skeletons import skeleton\n"
         "for module in (hybridfit, hybridfit_plugins, rr): print(module.__file__)\n"
         "print(hybridfit.__version__, m.version('hybridfit'))\n"
-        "print(*(len(skeleton(name)) for name in ('icvl', 'nyu', 'msra')))"
+        "print(*(len(skeleton(name)) for name in ('icvl', 'nyu', 'msra')))\n"
+        "print(*sorted(p.name for p in m.distribution('hybridfit').files if p.name.startswith('LICENSE')))"
     )], work, variables).splitlines()
     venv = python.parents[1]
     for path in out[:3]:
         assert Path(path).is_relative_to(venv), f"{path} is not the installed wheel's (outside {venv})"
     assert out[3].split() == [_checkout_version()] * 2  # one version: the package's and the wheel's metadata
     assert out[4].split() == ["16", "14", "21"]  # package data: the built-in skeleton files
+    assert out[5] == "LICENSE"
 
 
 def test_plugins_lists_every_plugin_from_the_wheel_and_the_example(env):
