@@ -111,11 +111,13 @@ def test_plugins_lists_every_plugin_from_the_wheel_and_the_example(env):
     assert "[hybridfit-random-restart]" in lines["random-restart"]
 
 
-def test_a_fit_from_outside_the_checkout(env):
+def test_a_fit_and_its_angles_from_outside_the_checkout(env):
     _, hybridfit, work, variables = env
     _check([hybridfit, "synth", "proposals", "--frames", "2", "--seed", "3", "--out", "frames.npz"], work, variables)
     out = _check([hybridfit, "fit", "frames.npz", "--budget", "300", "--out", "fit.npz"], work, variables)
     assert "fitted 2/2 frames" in out
+    _check([hybridfit, "export-angles", "fit.npz", "--out", "angles.csv"], work, variables)
+    assert (work / "angles.csv").read_text().startswith("frame,failed,x_mm,y_mm,z_mm,qw,qx,qy,qz,thumb_cmc_flexion_deg,")
     out = _check([hybridfit, "fit", "frames.npz", "--budget", "300", "--optimizer", "random-restart",
                   "--out", "fit-random-restart.npz"], work, variables)
     assert "fitted 2/2 frames" in out
