@@ -568,9 +568,9 @@ def check_optimizer_improves(optimizer: Optimizer) -> None:
 # ------------------------------------------------------------------ registry of checks
 _COMMON = (check_config_round_trip, check_unknown_setting, check_pickle)
 _CHECKS: dict[str, tuple[Callable, ...]] = {
-    "model": _COMMON + (check_model_shapes, check_model_parameter_names, check_model_batching, check_model_default_pose,
-                        check_model_bone_lengths, check_model_stages, check_model_joint_subset,
-                        check_model_stage_parameters),
+    "model": _COMMON + (check_model_shapes, check_model_parameter_names, check_model_batching,
+                        check_model_default_pose, check_model_bone_lengths, check_model_stages,
+                        check_model_joint_subset, check_model_stage_parameters),
     "objective": _COMMON + (check_objective_shapes, check_objective_batching, check_objective_sum_over_points,
                             check_objective_lower_bound, check_objective_deterministic, check_objective_observed),
     "optimizer": _COMMON + (check_optimizer_budget, check_optimizer_deterministic, check_optimizer_bounds,

@@ -184,8 +184,8 @@ class DegreeBounds(testing.ToyHand):
     """Its angle bounds are in degrees."""
 
     def bounds(self):
-        lower, upper = super().bounds()
-        return np.where(np.arange(13) >= 7, np.degrees(lower), lower), np.where(np.arange(13) >= 7, np.degrees(upper), upper)
+        angle = np.arange(13) >= 7
+        return tuple(np.where(angle, np.degrees(b), b) for b in super().bounds())
 
 
 @pytest.mark.parametrize("model, check, match", [

@@ -8,7 +8,8 @@ from ..io import check_output
 
 
 def register(sub) -> None:
-    p = sub.add_parser("export-angles", help="write each frame's position, orientation and joint angles (degrees) as CSV")
+    p = sub.add_parser("export-angles",
+                       help="write each frame's position, orientation and joint angles (degrees) as CSV")
     p.add_argument("fits", help="npz from `hybridfit fit` or `estimate` (params, parameter_names, failed)")
     p.add_argument("--out", required=True, help="CSV file: frame, failed, x_mm, y_mm, z_mm, qw, qx, qy, qz, then "
                    "<parameter name>_deg for every joint angle; a failed frame's cells are empty")

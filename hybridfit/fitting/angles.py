@@ -67,7 +67,8 @@ def _fit_result(data: dict[str, np.ndarray], where: str, model: Any) -> FitResul
     names = _parameter_names(data, where, P, model)
     for key, ok, what in _OPTIONAL_ARRAYS:
         if key in data and not ok(data[key], F):
-            raise HybridfitError(f"{where}: {key!r} must be {what.format(F=F)}, got {data[key].dtype} {data[key].shape}")
+            raise HybridfitError(f"{where}: {key!r} must be {what.format(F=F)}, "
+                                 f"got {data[key].dtype} {data[key].shape}")
     frames_with_errors, messages = data.get("error_frames", np.zeros(0, int)), data.get("error_messages", ())
     if len(frames_with_errors) != len(messages):
         raise HybridfitError(f"{where}: {len(frames_with_errors)} 'error_frames' but {len(messages)} 'error_messages'")
