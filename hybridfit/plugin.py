@@ -2,16 +2,18 @@
 
 Like a scikit-learn estimator, a plugin takes its parameters as keywords, validates them
 into ``self.settings`` (an instance of the class attribute ``Settings``) and keeps no
-other hidden state. ``type(p)(**p.get_params())`` rebuilds an equal plugin.
+other hidden state. ``type(p)(**p.get_params())`` rebuilds an equal plugin. A plugin that
+needs an optional library declares it in ``requires`` (see :mod:`hybridfit.optional`).
 """
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Mapping
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from .errors import HybridfitError
+from .optional import require
 
 
 class Settings(BaseModel):
@@ -36,8 +38,12 @@ class Plugin:
     Settings: ClassVar[type[Settings]] = Settings
     #: the entry-point name the plugin class is registered under ('' for an unregistered class)
     name: ClassVar[str] = _RegisteredName()  # type: ignore[assignment]
+    #: optional libraries the plugin imports, {import name: pip requirement that installs it},
+    #: e.g. {"nlopt": "hybridfit[nlopt]"}; creating the plugin without one raises MissingLibrary
+    requires: ClassVar[Mapping[str, str]] = {}
 
     def __init__(self, **params: Any) -> None:
+        require(f"plugin {type(self).name or type(self).__name__!r}", self.requires)
         try:
             self.settings = self.Settings(**params)
         except ValidationError as err:

@@ -3,7 +3,9 @@
 Three entry-point groups: ``hybridfit.models``, ``hybridfit.objectives`` and
 ``hybridfit.optimizers``. The core never imports a plugin by name: every plugin, the
 reference ones included, is found here. A plugin whose import fails is reported as a
-warning naming the entry point and its error, and every other plugin keeps working.
+warning naming the entry point and its error, and every other plugin keeps working. A
+plugin whose optional library is missing (``Plugin.requires``) is listed as unavailable,
+with the ``pip install`` line that fixes it.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import warnings
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+from . import optional
 from .errors import HybridfitError, UnknownPluginError
 
 GROUPS = {
@@ -27,7 +30,8 @@ GROUPS = {
 
 @dataclass(frozen=True)
 class PluginInfo:
-    """One registered plugin: its name, distribution, one-line doc and load error (if any)."""
+    """One registered plugin: its name, distribution, one-line doc, load error (if any) and,
+    when an optional library it needs is missing, the line saying which and how to install it."""
 
     kind: str
     name: str
@@ -35,6 +39,7 @@ class PluginInfo:
     distribution: str
     doc: str
     error: str | None
+    unavailable: str | None = None
 
 
 def _group(kind: str) -> str:
@@ -142,11 +147,12 @@ def available(kind: str) -> list[PluginInfo]:
             cls = _load(kind, ep)
             doc = (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
             error = None
+            unavailable = optional.unavailable(f"plugin {name!r}", getattr(cls, "requires", {}))
         except Exception as err:
-            doc, error = "", f"{type(err).__name__}: {err}"
+            doc, error, unavailable = "", f"{type(err).__name__}: {err}", None
             warnings.warn(
                 f"hybridfit: plugin {name!r} ({_group(kind)} = {ep.value}) failed to import: {error}",
                 stacklevel=2,
             )
-        infos.append(PluginInfo(kind, name, ep.value, dist, doc, error))
+        infos.append(PluginInfo(kind, name, ep.value, dist, doc, error, unavailable))
     return infos

@@ -30,8 +30,9 @@ from pydantic import Field
 
 from . import registry
 from .errors import HybridfitError
+from .fitting.angles import PARAMETER_NAME
 from .model.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
-from .model.base import HandModel, Stage
+from .model.base import ANGLES, HandModel, Stage
 from .objective import Objective, normalise_confidences
 from .optimizer import Optimizer, Task
 from .plugin import Settings
@@ -160,6 +161,21 @@ def check_model_shapes(model: HandModel) -> None:
         pass
     else:
         raise AssertionError(f"{_label(model)}: forward accepted parameters of the wrong length")
+
+
+def check_model_parameter_names(model: HandModel) -> None:
+    """The P parameter names are unique strings that can name a column (no whitespace,
+    commas or quotes), and the joint angles (every parameter after the global pose's 7) are
+    in radians: their finite bounds lie within +-2 pi."""
+    names = tuple(model.parameter_names)
+    bad = [n for n in names if not (isinstance(n, str) and PARAMETER_NAME.fullmatch(n))]
+    _require(not bad, f"{_label(model)}: parameter names must be strings without whitespace, commas or quotes: {bad}")
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    _require(not repeated, f"{_label(model)}: parameter names repeat: {repeated}")
+    lower, upper = (np.asarray(b, dtype=float)[ANGLES] for b in model.bounds())
+    limits = np.abs(np.concatenate([lower[np.isfinite(lower)], upper[np.isfinite(upper)]]))
+    _require(bool((limits <= 2 * np.pi).all()), f"{_label(model)}: joint angle bounds beyond +-2 pi "
+             f"(largest {limits.max() if len(limits) else 0:.4g}): angles must be radians")
 
 
 def check_model_batching(model: HandModel) -> None:
@@ -552,9 +568,9 @@ def check_optimizer_improves(optimizer: Optimizer) -> None:
 # ------------------------------------------------------------------ registry of checks
 _COMMON = (check_config_round_trip, check_unknown_setting, check_pickle)
 _CHECKS: dict[str, tuple[Callable, ...]] = {
-    "model": _COMMON + (check_model_shapes, check_model_batching, check_model_default_pose,
-                        check_model_bone_lengths, check_model_stages, check_model_joint_subset,
-                        check_model_stage_parameters),
+    "model": _COMMON + (check_model_shapes, check_model_parameter_names, check_model_batching,
+                        check_model_default_pose, check_model_bone_lengths, check_model_stages,
+                        check_model_joint_subset, check_model_stage_parameters),
     "objective": _COMMON + (check_objective_shapes, check_objective_batching, check_objective_sum_over_points,
                             check_objective_lower_bound, check_objective_deterministic, check_objective_observed),
     "optimizer": _COMMON + (check_optimizer_budget, check_optimizer_deterministic, check_optimizer_bounds,

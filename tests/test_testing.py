@@ -172,7 +172,26 @@ class BadDefault(testing.ToyHand):
         return x
 
 
+class RepeatedName(testing.ToyHand):
+    parameter_names = testing.ToyHand.parameter_names[:-1] + ("a_flex2",)
+
+
+class SpacedName(testing.ToyHand):
+    parameter_names = testing.ToyHand.parameter_names[:-1] + ("b flex2",)
+
+
+class DegreeBounds(testing.ToyHand):
+    """Its angle bounds are in degrees."""
+
+    def bounds(self):
+        angle = np.arange(13) >= 7
+        return tuple(np.where(angle, np.degrees(b), b) for b in super().bounds())
+
+
 @pytest.mark.parametrize("model, check, match", [
+    (RepeatedName(), testing.check_model_parameter_names, r"parameter names repeat: \['a_flex2'\]"),
+    (SpacedName(), testing.check_model_parameter_names, r"without whitespace, commas or quotes: \['b flex2'\]"),
+    (DegreeBounds(), testing.check_model_parameter_names, "angles must be radians"),
     (ZeroSubset(), testing.check_model_joint_subset, "differs from the full forward pass"),
     (LeakyStages(), testing.check_model_stages, "moves joints of an earlier stage"),
     (IdleParameter(), testing.check_model_stage_parameters, "'a_abduct' of stage 'palm' moves none"),

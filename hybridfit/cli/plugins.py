@@ -1,4 +1,5 @@
-"""``hybridfit plugins``: list the registered models, objectives and optimizers."""
+"""``hybridfit plugins``: list the registered models, objectives and optimizers (a plugin whose
+optional library is missing as unavailable, with the line that installs it)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,11 @@ def run(args) -> int:
     for kind, group in registry.GROUPS.items():
         print(f"{group}:")
         for info in registry.available(kind):
-            status = f"FAILED TO IMPORT ({info.error})" if info.error else info.doc
+            if info.error:
+                status = f"FAILED TO IMPORT ({info.error})"
+            elif info.unavailable:
+                status = f"UNAVAILABLE: {info.unavailable}"
+            else:
+                status = info.doc
             print(f"  {info.name:<22} [{info.distribution}]  {status}")
     return 0

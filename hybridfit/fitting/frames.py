@@ -25,6 +25,7 @@ from . import compiled
 from ..errors import HybridfitError, PluginError
 from ..io import validate_proposals
 from ..metrics import inliers
+from ..model.base import ANGLES
 from ..optimizer import Task
 from ..problem import Problem
 
@@ -56,6 +57,16 @@ class FitResult:
     interrupted: bool = False
     inliers: np.ndarray | None = None  # (F,) points within inlier_distance_mm of one of their proposals
     inlier_distance_mm: float = INLIER_DISTANCE_MM
+    parameter_names: tuple[str, ...] = ()  # (P,) the model's names of the params' columns
+
+    def angles_deg(self) -> tuple[tuple[str, ...], np.ndarray]:
+        """The joint angles: names (A,) and values (F, A) in degrees (NaN for failed frames),
+        the model's parameters after the 7 of the global pose. See ``hybridfit.fitting.angles``
+        for the global pose and a CSV table."""
+        if len(self.parameter_names) != self.params.shape[1]:
+            raise HybridfitError(f"this fit names {len(self.parameter_names)} of its {self.params.shape[1]} "
+                                 "parameters: which are joint angles is unknown")
+        return tuple(self.parameter_names[ANGLES]), np.degrees(self.params[:, ANGLES])
 
     def to_npz(self) -> dict[str, np.ndarray]:
         """The arrays written by ``hybridfit fit --out``."""
@@ -67,6 +78,7 @@ class FitResult:
             "objective": self.objective,
             "evaluations": self.evaluations,
             "joint_names": np.asarray(self.joint_names),
+            "parameter_names": np.asarray(self.parameter_names, dtype=str),
             "failed": self.failed,
             "error_frames": np.asarray(frames, dtype=np.int64),
             "error_messages": np.asarray([self.errors[f] for f in frames], dtype=str),
@@ -210,6 +222,7 @@ def fit(
         evaluations=np.zeros(F, dtype=np.int64),
         joint_names=names,
         failed=np.ones(F, dtype=bool),
+        parameter_names=tuple(model.parameter_names),
     )
     done = np.zeros(F, dtype=bool)
 

@@ -102,7 +102,8 @@ def track(
     result = TrackResult(params=np.full((F, P), np.nan), joints=np.full((F, Q, 3), np.nan),
                          model_joints=np.full((F, J, 3), np.nan), objective=np.full(F, np.nan),
                          evaluations=np.zeros(F, np.int64), joint_names=names, failed=np.ones(F, bool),
-                         lost=np.zeros(F, bool), started_from_proposals=np.zeros(F, bool))
+                         lost=np.zeros(F, bool), started_from_proposals=np.zeros(F, bool),
+                         parameter_names=tuple(model.parameter_names))
     problem = _first_problem(model, objective, proposals, confidences, names, search_radius_mm, observations)
     if problem is not None:  # a budget too small would fail every frame: raised at once
         optimizer.check_budget(Task(problem, budget))

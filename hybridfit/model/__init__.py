@@ -2,6 +2,6 @@
 forward kinematics (:mod:`.kinematics`, symbolic in :mod:`.casadi`), rotations
 (:mod:`.rotations`) and depth rendering of its surface (:mod:`.render`)."""
 
-from .base import GLOBAL_POSE, ORIENTATION, POSITION, Geometry, HandModel, Stage
+from .base import ANGLES, GLOBAL_POSE, ORIENTATION, POSITION, Geometry, HandModel, Stage
 
-__all__ = ["GLOBAL_POSE", "ORIENTATION", "POSITION", "Geometry", "HandModel", "Stage"]
+__all__ = ["ANGLES", "GLOBAL_POSE", "ORIENTATION", "POSITION", "Geometry", "HandModel", "Stage"]

@@ -4,7 +4,9 @@ Contract shared by every model (the core relies on it):
 
 - parameters 0..2 are the position (millimetres) of the model's origin and parameters
   3..6 the global orientation as a quaternion (w, x, y, z), normalised inside the model so
-  any 4-vector is valid; the remaining parameters are articulation angles (radians);
+  any 4-vector is valid; the remaining parameters are articulation (joint) angles in
+  radians; ``parameter_names`` names all P of them (a joint angle's name is its column in
+  ``hybridfit export-angles``);
 - ``forward(params (N, P)) -> joints (N, J, 3)`` in millimetres, camera coordinates;
 - with the identity quaternion and zero position, ``forward`` gives the model's pose in
   its own frame (used to initialise the global pose by rigid alignment);
@@ -27,6 +29,7 @@ from ..plugin import Plugin
 GLOBAL_POSE = slice(0, 7)
 POSITION = slice(0, 3)
 ORIENTATION = slice(3, 7)
+ANGLES = slice(7, None)  # the joint angles, radians
 
 
 @dataclass(frozen=True)
@@ -83,7 +86,8 @@ class Geometry:
 class HandModel(Plugin, abc.ABC):
     """A kinematic hand model mapping (N, P) parameter vectors to (N, J, 3) joints in mm."""
 
-    #: names of the P parameters, in order
+    #: names of the P parameters, in order: the 7 of the global pose, then the joint angles
+    #: (unique, no whitespace, commas or quotes: they name the columns of exported angles)
     parameter_names: tuple[str, ...]
     #: names of the J joints, in order
     joint_names: tuple[str, ...]

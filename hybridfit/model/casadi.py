@@ -3,7 +3,8 @@
 The same frames and conventions as the numba kernel :func:`hybridfit.model.kinematics.tree_forward`
 (see :mod:`hybridfit.model.kinematics`), built from the same data, so gradient-based solvers get
 the model's exact kinematics without a second hand-written copy. CasADi is imported
-lazily: importing this module does not need it.
+lazily: importing this module does not need it; using it without CasADi installed raises
+:class:`~hybridfit.optional.MissingLibrary` with the line that installs it.
 """
 
 from __future__ import annotations
@@ -12,15 +13,20 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..optional import import_library
 from .kinematics import KinematicTree
 
 #: right-multiplying by a rotation about local axis a mixes columns (i0, i1), as in tree_forward
 _MIXED_COLUMNS = {0: (1, 2), 1: (2, 0), 2: (0, 1)}
 
 
+def _casadi():
+    return import_library("casadi", "hybridfit[casadi]", "hybridfit.model.casadi")
+
+
 def quaternion_matrix_sx(w, x, y, z):
     """3x3 CasADi rotation matrix of the quaternion (w, x, y, z), normalised (zero -> identity)."""
-    import casadi as ca
+    ca = _casadi()
 
     n = w * w + x * x + y * y + z * z
     s = ca.if_else(n < 1e-24, 0.0, 2.0 / n)
@@ -33,7 +39,7 @@ def quaternion_matrix_sx(w, x, y, z):
 
 def _rotate_local(R, axis: int, theta):
     """R @ Rot(axis, theta) for a 3x3 CasADi matrix R."""
-    import casadi as ca
+    ca = _casadi()
 
     i0, i1 = _MIXED_COLUMNS[axis]
     c, s = ca.cos(theta), ca.sin(theta)
@@ -50,7 +56,7 @@ def casadi_forward(tree: KinematicTree, params: Any | Sequence[Any]):
     or numbers: constant parameters fold into constants). Returns a (J, 3) CasADi matrix
     of joint positions in mm, camera coordinates, row j = joint j.
     """
-    import casadi as ca
+    ca = _casadi()
 
     p = [params[i] for i in range(params.shape[0])] if hasattr(params, "shape") else list(params)
     J = len(tree.parents)

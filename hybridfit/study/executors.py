@@ -1,4 +1,5 @@
-"""Where trials run: in this process, in a local process pool, or on a dask.distributed cluster.
+"""Where trials run: in this process, in a local process pool, or on a dask.distributed cluster
+(``pip install "hybridfit[dask]"``).
 
 Each executor takes a function and a list of argument tuples and yields ``(index, result,
 error)`` as tasks finish (``error`` a message where the task raised or its worker died).
@@ -12,6 +13,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, Callable, Iterator, Sequence
 
 from ..errors import HybridfitError
+from ..optional import import_library
 
 EXECUTORS = ("serial", "processes", "dask")
 Outcome = tuple[int, Any, "str | None"]
@@ -67,10 +69,8 @@ class Dask(Serial):
     """dask.distributed: a scheduler at ``address``, or a LocalCluster of ``jobs`` workers."""
 
     def __init__(self, jobs: int = 1, address: str | None = None, processes: bool = True):
-        try:
-            from distributed import Client, LocalCluster
-        except ImportError as err:  # pragma: no cover - a declared dependency
-            raise HybridfitError(f"--executor dask needs dask.distributed ({err})") from None
+        distributed = import_library("distributed", "hybridfit[dask]", "the dask executor")
+        Client, LocalCluster = distributed.Client, distributed.LocalCluster
         self.cluster = None
         if address:
             self.client = Client(address)

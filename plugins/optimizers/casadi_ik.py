@@ -267,6 +267,7 @@ class CasadiIK(Optimizer):
     """Inverse kinematics: IPOPT on a smooth Gaussian-mixture surrogate, symbolic FK from the model's tree."""
 
     Settings = CasadiIKSettings
+    requires = {"casadi": "hybridfit[casadi]"}
 
     def _reserve(self) -> int:
         """Evaluations an IPOPT iteration needs: a new point's value and gradient, twice."""

@@ -35,6 +35,7 @@ class CMAES(Optimizer):
     """CMA-ES (cma package) in the unit-scaled box, batched per generation, with IPOP restarts."""
 
     Settings = CMAESSettings
+    requires = {"cma": "hybridfit[cma]"}
 
     def popsize(self, dim: int) -> int:
         """The first run's population size for a task of ``dim`` parameters."""

@@ -64,6 +64,7 @@ class NLopt(Optimizer):
     """NLopt's derivative-free local (BOBYQA, Sbplx, ...) or global (CRS2, ESCH, ISRES) methods, restarted."""
 
     Settings = NLoptSettings
+    requires = {"nlopt": "hybridfit[nlopt]"}
 
     def min_budget(self, task: Task) -> int:
         s, d = self.settings, task.dim

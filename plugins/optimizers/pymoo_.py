@@ -104,6 +104,7 @@ class Pymoo(Optimizer):
     """Any single-objective pymoo algorithm (DE by default) in the unit-scaled box, exact budget."""
 
     Settings = PymooSettings
+    requires = {"pymoo": "hybridfit[pymoo]"}
 
     def _algorithm(self, problem, start: np.ndarray, rng: np.random.Generator):
         """A configured pymoo algorithm set up on ``problem`` (the unit cube), starting at

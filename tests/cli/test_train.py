@@ -59,7 +59,11 @@ def test_estimate_end_to_end(forest_file, data, tmp_path, capsys):
     assert "fitted: mean joint error" in capsys.readouterr().out
     with np.load(out) as fits:
         assert fits["joints"].shape == (3, 21, 3) and not fits["failed"].any()
-        assert {"proposals", "confidences", "empty", "ground_truth", "params"} <= set(fits.files)
+        assert {"proposals", "confidences", "empty", "ground_truth", "params", "parameter_names"} <= set(fits.files)
+        frames = fits["frames"].tolist()
+    assert main(["export-angles", str(out), "--out", str(tmp_path / "angles.csv")]) == 0
+    rows = (tmp_path / "angles.csv").read_text().splitlines()
+    assert [int(r.split(",")[0]) for r in rows[1:]] == frames  # the data set's frame indices
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -1,0 +1,26 @@
+"""``hybridfit export-angles``: fits (.npz) -> a CSV table of each frame's position,
+orientation and joint angles in degrees (``hybridfit.fitting.angles``)."""
+
+from __future__ import annotations
+
+from ..fitting.angles import export_angles
+from ..io import check_output
+
+
+def register(sub) -> None:
+    p = sub.add_parser("export-angles",
+                       help="write each frame's position, orientation and joint angles (degrees) as CSV")
+    p.add_argument("fits", help="npz from `hybridfit fit` or `estimate` (params, parameter_names, failed)")
+    p.add_argument("--out", required=True, help="CSV file: frame, failed, x_mm, y_mm, z_mm, qw, qx, qy, qz, then "
+                   "<parameter name>_deg for every joint angle; a failed frame's cells are empty")
+    p.add_argument("--model", help="the model that made a fits file without parameter_names (hybridfit 0.3.0 "
+                   "and older), e.g. hand26")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    check_output(args.out)
+    result = export_angles(args.fits, args.out, args.model)
+    failed = int(result.failed.sum())
+    print(f"wrote {len(result.failed)} frames ({failed} failed, marked) -> {args.out}")
+    return 0
