@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import struct
 import tempfile
 import zipfile
 import zlib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -114,10 +116,14 @@ def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 def check_output(path: str | os.PathLike, option: str = "--out") -> Path:
     """Fail early (before any work) when ``path`` cannot be written as a file: it is a
-    folder, its parent is a file, or the folder is not writable. Creates no file."""
+    folder, not a regular file (a FIFO, a device such as /dev/null: an atomic write would
+    replace it), its parent is a file, or the folder is not writable. Creates no file."""
     path = Path(path)
     if path.is_dir():
         raise HybridfitError(f"{option} {path}: is a folder; give a file name")
+    if path.exists() and not path.is_file():
+        raise HybridfitError(f"{option} {path}: is a {_file_kind(path)}, not a regular file; hybridfit writes "
+                             "its outputs as new files and would replace it: give a file name")
     parent = path.parent
     while not parent.exists():
         parent = parent.parent
@@ -128,18 +134,85 @@ def check_output(path: str | os.PathLike, option: str = "--out") -> Path:
     return path
 
 
+def _file_kind(path: Path) -> str:
+    mode = path.stat().st_mode
+    for test, kind in ((stat.S_ISFIFO, "FIFO (named pipe)"), (stat.S_ISCHR, "character device"),
+                       (stat.S_ISBLK, "block device"), (stat.S_ISSOCK, "socket")):
+        if test(mode):
+            return kind
+    return "special file"
+
+
+def _paths(value) -> list[Path]:
+    if value is None:
+        return []
+    return [Path(v) for v in value] if isinstance(value, (list, tuple)) else [Path(value)]
+
+
+def _same(a: Path, b: Path) -> bool:
+    """Whether a and b name one existing file or folder (links and hard links included)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet)
+        return False
+
+
+def check_paths(inputs: dict[str, Any], outputs: dict[str, Any], replaced_folders: dict[str, Any] | None = None) -> None:
+    """Refuse, before any work, a run whose outputs would destroy something: every output file
+    passes :func:`check_output`, and no output (file, or folder replaced as a whole) is one of
+    the run's inputs or holds one. ``inputs``/``outputs``/``replaced_folders``: {option: path,
+    a list of paths or None}; errors name both options."""
+    named_inputs = [(option, p) for option, value in inputs.items() for p in _paths(value)]
+    for option, value in outputs.items():
+        for out in _paths(value):
+            check_output(out, option)
+            for in_option, inp in named_inputs:
+                if _same(out, inp):
+                    raise HybridfitError(f"{option} {out}: is the input {in_option} {inp}; an output never "
+                                         "replaces an input: give another file name")
+    for option, value in (replaced_folders or {}).items():
+        for out in _paths(value):
+            if out.exists() and not out.is_dir():
+                raise HybridfitError(f"{option} {out}: is a {_file_kind(out) if not out.is_file() else 'file'}; "
+                                     "it writes a folder")
+            for in_option, inp in named_inputs:
+                if _same(out, inp) or any(_same(out, parent) for parent in inp.resolve().parents):
+                    raise HybridfitError(f"{option} {out}: holds the input {in_option} {inp}, and this output "
+                                         "replaces the whole folder: give another folder")
+
+
+class WriteError(HybridfitError, OSError):
+    """Writing an output failed (a full disk, a read-only folder, permissions): a user's
+    environment, not a bug. The message names the path; the existing file is unchanged and
+    no temporary file is left."""
+
+
+def write_error(path, err: OSError) -> WriteError:
+    """A one-line :class:`WriteError` for ``err`` raised while writing ``path``."""
+    reason = err.strerror or str(err) or type(err).__name__
+    return WriteError(err.errno, f"{path}: cannot write: {reason} (nothing was replaced)")
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike):
     """Yield a hidden temporary path in ``path``'s folder; on success it replaces ``path``,
     on failure it is removed (an existing ``path`` is never left half-written)."""
     path = check_output(path, "output")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".hybridfit-", suffix=".tmp", dir=path.parent)
-    os.close(fd)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".hybridfit-", suffix=".tmp", dir=path.parent)
+        os.close(fd)
+    except OSError as err:
+        raise write_error(path, err) from None
     try:
         yield Path(tmp)
         os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)
+    except OSError as err:
+        Path(tmp).unlink(missing_ok=True)
+        if isinstance(err, WriteError):
+            raise
+        raise write_error(path, err) from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -149,17 +222,9 @@ def save_npz(path: str | os.PathLike, **arrays) -> None:
     """Write an .npz atomically: a hidden temporary file in the same folder, renamed into
     place, so an existing file is replaced only by a complete one (and the temporary file is
     removed on failure)."""
-    path = check_output(path, "output")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".hybridfit-", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes it private; give it the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def frame_slice(text: str | None, n: int, option: str = "--frames") -> slice:

@@ -56,6 +56,9 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exit:  # --help, or an option error already printed as one line
         return int(exit.code or 0)
     try:
+        from ._common import check_declared
+
+        check_declared(args)
         return int(args.func(args) or 0)
     except HybridfitError as err:
         print(f"hybridfit: error: {_one_line(err)}", file=sys.stderr)

@@ -14,7 +14,26 @@ from pydantic import ValidationError
 
 from .. import registry
 from ..errors import HybridfitError
-from ..io import read_results  # noqa: F401  (the commands read results files through it)
+from ..io import check_paths, read_results  # noqa: F401  (the commands read results files through it)
+
+
+def declare_paths(parser: argparse.ArgumentParser, inputs=(), outputs=(), replaced_folders=()) -> None:
+    """Declare which of a command's options (``"--out"``) or positionals (``"proposals"``) name
+    what it reads and what it writes (files; ``replaced_folders``: folders it replaces as a
+    whole). The command line checks them before the command runs (:func:`check_declared`):
+    no output is an input or a special file. Every command declares (a test checks)."""
+    parser.set_defaults(paths_declared=(tuple(inputs), tuple(outputs), tuple(replaced_folders)))
+
+
+def _attr(name: str) -> str:
+    return name.lstrip("-").replace("-", "_")
+
+
+def check_declared(args: argparse.Namespace) -> None:
+    """:func:`hybridfit.io.check_paths` on the paths a command declared (``declare_paths``)."""
+    inputs, outputs, folders = args.paths_declared
+    values = lambda names: {n: getattr(args, _attr(n)) for n in names}  # noqa: E731
+    check_paths(values(inputs), values(outputs), values(folders))
 
 
 def load_toml(path: str | None) -> dict[str, Any]:

@@ -21,9 +21,9 @@ import numpy as np
 from ..datasets.points import in_order
 from ..errors import HybridfitError
 from ..fitting.frames import INLIER_DISTANCE_MM
-from ..io import check_output, load_npz
+from ..io import atomic_path, load_npz
 from ..metrics import SUCCESS_THRESHOLDS_MM, fingertips, inliers, joint_errors, oracle, success_rate
-from ._common import check_image_format, read_results
+from ._common import check_image_format, declare_paths, read_results
 
 REPORTED = (20, 40, 80)
 
@@ -160,6 +160,7 @@ def register(sub) -> None:
     p.add_argument("--frames", metavar="START:STOP",
                    help="evaluate only these frames of the ground truth (inputs with all frames are cut alike)")
     p.add_argument("--plot", metavar="OUT.png", help="draw the success-rate curves (a PNG, or another format matplotlib writes)")
+    declare_paths(p, inputs=("predictions", "data", "--ground-truth", "--compare"), outputs=("--plot",))
     p.set_defaults(func=run)
 
 
@@ -167,7 +168,6 @@ def run(args) -> int:
     from ..io import frame_slice
 
     if args.plot:
-        check_output(args.plot, "--plot")
         check_image_format(args.plot, "--plot")
     truth, truth_names = load_truth(args)
     n_truth = len(truth)
@@ -229,6 +229,18 @@ def _table(header, rows) -> None:
         print("  ".join(str(v).ljust(w) if c == 0 else str(v).rjust(w) for c, (v, w) in enumerate(zip(r, widths))))
 
 
+def save_figure(fig, out: str) -> None:
+    """Write a matplotlib figure atomically (an existing image is replaced only by a complete
+    one; a failed write names the path) and close it."""
+    import matplotlib.pyplot as plt
+
+    try:
+        with atomic_path(out) as tmp:
+            fig.savefig(tmp, format=Path(out).suffix.lstrip(".").lower())
+    finally:
+        plt.close(fig)
+
+
 def plot_success(curves, out: str, title: str) -> None:
     """Success-rate curves [(label, (81,))] over 0..80 mm as a PNG."""
     import matplotlib
@@ -247,6 +259,4 @@ def plot_success(curves, out: str, title: str) -> None:
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
-    Path(out).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out)
-    plt.close(fig)
+    save_figure(fig, out)

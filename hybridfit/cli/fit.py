@@ -9,12 +9,12 @@ import numpy as np
 from .. import fit as fit_frames
 from ..datasets.skeletons import fit_settings, skeleton
 from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK, HybridfitError, PluginError
-from ..io import check_output, load_proposals, save_npz
+from ..io import load_proposals, save_npz
 from ..datasets.folder import load_dataset
 from ..metrics import summary
 from ..objective import dataset_observations
 from ..fitting.tracking import track
-from ._common import add_fit_options, add_plugin_options, plugin_kwargs
+from ._common import add_fit_options, add_plugin_options, declare_paths, plugin_kwargs
 
 
 def register(sub) -> None:
@@ -38,11 +38,12 @@ def register(sub) -> None:
     p.add_argument("--dataset", help="the proposals' skeleton when the npz has no joint_names (and its derived "
                    "points for its model): icvl, nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file "
                    "(default: the npz's dataset, which propose writes for real data)")
+    declare_paths(p, inputs=("proposals", "--depth", "--model-config", "--objective-config", "--optimizer-config"),
+                  outputs=("--out",))
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    check_output(args.out)
     data = load_proposals(args.proposals)
     if args.objective is None and "objective" in data:  # the objective the file names (other methods' estimates)
         args.objective = str(data["objective"])

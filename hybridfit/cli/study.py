@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from ..errors import EXIT_INCOMPLETE, EXIT_OK, HybridfitError
-from ._common import positive_int
+from ._common import declare_paths, positive_int
 
 
 def register(sub) -> None:
@@ -20,6 +20,7 @@ def register(sub) -> None:
     p.add_argument("--cache", metavar="DIR", help="cache folder for shared steps (default: OUT/cache)")
     p.add_argument("--quick", action="store_true", help="apply the study's [quick] overrides")
     p.add_argument("--report-only", action="store_true", help="rewrite the report from the database only")
+    declare_paths(p, inputs=("file",))  # --out and --cache: folders it adds files to
     p.set_defaults(func=run)
 
 

@@ -7,7 +7,7 @@ import sys
 
 from ..io import save_npz
 from ..synthetic.proposals import synthetic_proposals
-from ._common import load_toml, positive_int
+from ._common import declare_paths, load_toml, positive_int
 
 
 def register(sub) -> None:
@@ -21,6 +21,7 @@ def register(sub) -> None:
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--model", default="hand26")
     q.add_argument("--model-config", metavar="TOML")
+    declare_paths(q, inputs=("--model-config",), outputs=("--out",))
     q.set_defaults(func=run_proposals)
 
     t = kinds.add_parser("train", help="rendered training grid: finger articulations x viewpoints (default 7168 frames)")
@@ -36,6 +37,7 @@ def register(sub) -> None:
         c.add_argument("--noise", action="store_true", help="add the default sensor noise model")
         c.add_argument("--model", help="hand model plugin (default: the settings file's, else hand26)")
         c.add_argument("--model-config", metavar="TOML", help="hand model settings (default: the settings file's)")
+        declare_paths(c, inputs=("--config", "--model-config"), replaced_folders=("--out",))
 
 
 def run_proposals(args) -> int:
