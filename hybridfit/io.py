@@ -78,14 +78,6 @@ def load_npz(path: str | os.PathLike, kind: str = "") -> dict[str, np.ndarray]:
         raise HybridfitError(f"{path}: not a readable {what} (corrupt or truncated: {type(err).__name__}: {err})") from None
 
 
-def read_results(path: str | os.PathLike, dataset: str) -> np.ndarray:
-    """A results text file -> (F, J, 3) xyz mm (``datasets.results.read_xyz``; a binary file
-    is named, not decoded)."""
-    from .datasets.results import read_xyz
-
-    return read_xyz(path, dataset)
-
-
 def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """A validated proposals file as a dict (see the module docstring for the keys)."""
     data = load_npz(path)
@@ -179,6 +171,19 @@ def check_paths(inputs: dict[str, Any], outputs: dict[str, Any], replaced_folder
                 if _same(out, inp) or any(_same(out, parent) for parent in inp.resolve().parents):
                     raise HybridfitError(f"{option} {out}: holds the input {in_option} {inp}, and this output "
                                          "replaces the whole folder: give another folder")
+
+
+def process_alive(pid: int) -> bool:
+    """Whether a process with this id runs on this machine (this process counts)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 class WriteError(HybridfitError, OSError):

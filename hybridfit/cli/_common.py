@@ -14,7 +14,8 @@ from pydantic import ValidationError
 
 from .. import registry
 from ..errors import HybridfitError
-from ..io import check_paths, read_results  # noqa: F401  (the commands read results files through it)
+from ..datasets.results import read_xyz as read_results  # noqa: F401  (the commands read results files through it)
+from ..io import check_paths
 
 
 def declare_paths(parser: argparse.ArgumentParser, inputs=(), outputs=(), replaced_folders=()) -> None:
