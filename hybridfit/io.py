@@ -31,6 +31,10 @@ def validate_proposals(proposals, confidences, joint_names=None, where: str = "p
     c = np.asarray(confidences)
     if p.ndim != 4 or p.shape[-1] != 3:
         raise HybridfitError(f"{where}: 'proposals' must have shape (frames, joints, k, 3), got {p.shape}")
+    if p.ndim == 4 and 0 in p.shape[1:3]:
+        what = "joints" if p.shape[1] == 0 else "proposals per joint (k = 0)"
+        raise HybridfitError(f"{where}: 'proposals' has no {what}: shape {p.shape}, expected (frames, joints, k, 3) "
+                             "with k >= 1")
     if c.shape != p.shape[:3]:
         raise HybridfitError(
             f"{where}: 'confidences' must have shape {p.shape[:3]} to match 'proposals', got {c.shape}"
@@ -173,6 +177,25 @@ def check_paths(inputs: dict[str, Any], outputs: dict[str, Any], replaced_folder
                                          "replaces the whole folder: give another folder")
 
 
+def memory_bytes() -> int | None:
+    """This machine's physical memory in bytes (None where the system does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(count: int, bytes_each: int, what: str) -> None:
+    """Refuse, before allocating, ``count`` items of ``bytes_each`` bytes (``what``, e.g.
+    "frames of synthetic proposals (k=3)") that would need more than half of this machine's
+    memory; the message names the size and the most that fits."""
+    total = memory_bytes()
+    need = int(count) * int(bytes_each)
+    if total is not None and need > total // 2:
+        raise HybridfitError(f"{count} {what} would need {need / 2**30:,.0f} GiB, more than half of this machine's "
+                             f"memory ({total / 2**30:,.0f} GiB); at most {total // 2 // max(bytes_each, 1):,} {what.split()[0]} fit")
+
+
 def process_alive(pid: int) -> bool:
     """Whether a process with this id runs on this machine (this process counts)."""
     if pid == os.getpid():
@@ -190,6 +213,9 @@ class WriteError(HybridfitError, OSError):
     """Writing an output failed (a full disk, a read-only folder, permissions): a user's
     environment, not a bug. The message names the path; the existing file is unchanged and
     no temporary file is left."""
+
+    def __str__(self) -> str:  # the message, without OSError's "[Errno N]"
+        return str(self.strerror)
 
 
 def write_error(path, err: OSError) -> WriteError:

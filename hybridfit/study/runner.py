@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import os
 import socket
+import sqlite3
 import sys
 import time
 from dataclasses import dataclass
@@ -29,7 +30,7 @@ from .data import StudyData, baseline_errors
 from .executors import make_executor
 from .expand import Trial, digest, expand, trials
 from .spec import Study
-from .store import DB_NAME, Store
+from .store import DB_NAME, Store, storage_error
 
 LOCK_NAME = "study.lock"
 
@@ -143,7 +144,18 @@ def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: 
               scheduler: str | None = None, cache_dir: str | os.PathLike | None = None, progress: bool = True,
               report: bool = True, dask_processes: bool = True, log=None) -> RunSummary:
     """Run the study's unfinished trials into ``out`` and write the report (see the module doc)."""
-    out = Path(out)
+    try:
+        return _run_study(study, Path(out), jobs=jobs, executor=executor, scheduler=scheduler, cache_dir=cache_dir,
+                          progress=progress, report=report, dask_processes=dask_processes, log=log)
+    except sqlite3.Error as err:  # a full disk or read-only folder: one line naming the database
+        failure = storage_error(Path(out) / DB_NAME, err)
+        if failure is None:
+            raise
+        raise failure from None
+
+
+def _run_study(study: Study, out: Path, *, jobs, executor, scheduler, cache_dir, progress, report, dask_processes,
+               log) -> RunSummary:
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     with study_lock(out):
         store = Store(out / DB_NAME)

@@ -22,10 +22,12 @@ def digest(path) -> str:
 
 
 def one_line_error(capsys, code: int, expected: int = 2) -> str:
+    """The one error line (after the progress a command logs, e.g. a study's)."""
     err = capsys.readouterr().err
     assert code == expected, err
-    assert "Traceback" not in err and err.startswith("hybridfit: error:") and err.count("\n") == 1, err
-    return err
+    assert "Traceback" not in err and err.count("hybridfit: error:") == 1, err
+    assert err.endswith("\n") and err.splitlines()[-1].startswith("hybridfit: error:"), err
+    return err.splitlines()[-1]
 
 
 @pytest.fixture(scope="module")
@@ -116,3 +118,144 @@ def test_synth_refuses_to_replace_a_folder_holding_its_settings(tmp_path, capsys
     (folder / "grid.toml").write_text("frames = 2\n")
     err = one_line_error(capsys, main(["synth", "test", "--out", str(folder), "--config", str(folder / "grid.toml")]))
     assert "--out" in err and "holds the input --config" in err and (folder / "grid.toml").is_file()
+
+
+# --------------------------------------------------------------- a failed write: one line, nothing lost
+
+
+def _no_space(*args, **kwargs):
+    raise OSError(28, "No space left on device")
+
+
+def _half_then_no_space(fh, **arrays):
+    fh.write(b"half")
+    _no_space()
+
+
+def _full_disk(kind, tmp_path, frames_file, monkeypatch):
+    """(argv, the output that exists before) with writing made to fail like a full disk."""
+    import matplotlib.figure
+    import PIL.Image
+
+    gt, truth = write_results(tmp_path, name="gt.txt")
+    if kind in ("fit", "synth proposals"):
+        monkeypatch.setattr(np, "savez", _half_then_no_space)
+    if kind == "export-results":
+        from hybridfit.cli import export_results
+
+        fits = tmp_path / "fits.npz"
+        np.savez(fits, joints=truth,
+                 joint_names=np.asarray(hybridfit.datasets.skeletons.skeleton("icvl").model_names))
+        monkeypatch.setattr(export_results, "write_xyz", lambda path, *a: (path.write_text("half"), _no_space()))
+    if kind == "evaluate --plot":
+        monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda self, path, **k: (open(path, "wb").write(b"x"),
+                                                                                            _no_space()))
+    if kind == "synth test":
+        monkeypatch.setattr(PIL.Image.Image, "save", _no_space)
+    out = {"synth test": tmp_path / "set", "evaluate --plot": tmp_path / "curve.png",
+           "export-results": tmp_path / "fitted.txt"}.get(kind, tmp_path / "out.npz")
+    if kind == "synth test":
+        (out / "depth").mkdir(parents=True)
+        (out / "meta.json").write_text("{}")  # an earlier data set
+    else:
+        out.write_bytes(b"an earlier output")
+    argv = {"fit": ["fit", str(frames_file), "--out", str(out), "--budget", "100"],
+            "synth proposals": ["synth", "proposals", "--frames", "2", "--out", str(out)],
+            "export-results": ["export-results", str(tmp_path / "fits.npz"), "--dataset", "icvl", "--out", str(out)],
+            "evaluate --plot": ["evaluate", str(gt), "--dataset", "icvl", "--ground-truth", str(gt), "--plot", str(out)],
+            "synth test": ["synth", "test", "--frames", "2", "--out", str(out)]}[kind]
+    return argv, out
+
+
+@pytest.mark.parametrize("kind", ["fit", "synth proposals", "export-results", "evaluate --plot", "synth test"])
+def test_a_full_disk_is_one_line_naming_the_path(tmp_path, frames_file, capsys, monkeypatch, kind):
+    argv, out = _full_disk(kind, tmp_path, frames_file, monkeypatch)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    err = one_line_error(capsys, main(argv))
+    assert f"{out}: cannot write: No space left on device (nothing was replaced)" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # no temporary file or folder left
+    if kind == "synth test":
+        assert (out / "meta.json").read_text() == "{}"
+    else:
+        assert out.read_bytes() == b"an earlier output"
+
+
+def test_a_full_disk_under_a_study_names_its_database(tmp_path, capsys, monkeypatch):
+    import sqlite3
+
+    from hybridfit.study import store
+
+    from ..study.conftest import TINY
+
+    study = tmp_path / "tiny.toml"
+    study.write_text(TINY)
+
+    def full(self, *args, **kwargs):
+        raise sqlite3.OperationalError("database or disk is full")
+
+    monkeypatch.setattr(store.Store, "complete", full)
+    err = one_line_error(capsys, main(["study", str(study), "--quick", "--out", str(tmp_path / "run")]))
+    assert f"{tmp_path / 'run' / 'study.db'}: cannot write the study database: database or disk is full" in err
+
+
+def test_a_study_out_under_a_file_is_one_line(tmp_path, capsys):
+    """Tests run as root, where a read-only folder does not stop writes: a path under a file does."""
+    from ..study.conftest import TINY
+
+    study, blocker = tmp_path / "tiny.toml", tmp_path / "file"
+    study.write_text(TINY)
+    blocker.write_text("x")
+    err = one_line_error(capsys, main(["study", str(study), "--out", str(blocker / "run")]))
+    assert str(blocker) in err and blocker.read_text() == "x"
+
+
+# --------------------------------------------------------------- impossible sizes and values, before any work
+
+
+def _k0(tmp_path):
+    d = hybridfit.synthetic_proposals(2, seed=1)
+    d["proposals"], d["confidences"] = d["proposals"][:, :, :0], d["confidences"][:, :, :0]
+    np.savez(tmp_path / "k0.npz", **d)
+    return tmp_path / "k0.npz"
+
+
+@pytest.mark.parametrize("command", ["fit", "evaluate", "show"])
+def test_k_0_proposals_are_refused(tmp_path, capsys, command):
+    path = _k0(tmp_path)
+    argv = {"fit": ["fit", str(path), "--out", str(tmp_path / "o.npz")], "evaluate": ["evaluate", str(path)],
+            "show": ["show", str(tmp_path / "set"), "--proposals", str(path), "--out", str(tmp_path / "o.png")]}
+    if command == "show":
+        assert main(["synth", "test", "--frames", "2", "--out", str(tmp_path / "set")]) == 0
+        capsys.readouterr()
+    err = one_line_error(capsys, main(argv[command]))
+    assert "k0.npz: 'proposals' has no proposals per joint (k = 0)" in err
+
+
+def test_synth_refuses_a_negative_seed_and_an_absurd_size_before_allocating(tmp_path, capsys):
+    out = tmp_path / "p.npz"
+    assert "--seed: expected a non-negative integer, got -1" in one_line_error(
+        capsys, main(["synth", "proposals", "--seed", "-1", "--out", str(out)]))
+    err = one_line_error(capsys, main(["synth", "proposals", "--frames", "1000000000", "--out", str(out)]))
+    assert "1000000000 frames of synthetic proposals (k=3) would need" in err and "at most" in err
+    err = one_line_error(capsys, main(["synth", "test", "--frames", "1000000000", "--out", str(tmp_path / "set")]))
+    assert "1000000000 frames of 320x240 depth and part images would need" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_unreachable_dask_scheduler_is_one_line(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("distributed")
+    import socket
+
+    from hybridfit.study import executors
+
+    from ..study.conftest import TINY
+
+    monkeypatch.setattr(executors, "CONNECT_TIMEOUT_S", 1)
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    study = tmp_path / "tiny.toml"
+    study.write_text(TINY)
+    err = one_line_error(capsys, main(["study", str(study), "--quick", "--out", str(tmp_path / "run"),
+                                       "--executor", "dask", "--scheduler", f"tcp://127.0.0.1:{port}"]))
+    assert f"--scheduler tcp://127.0.0.1:{port}: no dask scheduler answered within 1 s" in err
