@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .errors import HybridfitError
+from .plausible import check_hand_scale, check_unique_names
 
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
@@ -50,6 +51,8 @@ def validate_proposals(proposals, confidences, joint_names=None, where: str = "p
         raise HybridfitError(f"{where}: 'confidences' has negative values (first in frame {int(np.argmax(neg))})")
     if joint_names is not None and len(joint_names) != p.shape[1]:
         raise HybridfitError(f"{where}: {len(joint_names)} 'joint_names' for {p.shape[1]} joints")
+    if joint_names is not None:
+        check_unique_names(joint_names, where)
     return p.astype(np.float64), c.astype(np.float64)
 
 
@@ -107,6 +110,7 @@ def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:
         if bad.any():
             raise HybridfitError(f"{path}: 'ground_truth' has NaN or inf values (first in frame {int(np.argmax(bad))})")
         data["ground_truth"] = gt.astype(np.float64)
+        check_hand_scale(data["ground_truth"], str(path), "ground_truth")
     return data
 
 

@@ -22,6 +22,7 @@ from ..datasets.points import in_order
 from ..errors import HybridfitError
 from ..fitting.frames import INLIER_DISTANCE_MM
 from ..io import atomic_path, load_npz
+from ..plausible import check_hand_scale, check_unique_names
 from ..metrics import SUCCESS_THRESHOLDS_MM, fingertips, inliers, joint_errors, oracle, success_rate
 from ._common import check_image_format, declare_paths, read_results
 
@@ -37,6 +38,7 @@ def points_array(path: str, data: dict, key: str, allow_nan=None) -> np.ndarray:
         raise HybridfitError(f"{path}: {key!r} must be numbers of shape (frames, points, 3), got {a.dtype} {a.shape}")
     a = a.astype(float)
     bad = ~np.isfinite(a).all(axis=(1, 2))
+    check_hand_scale(a, path, key)  # metres would give 0.02 mm errors and 100 % success
     if allow_nan is True:
         return a
     if allow_nan is not None and np.shape(allow_nan) == bad.shape:
@@ -54,6 +56,7 @@ def point_names(path: str, data: dict, J: int) -> list[str] | None:
     names = np.asarray(data["joint_names"])
     if names.ndim != 1 or names.dtype.kind not in "US" or len(names) != J:
         raise HybridfitError(f"{path}: 'joint_names' must be {J} strings, got {names.dtype} {names.shape}")
+    check_unique_names(names, path)
     return [str(n) for n in names]
 
 
@@ -73,6 +76,7 @@ def load_points(path: str, dataset: str | None) -> list[tuple[str, np.ndarray, l
             p, w = z["proposals"], z["confidences"]
             names = point_names(path, z, p.shape[1])
             top = np.take_along_axis(p, w.argmax(axis=-1)[..., None, None], axis=2)[:, :, 0]
+            check_hand_scale(top, path, "proposals")
             out = [(f"{label} top-1", top, names)]
             if "ground_truth" in z:
                 out.append((f"{label} Oracle", oracle(p, points_array(path, z, "ground_truth"), w), names))

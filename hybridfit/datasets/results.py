@@ -15,27 +15,34 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import HybridfitError
+from ..plausible import check_uvd
+from .conventions import CONVENTIONS
 from .skeletons import convention
 from .skeletons import skeleton
 
 
 def read_uvd(path: str | os.PathLike, dataset: str) -> np.ndarray:
-    """A results file -> (F, J, 3) u, v, d; errors name the file and line."""
+    """A results file -> (F, J, 3) u, v, d; errors name the file and line. Rows of zeros, depths
+    not in millimetres and u, v outside the dataset camera's image are refused (``plausible``)."""
     path, J = Path(path), len(skeleton(dataset))
     if not path.is_file():
         raise HybridfitError(f"{path}: no such file")
     try:
-        rows = _read_rows(path, dataset, J)
+        rows, lines = _read_rows(path, dataset, J)
     except UnicodeDecodeError:
         raise HybridfitError(f"{path}: not a text file; expected a results file (one line per frame, "
                              f"{J} {dataset} points x u v d)") from None
     if not rows:
         raise HybridfitError(f"{path}: no frames")
-    return np.stack(rows)
+    uvd = np.stack(rows)
+    name = skeleton(dataset).convention
+    if name is not None:  # units and pixel ranges for the dataset's camera
+        check_uvd(uvd, CONVENTIONS[name].intrinsics, str(path), lines, camera=name)
+    return uvd
 
 
-def _read_rows(path: Path, dataset: str, J: int) -> list[np.ndarray]:
-    rows = []
+def _read_rows(path: Path, dataset: str, J: int) -> tuple[list[np.ndarray], list[int]]:
+    rows, lines = [], []
     with open(path) as fh:
         for n, line in enumerate(fh, start=1):
             fields = line.split()
@@ -52,7 +59,8 @@ def _read_rows(path: Path, dataset: str, J: int) -> list[np.ndarray]:
             if not np.isfinite(values).all():
                 raise HybridfitError(f"{path}:{n}: NaN or inf value")
             rows.append(values.reshape(J, 3))
-    return rows
+            lines.append(n)
+    return rows, lines
 
 
 def read_xyz(path: str | os.PathLike, dataset: str) -> np.ndarray:

@@ -44,6 +44,8 @@ from .conventions import CONVENTIONS, Convention
 BUILTIN_DIR = Path(__file__).with_name("skeleton_files")
 _KEYS = ("name", "model", "convention", "fingertips", "points", "derived")
 _DEFAULT_MODEL = "hand26"
+#: each derived-point weight lies in this range (it may extrapolate a little beyond its joints)
+DERIVED_WEIGHT_RANGE = (-1.0, 2.0)
 
 
 @dataclass(frozen=True)
@@ -128,9 +130,14 @@ def _parse(raw: dict[str, Any], where: str, default_name: str) -> Skeleton:
             raise fail(key, f"not used by any point{_closest(dname, list(used))}")
         if not isinstance(weights, dict) or not weights:
             raise fail(key, "must be a non-empty table of joint = weight")
+        lo, hi = DERIVED_WEIGHT_RANGE
         for joint, w in weights.items():
             if not _number(w):
                 raise fail(f"{key}.{_key(joint)}", f"must be a finite number, got {w!r}")
+            if not lo <= w <= hi:
+                raise fail(f"{key}.{_key(joint)}", f"weight {w:g} is outside [{lo:g}, {hi:g}]: a derived point is a "
+                           "weighted mean of joints (weights summing to 1); weights this large put it far outside "
+                           "the hand")
         total = math.fsum(weights.values())
         if abs(total - 1.0) > 1e-6:
             raise fail(key, f"weights sum to {total:g}; they must sum to 1 (so the point moves rigidly with the hand)")
