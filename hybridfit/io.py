@@ -56,13 +56,22 @@ def validate_proposals(proposals, confidences, joint_names=None, where: str = "p
     return p.astype(np.float64), c.astype(np.float64)
 
 
+def require_file(path: str | os.PathLike, what: str = "file") -> Path:
+    """``path`` as a Path if it is a readable file; else a HybridfitError saying what it is
+    instead: a folder, or nothing (``what``: e.g. "forest file", for the message)."""
+    path = Path(path)
+    if path.is_dir():
+        raise HybridfitError(f"{path}: is a folder, not a {what}")
+    if not path.is_file():
+        raise HybridfitError(f"{path}: not a regular {what}" if path.exists() else f"{path}: no such {what}")
+    return path
+
+
 def load_npz(path: str | os.PathLike, kind: str = "") -> dict[str, np.ndarray]:
     """All arrays of an .npz file (no pickles), with readable errors naming the file and what
     it should be (e.g. kind="forest"). Never suggests unpickling."""
-    path = Path(path)
     what = f"{kind} file" if kind else ".npz file"
-    if not path.is_file():
-        raise HybridfitError(f"{path}: no such {kind + ' ' if kind else ''}file")
+    path = require_file(path, f"{kind} file" if kind else "file")
     expected = f"expected {'a hybridfit ' + kind if kind else 'an'} .npz file (a zip archive of arrays written by numpy.savez)"
     with open(path, "rb") as fh:
         magic = fh.read(4)

@@ -37,12 +37,17 @@ def check_unique_names(names: Sequence[str], where: str, key: str = "joint_names
 
 def check_hand_scale(points: np.ndarray, where: str, key: str) -> None:
     """Refuse (F, J, 3) points (mm) whose median distance from each frame's centre is far from a
-    hand's: metres or centimetres instead of millimetres. NaN frames are left out."""
+    hand's: metres or centimetres instead of millimetres. NaN frames and frames whose points
+    all coincide are left out."""
     p = np.asarray(points, dtype=np.float64)
     p = p[np.isfinite(p).all(axis=(1, 2))]
     if p.ndim != 3 or not len(p) or p.shape[1] < 3:
         return
-    spread = float(np.median(np.linalg.norm(p - np.median(p, axis=1, keepdims=True), axis=-1)))
+    dist = np.linalg.norm(p - np.median(p, axis=1, keepdims=True), axis=-1)
+    dist = dist[dist.max(axis=1) > 0]  # frames whose points all coincide (placeholders) say nothing of the unit
+    if not len(dist):
+        return
+    spread = float(np.median(dist))
     lo, hi = HAND_SPREAD_MM
     if not lo <= spread <= hi:
         unit = "metres" if spread < 0.5 else "centimetres" if spread < lo else "a unit smaller than mm"

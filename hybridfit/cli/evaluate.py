@@ -188,6 +188,8 @@ def run(args) -> int:
             methods.append((label, in_order(pts, by_name, truth_names or [""] * truth.shape[1], path,
                                             "the ground truth")))
     truth = truth[sel]
+    file_frames = np.arange(n_truth)[sel] if first_len == n_truth else np.arange(len(truth))  # the file's indices
+    truth, methods = common_frames(truth, methods, {args.predictions: file_frames})
     names = truth_names or [f"joint {j}" for j in range(truth.shape[1])]
     tips = fingertips(names)
     if args.dataset and names == list(_skeleton(args.dataset).model_names):
@@ -210,6 +212,41 @@ def run(args) -> int:
         plot_success(curves, args.plot, f"Success rate on {len(truth)} frames")
         print(f"plot -> {args.plot}")
     return 0
+
+
+def common_frames(truth: np.ndarray, methods: list, chosen: dict) -> tuple[np.ndarray, list]:
+    """The frames every method has an estimate for (a failed or interrupted fit has none):
+    truth and methods cut to them, so that errors and success rates are over the same
+    frames. Prints how many frames each method lacks (and why, for a fits npz)."""
+    has = np.ones(len(truth), bool)
+    for label, pts in methods:
+        missing = ~np.isfinite(pts).all(axis=(1, 2))
+        if missing.any():
+            print(f"{label}: {int(missing.sum())} of {len(missing)} frames failed{_reasons(label, chosen, missing)}")
+        has &= ~missing
+    if has.all():
+        return truth, methods
+    if not has.any():
+        raise HybridfitError("no frame has an estimate in every input: nothing to evaluate")
+    print(f"errors and success rates below are over the {int(has.sum())} frames with an estimate in every input\n")
+    return truth[has], [(label, pts[has]) for label, pts in methods]
+
+
+def _reasons(label: str, chosen: dict, missing: np.ndarray) -> str:
+    """' (3 interrupted, 1 other)' from a fits npz's error messages, for the evaluated file."""
+    path = next((p for p in chosen if Path(p).name == label), None)
+    if path is None or not path.endswith(".npz"):
+        return ""
+    data = load_npz(path)
+    if "error_frames" not in data or "error_messages" not in data or len(data["error_frames"]) != len(
+            data["error_messages"]):
+        return ""
+    frames = set(np.asarray(chosen[path])[missing].tolist())
+    messages = [str(m) for f, m in zip(np.asarray(data["error_frames"]).tolist(), data["error_messages"]) if f in frames]
+    stopped = sum(m == "interrupted" for m in messages)
+    parts = ([f"{stopped} interrupted"] if stopped else []) + ([f"{len(messages) - stopped} other"]
+                                                                 if len(messages) > stopped else [])
+    return f" ({', '.join(parts)})" if parts else ""
 
 
 def report_far_frames(path: str, chosen: np.ndarray, all_frames: bool) -> None:

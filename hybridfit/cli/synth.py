@@ -7,7 +7,7 @@ import sys
 
 from ..io import save_npz
 from ..synthetic.proposals import synthetic_proposals
-from ._common import declare_paths, load_toml, positive_int, seed_int
+from ._common import declare_paths, load_toml, positive_int, seed_int, validate_settings
 
 
 def register(sub) -> None:
@@ -53,6 +53,7 @@ def _config(cls, args):
     from ..synthetic.config import parse_config
 
     base = load_toml(args.config)
+    validate_settings(cls, base, args.config, f"synth {args.synth_command}")  # the file alone: its errors name it
     options = {"seed": args.seed, "distance_mm": args.distance, "frames": getattr(args, "frames", None),
                "noise": base.get("noise", {}) if args.noise else None, "model": args.model,
                "model_settings": load_toml(args.model_config) if args.model_config else None}

@@ -7,7 +7,7 @@ import time
 
 from ..datasets import open_dataset
 from ..forest import ForestConfig, train_forest_dataset
-from ._common import declare_paths, load_toml, positive_int, seed_int
+from ._common import declare_paths, load_toml, positive_int, seed_int, validate_settings
 from ._forest import frame_indices
 
 
@@ -28,6 +28,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     settings = load_toml(args.config)
+    validate_settings(ForestConfig, settings, args.config, "the forest")  # the file alone: its errors name it
     for key, value in (("n_trees", args.trees), ("max_depth", args.max_depth),
                        ("pixels_per_frame", args.pixels_per_frame), ("seed", args.seed)):
         if value is not None:

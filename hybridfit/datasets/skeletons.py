@@ -192,6 +192,8 @@ def check_model(sk: Skeleton) -> None:
 def load_skeleton(path: str | Path) -> Skeleton:
     """A skeleton TOML file, fully checked (the file's consistency and its model's points)."""
     p = Path(path)
+    if p.is_dir():
+        raise HybridfitError(f"{p}: is a folder, not a skeleton file")
     if not p.is_file():
         raise HybridfitError(f"{p}: no such skeleton file")
     stat = p.stat()
@@ -298,21 +300,43 @@ def fit_settings(names, n_points: int, dataset: str | None, model: str, model_co
     (or, without them, the dataset skeleton's model names, which must number ``n_points``)
     and ``model_config`` with the skeleton's derived points. Every name must be a point of
     the model; errors name ``where`` (the file)."""
+    from .. import registry
+
     if dataset:
         sk = skeleton(dataset)
         if names is None:
             if n_points != len(sk):
-                raise HybridfitError(f"{where}: {n_points} points, but the {sk.dataset} skeleton has {len(sk)}")
+                raise HybridfitError(f"{where}: {n_points} points, but the {sk.dataset} skeleton has {len(sk)}"
+                                     f"{_skeletons_hint(n_points)}")
             names = sk.model_names
         model_config = dataset_model_config(model, model_config, dataset)
+    elif names is None:
+        joints = registry.create("model", model, model_config).n_joints
+        if n_points != joints:
+            raise HybridfitError(f"{where}: {n_points} points without joint_names, and model {model} has {joints} "
+                                 f"joints: pass --dataset{_skeletons_hint(n_points, ' (')}{')' * bool(_of_size(n_points))}"
+                                 " or store the points' joint_names in the file")
     names = None if names is None else [str(n) for n in names]
     if names is not None:
-        from .. import registry
-
         instance = registry.create("model", model, model_config)
         if names != list(instance.joint_names):
             try:
                 instance.point_matrix(names)
             except HybridfitError as err:
+                whose = [n for n, k in SKELETONS.items() if set(k.model_names) == set(names) and n != (dataset or "")]
+                if whose:  # the whole file is another skeleton's, not one bad point
+                    given = f", not the {skeleton(dataset).dataset} skeleton's (--dataset {dataset})" if dataset else ""
+                    raise HybridfitError(f"{where}: joint_names are the {whose[0]} skeleton's points{given}: "
+                                         f"pass --dataset {whose[0]}") from None
                 raise HybridfitError(f"{where}: joint_names: {err}") from None
     return names, model_config
+
+
+def _of_size(n_points: int) -> list[str]:
+    return [n for n, sk in SKELETONS.items() if len(sk) == n_points]
+
+
+def _skeletons_hint(n_points: int, lead: str = "; ") -> str:
+    """'; the skeletons with N points: icvl, ...' (empty when none has N points)."""
+    names = _of_size(n_points)
+    return f"{lead}{n_points}-point skeletons: {', '.join(names)}" if names else ""
