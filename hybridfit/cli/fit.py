@@ -15,7 +15,7 @@ from ..io import load_proposals, save_npz
 from ..datasets.folder import load_dataset
 from ..metrics import summary
 from ..objective import dataset_observations
-from ..fitting.setup_check import CHECK_BUDGET, check_setup
+from ..fitting.setup_check import check_setup
 from ..fitting.tracking import track
 from ._common import add_fit_options, add_plugin_options, declare_paths, plugin_kwargs
 
@@ -107,9 +107,12 @@ def check_hand_and_geometry(args, data: dict, names, plugins: dict, dataset: str
             raise HybridfitError(f"--hand {args.hand}: model {plugins['model']} has no mirror setting (one hand only)")
         config[key] = args.hand == "left"
     options = {k: plugins[k] for k in ("objective", "objective_config", "optimizer", "optimizer_config")}
-    found = check_setup(data["proposals"], data["confidences"], model=plugins["model"], model_config=config,
-                        joint_names=names, try_mirror=args.hand == "auto", budget=min(args.budget, CHECK_BUDGET),
-                        seed=args.seed, search_radius_mm=args.search_radius, **options)
+    try:
+        found = check_setup(data["proposals"], data["confidences"], model=plugins["model"], model_config=config,
+                            joint_names=names, try_mirror=args.hand == "auto", seed=args.seed,
+                            search_radius_mm=args.search_radius, **options)
+    except HybridfitError:  # the check is advice (an optimiser needing more than its budget, say): the fit
+        return config       # itself reports any error of the input or options
     if found.other_hand:
         hand = "right" if found.mirror else "left"
         config[key] = not found.mirror
@@ -117,7 +120,11 @@ def check_hand_and_geometry(args, data: dict, names, plugins: dict, dataset: str
                       f"{np.median(found.mirrored_mm):.1f} mm from the top proposals on {len(found.frames)} frames, "
                       f"the other hand's {np.median(found.distance_mm):.1f} mm): fitting the {hand} hand "
                       f"(--hand {hand}; --hand {'left' if hand == 'right' else 'right'} to keep the other)")
-    if found.far and dataset and args.model_config is None:
+    if found.very_far and not (dataset and args.model_config is None):
+        warnings.warn(f"{args.proposals}: the fit lies a median {found.best_mm:.1f} mm from the top proposals on "
+                      f"{len(found.frames)} frames, further than any hand's geometry explains: are the joint_names "
+                      "those of the proposals, in their order, and the proposals in millimetres?")
+    elif found.far and dataset and args.model_config is None:
         sk = skeleton(dataset).dataset
         warnings.warn(f"the fit lies a median {found.best_mm:.1f} mm from the top proposals on {len(found.frames)} "
                       f"frames: the {plugins['model']} model's geometry does not match the {sk} annotations; "

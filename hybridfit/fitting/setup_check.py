@@ -6,7 +6,7 @@ Both are judged by one measure that needs no ground truth: how far the fitted po
 the top (most confident) proposals, the median over points and then over the checked frames,
 in millimetres. A fit with the right hand and geometry stays within the proposals' own noise
 (a few mm); the wrong hand or an uncalibrated geometry cannot reach them. The check fits
-``CHECK_FRAMES`` frames spread over the input with at most ``CHECK_BUDGET`` evaluations each,
+``CHECK_FRAMES`` frames spread over the input with ``CHECK_BUDGET`` evaluations each,
 with the model and, where it has a mirror setting, with its mirror image: a few thousand
 evaluations, whatever the number of frames.
 """
@@ -23,14 +23,17 @@ from .frames import fit
 
 #: frames fitted by the check (spread evenly over the frames with proposals)
 CHECK_FRAMES = 8
-#: evaluations per frame of the check's fits (the run's own budget when smaller)
+#: evaluations per frame of the check's fits (whatever the run's budget: the distances are compared with fixed
+#: thresholds)
 CHECK_BUDGET = 600
 #: the mirror image is the better hand when its distance is below this share of the model's
 #: and it is closer in at least MIRROR_FRAMES of the checked frames
 MIRROR_RATIO = 0.75
 MIRROR_FRAMES = 0.75
-#: a fit further than this from the top proposals (median, mm) is far
+#: a fit further than this from the top proposals (median, mm) is far: a model not calibrated to them
 FAR_MM = 12.0
+#: further than this, no geometry explains it: the points' names or units are wrong
+VERY_FAR_MM = 30.0
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,11 @@ class SetupCheck:
     def far(self) -> bool:
         """Whether even the better hand's fit is far from the top proposals."""
         return self.best_mm > FAR_MM
+
+    @property
+    def very_far(self) -> bool:
+        """Whether the better hand's fit is further from the top proposals than any hand's geometry explains."""
+        return self.best_mm > VERY_FAR_MM
 
 
 def check_setup(proposals: np.ndarray, confidences: np.ndarray, *, model: Any = "hand26",

@@ -73,3 +73,11 @@ def test_the_papers_icvl_proposals_without_calibration_say_calibrate(tmp_path, c
                       "--budget", "600"])
     assert code == 0
     assert len(said) == 1 and "hybridfit calibrate --dataset icvl" in said[0]
+
+
+def test_permuted_point_names_are_warned_about(tmp_path):
+    d = hybridfit.synthetic_proposals(6, seed=4)
+    names = [str(n) for n in d["joint_names"]]
+    np.savez(tmp_path / "p.npz", **{**d, "joint_names": np.asarray(names[10:] + names[:10])})
+    code, said = run(["fit", str(tmp_path / "p.npz"), "--out", str(tmp_path / "o.npz"), "--budget", "300"])
+    assert code == 0 and len(said) == 1 and "further than any hand's geometry explains" in said[0]
