@@ -6,17 +6,37 @@ optimisers (entry-point groups ``hybridfit.models``, ``hybridfit.objectives``,
 ``hybridfit.optimizers``). Optimisers minimise; lengths are millimetres, angles radians.
 """
 
-from .errors import HybridfitError
-from .fitting.estimator import HybridEstimator
-from .fitting.frames import FitResult, fit
-from .model.base import HandModel, Stage
-from .objective import Objective
-from .optimizer import OptimizeResult, Optimizer, Task
-from .plugin import Plugin, Settings
-from .problem import Problem
-from .registry import available, create
-from .synthetic.stress import stress_proposals
-from .synthetic.proposals import synthetic_proposals
+import importlib
+
+#: public names -> the module that defines them, imported on first use (PEP 562), so that
+#: ``import hybridfit`` (and the command line's start-up) stays light and a Ctrl-C during
+#: start-up reaches the command line's handler
+_LAZY = {
+    "HybridfitError": "errors", "HybridEstimator": "fitting.estimator", "FitResult": "fitting.frames",
+    "fit": "fitting.frames", "HandModel": "model.base", "Stage": "model.base", "Objective": "objective",
+    "OptimizeResult": "optimizer", "Optimizer": "optimizer", "Task": "optimizer", "Plugin": "plugin",
+    "Settings": "plugin", "Problem": "problem", "available": "registry", "create": "registry",
+    "stress_proposals": "synthetic.stress", "synthetic_proposals": "synthetic.proposals",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    else:  # a submodule (hybridfit.io, hybridfit.metrics, ...)
+        try:
+            value = importlib.import_module(f".{name}", __name__)
+        except ModuleNotFoundError as err:
+            if err.name != f"{__name__}.{name}":
+                raise
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __version__ = "0.3.0"
 

@@ -10,7 +10,8 @@ shape): it propagates, naming the plugin, and is never recorded as a frame's fai
 EXIT_OK = 0
 EXIT_USER_ERROR = 2  # bad input or options: one line on stderr, nothing written or overwritten
 EXIT_INCOMPLETE = 3  # the work ran, but some frames (fit/estimate/propose) or trials (study) failed; the rest is written
-EXIT_INTERRUPTED = 130  # Ctrl-C: the finished work is written
+EXIT_INTERRUPTED = 130  # Ctrl-C (SIGINT): the finished work is written
+# SIGTERM -> 143, SIGHUP -> 129 (128 + the signal's number): stopped like Ctrl-C (``Terminated``)
 
 
 class HybridfitError(Exception):
@@ -38,3 +39,31 @@ class PluginError(RuntimeError):
     others marked failed), so that no finished work is lost."""
 
     result = None
+
+
+class Terminated(KeyboardInterrupt):
+    """A stop signal other than SIGINT (SIGTERM, SIGHUP), raised by the command line's handler.
+
+    It is a KeyboardInterrupt, so the library stops the same way as for Ctrl-C (finished
+    frames kept, the rest marked interrupted); the command exits with ``exit_code``, 128 plus
+    the signal's number. ``received`` is the last such signal this process got (or None)."""
+
+    received: int | None = None
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = int(signum)
+        Terminated.received = self.signum
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum
+
+    def describe(self) -> str:
+        import signal
+
+        try:
+            name = signal.Signals(self.signum).name
+        except ValueError:
+            name = f"signal {self.signum}"
+        return f"stopped by {name}"

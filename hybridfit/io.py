@@ -9,15 +9,18 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import struct
 import tempfile
 import zipfile
 import zlib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from .errors import HybridfitError
+from .plausible import check_hand_scale, check_unique_names
 
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
@@ -29,6 +32,10 @@ def validate_proposals(proposals, confidences, joint_names=None, where: str = "p
     c = np.asarray(confidences)
     if p.ndim != 4 or p.shape[-1] != 3:
         raise HybridfitError(f"{where}: 'proposals' must have shape (frames, joints, k, 3), got {p.shape}")
+    if p.ndim == 4 and 0 in p.shape[1:3]:
+        what = "joints" if p.shape[1] == 0 else "proposals per joint (k = 0)"
+        raise HybridfitError(f"{where}: 'proposals' has no {what}: shape {p.shape}, expected (frames, joints, k, 3) "
+                             "with k >= 1")
     if c.shape != p.shape[:3]:
         raise HybridfitError(
             f"{where}: 'confidences' must have shape {p.shape[:3]} to match 'proposals', got {c.shape}"
@@ -44,16 +51,27 @@ def validate_proposals(proposals, confidences, joint_names=None, where: str = "p
         raise HybridfitError(f"{where}: 'confidences' has negative values (first in frame {int(np.argmax(neg))})")
     if joint_names is not None and len(joint_names) != p.shape[1]:
         raise HybridfitError(f"{where}: {len(joint_names)} 'joint_names' for {p.shape[1]} joints")
+    if joint_names is not None:
+        check_unique_names(joint_names, where)
     return p.astype(np.float64), c.astype(np.float64)
+
+
+def require_file(path: str | os.PathLike, what: str = "file") -> Path:
+    """``path`` as a Path if it is a readable file; else a HybridfitError saying what it is
+    instead: a folder, or nothing (``what``: e.g. "forest file", for the message)."""
+    path = Path(path)
+    if path.is_dir():
+        raise HybridfitError(f"{path}: is a folder, not a {what}")
+    if not path.is_file():
+        raise HybridfitError(f"{path}: not a regular {what}" if path.exists() else f"{path}: no such {what}")
+    return path
 
 
 def load_npz(path: str | os.PathLike, kind: str = "") -> dict[str, np.ndarray]:
     """All arrays of an .npz file (no pickles), with readable errors naming the file and what
     it should be (e.g. kind="forest"). Never suggests unpickling."""
-    path = Path(path)
     what = f"{kind} file" if kind else ".npz file"
-    if not path.is_file():
-        raise HybridfitError(f"{path}: no such {kind + ' ' if kind else ''}file")
+    path = require_file(path, f"{kind} file" if kind else "file")
     expected = f"expected {'a hybridfit ' + kind if kind else 'an'} .npz file (a zip archive of arrays written by numpy.savez)"
     with open(path, "rb") as fh:
         magic = fh.read(4)
@@ -74,14 +92,6 @@ def load_npz(path: str | os.PathLike, kind: str = "") -> dict[str, np.ndarray]:
     except (zipfile.BadZipFile, OSError, EOFError, KeyError, zlib.error, NotImplementedError, RuntimeError,
             struct.error, SyntaxError, MemoryError, UnicodeDecodeError) as err:  # what zipfile and numpy raise
         raise HybridfitError(f"{path}: not a readable {what} (corrupt or truncated: {type(err).__name__}: {err})") from None
-
-
-def read_results(path: str | os.PathLike, dataset: str) -> np.ndarray:
-    """A results text file -> (F, J, 3) xyz mm (``datasets.results.read_xyz``; a binary file
-    is named, not decoded)."""
-    from .datasets.results import read_xyz
-
-    return read_xyz(path, dataset)
 
 
 def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -109,15 +119,20 @@ def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:
         if bad.any():
             raise HybridfitError(f"{path}: 'ground_truth' has NaN or inf values (first in frame {int(np.argmax(bad))})")
         data["ground_truth"] = gt.astype(np.float64)
+        check_hand_scale(data["ground_truth"], str(path), "ground_truth")
     return data
 
 
 def check_output(path: str | os.PathLike, option: str = "--out") -> Path:
     """Fail early (before any work) when ``path`` cannot be written as a file: it is a
-    folder, its parent is a file, or the folder is not writable. Creates no file."""
+    folder, not a regular file (a FIFO, a device such as /dev/null: an atomic write would
+    replace it), its parent is a file, or the folder is not writable. Creates no file."""
     path = Path(path)
     if path.is_dir():
         raise HybridfitError(f"{option} {path}: is a folder; give a file name")
+    if path.exists() and not path.is_file():
+        raise HybridfitError(f"{option} {path}: is a {_file_kind(path)}, not a regular file; hybridfit writes "
+                             "its outputs as new files and would replace it: give a file name")
     parent = path.parent
     while not parent.exists():
         parent = parent.parent
@@ -128,18 +143,120 @@ def check_output(path: str | os.PathLike, option: str = "--out") -> Path:
     return path
 
 
+def _file_kind(path: Path) -> str:
+    mode = path.stat().st_mode
+    for test, kind in ((stat.S_ISFIFO, "FIFO (named pipe)"), (stat.S_ISCHR, "character device"),
+                       (stat.S_ISBLK, "block device"), (stat.S_ISSOCK, "socket")):
+        if test(mode):
+            return kind
+    return "special file"
+
+
+def _paths(value) -> list[Path]:
+    if value is None:
+        return []
+    return [Path(v) for v in value] if isinstance(value, (list, tuple)) else [Path(value)]
+
+
+def _same(a: Path, b: Path) -> bool:
+    """Whether a and b name one existing file or folder (links and hard links included)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet)
+        return False
+
+
+def check_paths(inputs: dict[str, Any], outputs: dict[str, Any], replaced_folders: dict[str, Any] | None = None) -> None:
+    """Refuse, before any work, a run whose outputs would destroy something: every output file
+    passes :func:`check_output`, and no output (file, or folder replaced as a whole) is one of
+    the run's inputs or holds one. ``inputs``/``outputs``/``replaced_folders``: {option: path,
+    a list of paths or None}; errors name both options."""
+    named_inputs = [(option, p) for option, value in inputs.items() for p in _paths(value)]
+    for option, value in outputs.items():
+        for out in _paths(value):
+            check_output(out, option)
+            for in_option, inp in named_inputs:
+                if _same(out, inp):
+                    raise HybridfitError(f"{option} {out}: is the input {in_option} {inp}; an output never "
+                                         "replaces an input: give another file name")
+    for option, value in (replaced_folders or {}).items():
+        for out in _paths(value):
+            if out.exists() and not out.is_dir():
+                raise HybridfitError(f"{option} {out}: is a {_file_kind(out) if not out.is_file() else 'file'}; "
+                                     "it writes a folder")
+            for in_option, inp in named_inputs:
+                if _same(out, inp) or any(_same(out, parent) for parent in inp.resolve().parents):
+                    raise HybridfitError(f"{option} {out}: holds the input {in_option} {inp}, and this output "
+                                         "replaces the whole folder: give another folder")
+
+
+def memory_bytes() -> int | None:
+    """This machine's physical memory in bytes (None where the system does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(count: int, bytes_each: int, what: str) -> None:
+    """Refuse, before allocating, ``count`` items of ``bytes_each`` bytes (``what``, e.g.
+    "frames of synthetic proposals (k=3)") that would need more than half of this machine's
+    memory; the message names the size and the most that fits."""
+    total = memory_bytes()
+    need = int(count) * int(bytes_each)
+    if total is not None and need > total // 2:
+        raise HybridfitError(f"{count} {what} would need {need / 2**30:,.0f} GiB, more than half of this machine's "
+                             f"memory ({total / 2**30:,.0f} GiB); at most {total // 2 // max(bytes_each, 1):,} {what.split()[0]} fit")
+
+
+def process_alive(pid: int) -> bool:
+    """Whether a process with this id runs on this machine (this process counts)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class WriteError(HybridfitError, OSError):
+    """Writing an output failed (a full disk, a read-only folder, permissions): a user's
+    environment, not a bug. The message names the path; the existing file is unchanged and
+    no temporary file is left."""
+
+    def __str__(self) -> str:  # the message, without OSError's "[Errno N]"
+        return str(self.strerror)
+
+
+def write_error(path, err: OSError) -> WriteError:
+    """A one-line :class:`WriteError` for ``err`` raised while writing ``path``."""
+    reason = err.strerror or str(err) or type(err).__name__
+    return WriteError(err.errno, f"{path}: cannot write: {reason} (nothing was replaced)")
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike):
     """Yield a hidden temporary path in ``path``'s folder; on success it replaces ``path``,
     on failure it is removed (an existing ``path`` is never left half-written)."""
     path = check_output(path, "output")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".hybridfit-", suffix=".tmp", dir=path.parent)
-    os.close(fd)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".hybridfit-", suffix=".tmp", dir=path.parent)
+        os.close(fd)
+    except OSError as err:
+        raise write_error(path, err) from None
     try:
         yield Path(tmp)
         os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)
+    except OSError as err:
+        Path(tmp).unlink(missing_ok=True)
+        if isinstance(err, WriteError):
+            raise
+        raise write_error(path, err) from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -149,17 +266,9 @@ def save_npz(path: str | os.PathLike, **arrays) -> None:
     """Write an .npz atomically: a hidden temporary file in the same folder, renamed into
     place, so an existing file is replaced only by a complete one (and the temporary file is
     removed on failure)."""
-    path = check_output(path, "output")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".hybridfit-", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes it private; give it the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def frame_slice(text: str | None, n: int, option: str = "--frames") -> slice:

@@ -45,7 +45,8 @@ def random_params(model, n, rng):
 
 @pytest.fixture
 def interrupt_at(monkeypatch):
-    """interrupt_at(frame): make hybridfit.fit raise KeyboardInterrupt when it reaches that frame."""
+    """interrupt_at(frame): make hybridfit.fit raise KeyboardInterrupt when it reaches that frame
+    (and skip the CLI's set-up check)."""
     from hybridfit.fitting import compiled, frames as fitting
 
     real = fitting._fit_chunk
@@ -65,5 +66,11 @@ def interrupt_at(monkeypatch):
         monkeypatch.setattr(fitting, "_fit_chunk", chunk)
         monkeypatch.setattr(compiled.CompiledFitter, "prepare", prepare)
         monkeypatch.setattr(fitting, "COMPILED_CHUNK", 1)  # the compiled path, one frame per call
+        # `hybridfit fit` checks the hand on a few frames first (fits of their own, numbered from 0): skipped here,
+        # so that the frame counted is the main fit's
+        import hybridfit.cli.fit as cli_fit
+
+        monkeypatch.setattr(cli_fit, "check_hand_and_geometry", lambda args, data, names, plugins, dataset:
+                            plugins["model_config"])
 
     return arm

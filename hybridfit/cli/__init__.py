@@ -3,10 +3,17 @@
 Each subcommand is one module of this package that defines ``register(subparsers)``; they
 are found by listing the package, so adding a command never edits this file.
 
-Exit codes (``hybridfit.errors``): 0 done; 2 a user error (bad input or option: one line on
-stderr naming the file, key, field or frame; nothing written or overwritten); 3 the run
-finished but some frames or trials failed (the rest is written, the failures listed); 130
-interrupted (finished work is written); 141 the output pipe was closed (``| head``).
+Exit codes (``hybridfit.errors``): 0 done; 2 a user error (bad input or option, or an output
+that cannot be written: one line on stderr naming the file, key, field or frame; nothing
+written or overwritten); 3 the run finished but some frames or trials failed (the rest is
+written, the failures listed); 130 interrupted by SIGINT (Ctrl-C), 143 by SIGTERM (``kill``,
+``timeout``, batch schedulers), 129 by SIGHUP (the terminal closed): 128 + the signal's
+number, as a shell reports it; each stops the run the same way, the finished frames are
+written and the rest marked; 141 the output pipe was closed (``| head``).
+
+This module imports only the standard library at start-up: everything else is imported
+inside :func:`main`, under its interrupt handler, so that a Ctrl-C at any moment exits 130
+without a traceback.
 """
 
 from __future__ import annotations
@@ -15,13 +22,12 @@ import argparse
 import importlib
 import os
 import pkgutil
+import signal
 import sys
+import threading
 import warnings
 
-from pydantic import ValidationError
-
-from ..errors import EXIT_INTERRUPTED, EXIT_USER_ERROR, HybridfitError
-from ..plugin import format_validation_error
+from ..errors import EXIT_INTERRUPTED, EXIT_USER_ERROR, HybridfitError, Terminated
 
 
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, as a shell reports `cmd | head`
@@ -48,7 +54,49 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: the signals that stop a run like Ctrl-C does (finished work written, exit 128 + signal)
+STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+def _stop(signum, frame):
+    raise Terminated(signum)
+
+
 def main(argv: list[str] | None = None) -> int:
+    try:  # first statement: a Ctrl-C from here on is handled
+        Terminated.received = None
+        previous = _install(STOP_SIGNALS, _stop)
+        try:
+            return _main(argv)
+        finally:
+            _install(STOP_SIGNALS, previous)
+    except KeyboardInterrupt as stop:  # during start-up, or while reporting another error
+        return _interrupted(stop)
+
+
+def _install(signals, handler) -> dict:
+    """Set ``handler`` (one, or {signal: handler}) for ``signals`` in the main thread; the previous handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    previous = {}
+    for s in signals:
+        h = handler.get(s) if isinstance(handler, dict) else handler
+        if h is not None:
+            previous[s] = signal.signal(s, h)
+    return previous
+
+
+def _interrupted(stop: KeyboardInterrupt) -> int:
+    """Print what stopped the run; its exit code (130 for Ctrl-C, 128 + the signal's number)."""
+    print(f"hybridfit: {stop.describe() if isinstance(stop, Terminated) else 'interrupted'}", file=sys.stderr)
+    return stop.exit_code if isinstance(stop, Terminated) else EXIT_INTERRUPTED
+
+
+def _main(argv: list[str] | None) -> int:
+    from pydantic import ValidationError
+
+    from ..plugin import format_validation_error
+
     warnings.formatwarning = lambda msg, cat, *a, **k: f"hybridfit: warning: {msg}\n"
     parser = build_parser()
     try:
@@ -56,22 +104,28 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exit:  # --help, or an option error already printed as one line
         return int(exit.code or 0)
     try:
-        return int(args.func(args) or 0)
+        from ._common import check_declared
+
+        check_declared(args)
+        code = int(args.func(args) or 0)
+        if code == EXIT_INTERRUPTED and Terminated.received is not None:  # finished work written after a signal
+            return Terminated(Terminated.received).exit_code
+        return code
     except HybridfitError as err:
         print(f"hybridfit: error: {_one_line(err)}", file=sys.stderr)
         return EXIT_USER_ERROR
     except ValidationError as err:
         print(f"hybridfit: error: {format_validation_error(err)}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except (FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError) as err:
-        print(f"hybridfit: error: {err.filename}: {err.strerror}", file=sys.stderr)
+    except OSError as err:  # a file the command reads or writes: one line naming it
+        if isinstance(err, BrokenPipeError) and err.filename is None:
+            _silence_stdout()
+            return EXIT_BROKEN_PIPE
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"hybridfit: error: {where}{err.strerror or _one_line(err)}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except BrokenPipeError:
-        _silence_stdout()
-        return EXIT_BROKEN_PIPE
-    except KeyboardInterrupt:
-        print("hybridfit: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as stop:
+        return _interrupted(stop)
 
 
 def _one_line(err: Exception) -> str:

@@ -14,16 +14,34 @@ from pydantic import ValidationError
 
 from .. import registry
 from ..errors import HybridfitError
-from ..io import read_results  # noqa: F401  (the commands read results files through it)
+from ..datasets.results import read_xyz as read_results  # noqa: F401  (the commands read results files through it)
+from ..io import check_paths, require_file
+
+
+def declare_paths(parser: argparse.ArgumentParser, inputs=(), outputs=(), replaced_folders=()) -> None:
+    """Declare which of a command's options (``"--out"``) or positionals (``"proposals"``) name
+    what it reads and what it writes (files; ``replaced_folders``: folders it replaces as a
+    whole). The command line checks them before the command runs (:func:`check_declared`):
+    no output is an input or a special file. Every command declares (a test checks)."""
+    parser.set_defaults(paths_declared=(tuple(inputs), tuple(outputs), tuple(replaced_folders)))
+
+
+def _attr(name: str) -> str:
+    return name.lstrip("-").replace("-", "_")
+
+
+def check_declared(args: argparse.Namespace) -> None:
+    """:func:`hybridfit.io.check_paths` on the paths a command declared (``declare_paths``)."""
+    inputs, outputs, folders = args.paths_declared
+    values = lambda names: {n: getattr(args, _attr(n)) for n in names}  # noqa: E731
+    check_paths(values(inputs), values(outputs), values(folders))
 
 
 def load_toml(path: str | None) -> dict[str, Any]:
     """A TOML file as a dict ({} for None), with errors naming the file and line."""
     if path is None:
         return {}
-    p = Path(path)
-    if not p.is_file():
-        raise HybridfitError(f"{p}: no such file")
+    p = require_file(path)
     try:
         return tomllib.loads(p.read_text())
     except tomllib.TOMLDecodeError as err:
@@ -78,21 +96,52 @@ def check_plugin(kind: str, name: str, config: dict[str, Any], path: str | None)
         plugin = registry.create(kind, name, config)
         getattr(plugin, "inner", None)  # a wrapper's inner optimiser (stepwise) is checked too
     except ValidationError as err:
-        fields = settings.model_fields
-        parts = []
-        for e in err.errors():
-            key = ".".join(str(p) for p in e["loc"]) or "(settings)"
-            if e["type"] == "extra_forbidden":
-                close = difflib.get_close_matches(key, list(fields), n=1)
-                hint = f"did you mean {close[0]!r}? " if close else ""
-                parts.append(f"unknown key {key!r} for {kind} {name} ({hint}valid keys: {', '.join(fields)})")
-            else:
-                parts.append(f"{key}: {e['msg']}")
-        raise HybridfitError(where + "; ".join(parts)) from None
+        raise settings_error(err, settings, path, f"{kind} {name}") from None
     except HybridfitError as err:
         if path:
             raise HybridfitError(f"{where}{err}") from None
         raise
+
+
+def validate_settings(cls, config: dict[str, Any], path: str | None, what: str):
+    """``cls.model_validate(config)`` (a pydantic settings class) with errors naming the file,
+    the key and the closest valid key (``settings_error``)."""
+    try:
+        return cls.model_validate(config)
+    except ValidationError as err:
+        raise settings_error(err, cls, path, what) from None
+
+
+def settings_error(err: ValidationError, cls, path: str | None, what: str) -> HybridfitError:
+    """One line for a settings file's ValidationError: ``FILE: unknown key 'k' for WHAT (did you
+    mean 'key'? valid keys: ...)`` or ``FILE: key: what is wrong``; nested keys are dotted."""
+    parts = []
+    for e in err.errors():
+        key = ".".join(str(p) for p in e["loc"]) or "(settings)"
+        if e["type"] == "extra_forbidden":
+            fields = list(_fields_at(cls, e["loc"][:-1]))
+            close = difflib.get_close_matches(str(e["loc"][-1]), fields, n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            parts.append(f"unknown key {key!r} for {what} ({hint}valid keys: {', '.join(fields)})")
+        else:
+            parts.append(f"{key}: {e['msg']}")
+    return HybridfitError((f"{path}: " if path else "") + "; ".join(parts))
+
+
+def _fields_at(cls, loc) -> dict[str, Any]:
+    """The fields of the (nested) settings table at ``loc`` of pydantic model ``cls``."""
+    import typing
+
+    from pydantic import BaseModel
+
+    for part in loc:
+        field = getattr(cls, "model_fields", {}).get(str(part))
+        models = [] if field is None else [a for a in (field.annotation, *typing.get_args(field.annotation))
+                                           if isinstance(a, type) and issubclass(a, BaseModel)]
+        if not models:
+            return {}
+        cls = models[0]
+    return getattr(cls, "model_fields", {})
 
 
 def check_image_format(path: str, option: str = "--out") -> None:

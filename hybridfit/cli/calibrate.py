@@ -11,8 +11,8 @@ import numpy as np
 from ..fitting.calibrate import calibrate, to_toml
 from ..datasets.skeletons import dataset_model_config, skeleton
 from ..errors import HybridfitError
-from ..io import atomic_path, check_output, frame_slice
-from ._common import fraction, load_toml, non_negative_int, positive_int, read_results, seed_int
+from ..io import atomic_path, frame_slice
+from ._common import check_plugin, declare_paths, fraction, load_toml, non_negative_int, positive_int, read_results, seed_int
 
 
 def register(sub) -> None:
@@ -32,16 +32,18 @@ def register(sub) -> None:
     p.add_argument("--budget", type=positive_int, default=3400, help="evaluations per frame of each pose fit")
     p.add_argument("--seed", type=seed_int, default=0)
     p.add_argument("--jobs", type=positive_int, default=1)
+    declare_paths(p, inputs=("--ground-truth", "--model-config"), outputs=("--out",))
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     sk = skeleton(args.dataset)
-    check_output(args.out)
     truth = read_results(args.ground_truth, args.dataset)
     frames = np.arange(len(truth))[frame_slice(args.frames, len(truth))]
     truth = truth[frames]
-    start = dataset_model_config(args.model, load_toml(args.model_config), args.dataset)
+    config = load_toml(args.model_config)
+    check_plugin("model", args.model, config, args.model_config)  # a typo names the file and the closest key
+    start = dataset_model_config(args.model, config, args.dataset)
     mirror = {"auto": None, "right": False, "left": True}[args.hand]
     result = calibrate(truth, sk.model_names, model=args.model, model_config=start, mirror=mirror,
                        holdout=args.holdout, rounds=args.rounds, budget=args.budget, seed=args.seed, jobs=args.jobs,

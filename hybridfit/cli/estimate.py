@@ -10,9 +10,9 @@ from ..datasets import open_dataset
 from ..datasets.protocol import ground_truth, model_config
 from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK
 from ..fitting.estimator import EMPTY_FRAME, HybridEstimator
-from ..io import check_output, save_npz
+from ..io import save_npz
 from ..metrics import summary
-from ._common import add_fit_options, add_plugin_options, plugin_kwargs
+from ._common import add_fit_options, add_plugin_options, declare_paths, plugin_kwargs
 from ._forest import frame_indices, report_empty
 from .fit import report_failures
 from .propose import add_proposal_options
@@ -27,11 +27,12 @@ def register(sub) -> None:
     add_proposal_options(p)
     add_plugin_options(p)
     add_fit_options(p)
+    declare_paths(p, inputs=("forest", "data", "--model-config", "--objective-config", "--optimizer-config"),
+                  outputs=("--out",))
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    check_output(args.out)
     plugins = plugin_kwargs(args)
     ds = open_dataset(args.data)
     plugins["model_config"] = model_config(ds, plugins["model"], plugins["model_config"])

@@ -21,9 +21,10 @@ import numpy as np
 from ..datasets.points import in_order
 from ..errors import HybridfitError
 from ..fitting.frames import INLIER_DISTANCE_MM
-from ..io import check_output, load_npz
+from ..io import atomic_path, load_npz
+from ..plausible import check_hand_scale, check_unique_names
 from ..metrics import SUCCESS_THRESHOLDS_MM, fingertips, inliers, joint_errors, oracle, success_rate
-from ._common import check_image_format, read_results
+from ._common import check_image_format, declare_paths, read_results
 
 REPORTED = (20, 40, 80)
 
@@ -37,6 +38,7 @@ def points_array(path: str, data: dict, key: str, allow_nan=None) -> np.ndarray:
         raise HybridfitError(f"{path}: {key!r} must be numbers of shape (frames, points, 3), got {a.dtype} {a.shape}")
     a = a.astype(float)
     bad = ~np.isfinite(a).all(axis=(1, 2))
+    check_hand_scale(a, path, key)  # metres would give 0.02 mm errors and 100 % success
     if allow_nan is True:
         return a
     if allow_nan is not None and np.shape(allow_nan) == bad.shape:
@@ -54,6 +56,7 @@ def point_names(path: str, data: dict, J: int) -> list[str] | None:
     names = np.asarray(data["joint_names"])
     if names.ndim != 1 or names.dtype.kind not in "US" or len(names) != J:
         raise HybridfitError(f"{path}: 'joint_names' must be {J} strings, got {names.dtype} {names.shape}")
+    check_unique_names(names, path)
     return [str(n) for n in names]
 
 
@@ -73,6 +76,7 @@ def load_points(path: str, dataset: str | None) -> list[tuple[str, np.ndarray, l
             p, w = z["proposals"], z["confidences"]
             names = point_names(path, z, p.shape[1])
             top = np.take_along_axis(p, w.argmax(axis=-1)[..., None, None], axis=2)[:, :, 0]
+            check_hand_scale(top, path, "proposals")
             out = [(f"{label} top-1", top, names)]
             if "ground_truth" in z:
                 out.append((f"{label} Oracle", oracle(p, points_array(path, z, "ground_truth"), w), names))
@@ -160,6 +164,7 @@ def register(sub) -> None:
     p.add_argument("--frames", metavar="START:STOP",
                    help="evaluate only these frames of the ground truth (inputs with all frames are cut alike)")
     p.add_argument("--plot", metavar="OUT.png", help="draw the success-rate curves (a PNG, or another format matplotlib writes)")
+    declare_paths(p, inputs=("predictions", "data", "--ground-truth", "--compare"), outputs=("--plot",))
     p.set_defaults(func=run)
 
 
@@ -167,7 +172,6 @@ def run(args) -> int:
     from ..io import frame_slice
 
     if args.plot:
-        check_output(args.plot, "--plot")
         check_image_format(args.plot, "--plot")
     truth, truth_names = load_truth(args)
     n_truth = len(truth)
@@ -184,6 +188,8 @@ def run(args) -> int:
             methods.append((label, in_order(pts, by_name, truth_names or [""] * truth.shape[1], path,
                                             "the ground truth")))
     truth = truth[sel]
+    file_frames = np.arange(n_truth)[sel] if first_len == n_truth else np.arange(len(truth))  # the file's indices
+    truth, methods = common_frames(truth, methods, {args.predictions: file_frames})
     names = truth_names or [f"joint {j}" for j in range(truth.shape[1])]
     tips = fingertips(names)
     if args.dataset and names == list(_skeleton(args.dataset).model_names):
@@ -208,6 +214,41 @@ def run(args) -> int:
     return 0
 
 
+def common_frames(truth: np.ndarray, methods: list, chosen: dict) -> tuple[np.ndarray, list]:
+    """The frames every method has an estimate for (a failed or interrupted fit has none):
+    truth and methods cut to them, so that errors and success rates are over the same
+    frames. Prints how many frames each method lacks (and why, for a fits npz)."""
+    has = np.ones(len(truth), bool)
+    for label, pts in methods:
+        missing = ~np.isfinite(pts).all(axis=(1, 2))
+        if missing.any():
+            print(f"{label}: {int(missing.sum())} of {len(missing)} frames failed{_reasons(label, chosen, missing)}")
+        has &= ~missing
+    if has.all():
+        return truth, methods
+    if not has.any():
+        raise HybridfitError("no frame has an estimate in every input: nothing to evaluate")
+    print(f"errors and success rates below are over the {int(has.sum())} frames with an estimate in every input\n")
+    return truth[has], [(label, pts[has]) for label, pts in methods]
+
+
+def _reasons(label: str, chosen: dict, missing: np.ndarray) -> str:
+    """' (3 interrupted, 1 other)' from a fits npz's error messages, for the evaluated file."""
+    path = next((p for p in chosen if Path(p).name == label), None)
+    if path is None or not path.endswith(".npz"):
+        return ""
+    data = load_npz(path)
+    if "error_frames" not in data or "error_messages" not in data or len(data["error_frames"]) != len(
+            data["error_messages"]):
+        return ""
+    frames = set(np.asarray(chosen[path])[missing].tolist())
+    messages = [str(m) for f, m in zip(np.asarray(data["error_frames"]).tolist(), data["error_messages"]) if f in frames]
+    stopped = sum(m == "interrupted" for m in messages)
+    parts = ([f"{stopped} interrupted"] if stopped else []) + ([f"{len(messages) - stopped} other"]
+                                                                 if len(messages) > stopped else [])
+    return f" ({', '.join(parts)})" if parts else ""
+
+
 def report_far_frames(path: str, chosen: np.ndarray, all_frames: bool) -> None:
     """Print the evaluated frames (ground-truth indices ``chosen``) whose fit is far from the
     proposals: a count and the first 10. ``all_frames``: the file has every ground-truth
@@ -229,6 +270,18 @@ def _table(header, rows) -> None:
         print("  ".join(str(v).ljust(w) if c == 0 else str(v).rjust(w) for c, (v, w) in enumerate(zip(r, widths))))
 
 
+def save_figure(fig, out: str) -> None:
+    """Write a matplotlib figure atomically (an existing image is replaced only by a complete
+    one; a failed write names the path) and close it."""
+    import matplotlib.pyplot as plt
+
+    try:
+        with atomic_path(out) as tmp:
+            fig.savefig(tmp, format=Path(out).suffix.lstrip(".").lower())
+    finally:
+        plt.close(fig)
+
+
 def plot_success(curves, out: str, title: str) -> None:
     """Success-rate curves [(label, (81,))] over 0..80 mm as a PNG."""
     import matplotlib
@@ -247,6 +300,4 @@ def plot_success(curves, out: str, title: str) -> None:
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
-    Path(out).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out)
-    plt.close(fig)
+    save_figure(fig, out)

@@ -8,7 +8,8 @@ from ..datasets.points import in_order
 from ..datasets.results import write_xyz
 from ..datasets.skeletons import skeleton
 from ..errors import HybridfitError
-from ..io import atomic_path, check_output, load_npz
+from ..io import atomic_path, load_npz
+from ._common import declare_paths
 
 
 def register(sub) -> None:
@@ -17,11 +18,11 @@ def register(sub) -> None:
     p.add_argument("--dataset", required=True, help="skeleton and camera convention: icvl, nyu, "
                    "nyu36, msra, mediapipe, mano or a skeleton .toml file")
     p.add_argument("--out", required=True, help="results text file: one line per frame, J x (u, v, d)")
+    declare_paths(p, inputs=("fits",), outputs=("--out",))
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    check_output(args.out)
     from .evaluate import point_names, points_array
 
     data = load_npz(args.fits)

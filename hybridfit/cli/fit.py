@@ -3,18 +3,21 @@
 from __future__ import annotations
 
 import sys
+import warnings
 
 import numpy as np
 
 from .. import fit as fit_frames
+from .. import registry
 from ..datasets.skeletons import fit_settings, skeleton
 from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK, HybridfitError, PluginError
-from ..io import check_output, load_proposals, save_npz
+from ..io import load_proposals, save_npz
 from ..datasets.folder import load_dataset
 from ..metrics import summary
 from ..objective import dataset_observations
+from ..fitting.setup_check import check_setup
 from ..fitting.tracking import track
-from ._common import add_fit_options, add_plugin_options, plugin_kwargs
+from ._common import add_fit_options, add_plugin_options, declare_paths, plugin_kwargs
 
 
 def register(sub) -> None:
@@ -35,14 +38,19 @@ def register(sub) -> None:
     p.add_argument("--first-frame", choices=["proposals", "ground-truth"], default="proposals",
                    help="with --track, frame 0's initial guess: its proposals, or the --depth folder's model "
                    "parameters")
+    p.add_argument("--hand", choices=("auto", "right", "left"), default="auto",
+                   help="the hand of the data: right or left (the model's mirror image), or auto (default): the "
+                   "model as configured, or its mirror image where that fits a check on a few frames clearly "
+                   "better (said on stderr)")
     p.add_argument("--dataset", help="the proposals' skeleton when the npz has no joint_names (and its derived "
                    "points for its model): icvl, nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file "
                    "(default: the npz's dataset, which propose writes for real data)")
+    declare_paths(p, inputs=("proposals", "--depth", "--model-config", "--objective-config", "--optimizer-config"),
+                  outputs=("--out",))
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    check_output(args.out)
     data = load_proposals(args.proposals)
     if args.objective is None and "objective" in data:  # the objective the file names (other methods' estimates)
         args.objective = str(data["objective"])
@@ -56,6 +64,8 @@ def run(args) -> int:
     if "ground_truth" in data:
         extra["ground_truth"] = data["ground_truth"]
     depth = depth_frames(args, len(data["proposals"]))
+    if not args.depth:  # the hand and the geometry, on a few frames (hybridfit.fitting.setup_check)
+        plugins["model_config"] = check_hand_and_geometry(args, data, names, plugins, dataset)
     common = dict(joint_names=names, budget=args.budget, seed=args.seed, search_radius_mm=args.search_radius,
                   progress=sys.stderr.isatty(), observations=depth.get("observations"), **plugins)
     if args.track:
@@ -84,6 +94,43 @@ def run(args) -> int:
         print(f"interrupted: finished frames saved to {args.out}", file=sys.stderr)
         return EXIT_INTERRUPTED
     return EXIT_OK if done.all() else EXIT_INCOMPLETE
+
+
+def check_hand_and_geometry(args, data: dict, names, plugins: dict, dataset: str | None) -> dict:
+    """The model settings to fit with: ``--hand`` applied, or (auto) the mirror image where the
+    check finds the data is of the other hand; one warning line for each finding (the other
+    hand; with a dataset and no --model-config, a fit far from the proposals: calibrate)."""
+    key = registry.get("model", plugins["model"]).mirror_setting
+    config = dict(plugins["model_config"])
+    if args.hand != "auto":
+        if key is None:
+            raise HybridfitError(f"--hand {args.hand}: model {plugins['model']} has no mirror setting (one hand only)")
+        config[key] = args.hand == "left"
+    options = {k: plugins[k] for k in ("objective", "objective_config", "optimizer", "optimizer_config")}
+    try:
+        found = check_setup(data["proposals"], data["confidences"], model=plugins["model"], model_config=config,
+                            joint_names=names, try_mirror=args.hand == "auto", seed=args.seed,
+                            search_radius_mm=args.search_radius, **options)
+    except HybridfitError:  # the check is advice (an optimiser needing more than its budget, say): the fit
+        return config       # itself reports any error of the input or options
+    if found.other_hand:
+        hand = "right" if found.mirror else "left"
+        config[key] = not found.mirror
+        warnings.warn(f"{args.proposals}: the proposals are of the {hand} hand (its fit lies a median "
+                      f"{np.median(found.mirrored_mm):.1f} mm from the top proposals on {len(found.frames)} frames, "
+                      f"the other hand's {np.median(found.distance_mm):.1f} mm): fitting the {hand} hand "
+                      f"(--hand {hand}; --hand {'left' if hand == 'right' else 'right'} to keep the other)")
+    if found.very_far and not (dataset and args.model_config is None):
+        warnings.warn(f"{args.proposals}: the fit lies a median {found.best_mm:.1f} mm from the top proposals on "
+                      f"{len(found.frames)} frames, further than any hand's geometry explains: are the joint_names "
+                      "those of the proposals, in their order, and the proposals in millimetres?")
+    elif found.far and dataset and args.model_config is None:
+        sk = skeleton(dataset).dataset
+        warnings.warn(f"the fit lies a median {found.best_mm:.1f} mm from the top proposals on {len(found.frames)} "
+                      f"frames: the {plugins['model']} model's geometry does not match the {sk} annotations; "
+                      f"calibrate it first: hybridfit calibrate --dataset {dataset} --ground-truth LABELS --out "
+                      f"{sk}-{plugins['model']}.toml, then fit with --model-config {sk}-{plugins['model']}.toml")
+    return config
 
 
 def depth_frames(args, frames: int) -> dict:

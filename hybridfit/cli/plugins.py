@@ -4,10 +4,12 @@ optional library is missing as unavailable, with the line that installs it)."""
 from __future__ import annotations
 
 from .. import registry
+from ._common import declare_paths
 
 
 def register(sub) -> None:
     p = sub.add_parser("plugins", help="list registered plugins with their distribution and doc")
+    declare_paths(p)
     p.set_defaults(func=run)
 
 

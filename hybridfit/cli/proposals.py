@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from ..datasets.results import frames_of, read_proposals
-from ..io import check_output, frame_slice, save_npz
+from ..io import frame_slice, save_npz
+from ._common import declare_paths
 
 
 def register(sub) -> None:
@@ -19,11 +20,11 @@ def register(sub) -> None:
     q.add_argument("--frames", metavar="START:STOP", help="keep only these frames (default: all)")
     q.add_argument("--out", required=True, help="output npz: proposals (F,J,k,3) mm (camera coordinates), "
                    "confidences, joint_names, dataset, objective, ground_truth")
+    declare_paths(q, inputs=("results", "--ground-truth"), outputs=("--out",))
     q.set_defaults(func=run_from_results)
 
 
 def run_from_results(args) -> int:
-    check_output(args.out)
     out = read_proposals(args.results, args.dataset, args.confidences, args.ground_truth, "--confidences")
     out = frames_of(out, frame_slice(args.frames, len(out["proposals"])))
     F, J, k, _ = out["proposals"].shape

@@ -10,9 +10,9 @@ from ..datasets import open_dataset
 from ..datasets.protocol import ground_truth
 from ..fitting.estimator import HybridEstimator
 from ..errors import EXIT_INCOMPLETE, EXIT_OK
-from ..io import check_output, save_npz
+from ..io import save_npz
 from ..metrics import joint_errors, oracle
-from ._common import positive_float, positive_int
+from ._common import declare_paths, positive_float, positive_int
 from ._forest import frame_indices, report_empty
 
 
@@ -34,11 +34,11 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="output npz: proposals (camera coordinates, mm), confidences, "
                    "joint_names, empty, frames, ground_truth, dataset (the skeleton, for real datasets)")
     add_proposal_options(p)
+    declare_paths(p, inputs=("forest", "data"), outputs=("--out",))
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    check_output(args.out)
     est = HybridEstimator(args.forest, k=args.k, proposal_set=args.proposal_set, stride=args.stride,
                           bandwidth_mm=args.bandwidth)
     est.get_forest()  # a bad forest file fails before the data is read

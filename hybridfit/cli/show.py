@@ -8,8 +8,9 @@ import numpy as np
 from ..datasets.camera import xyz_to_uvd
 from ..datasets.folder import load_dataset
 from ..errors import HybridfitError
-from ..io import check_output, load_npz, load_proposals
-from ._common import check_image_format
+from ..io import load_npz, load_proposals
+from ._common import check_image_format, declare_paths
+from .evaluate import save_figure
 
 
 def register(sub) -> None:
@@ -20,6 +21,7 @@ def register(sub) -> None:
     p.add_argument("--fits", metavar="NPZ", help="fit results with 'joints' (F, J, 3) mm (hybridfit fit --out)")
     p.add_argument("--proposals", metavar="NPZ", help="proposals (F, J, K, 3) mm with 'confidences' (F, J, K)")
     p.add_argument("--model", default="hand26", help="model whose skeleton to draw when the data set names none")
+    declare_paths(p, inputs=("dataset", "--fits", "--proposals"), outputs=("--out",))
     p.set_defaults(func=run)
 
 
@@ -56,7 +58,6 @@ def _skeleton(ax, uv, parents, color: str, label: str, marker: str = "o", ls: st
 def run(args) -> int:
     import matplotlib
 
-    check_output(args.out)
     check_image_format(args.out)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -108,7 +109,6 @@ def run(args) -> int:
     ax.set_title(title)
     ax.legend(loc="upper left", fontsize=8, framealpha=0.85)
     fig.tight_layout()
-    fig.savefig(args.out)
-    plt.close(fig)
+    save_figure(fig, args.out)
     print(f"wrote {args.out}")
     return 0

@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from ..errors import EXIT_INCOMPLETE, EXIT_OK, HybridfitError
-from ._common import positive_int
+from ._common import declare_paths, positive_int
 
 
 def register(sub) -> None:
@@ -20,11 +20,15 @@ def register(sub) -> None:
     p.add_argument("--cache", metavar="DIR", help="cache folder for shared steps (default: OUT/cache)")
     p.add_argument("--quick", action="store_true", help="apply the study's [quick] overrides")
     p.add_argument("--report-only", action="store_true", help="rewrite the report from the database only")
+    p.add_argument("--allow-large", action="store_true", help="run a study of more than 10,000 trials "
+                   "(refused without it: such a sweep is usually a mistake, and its database grows by hundreds of MB)")
+    declare_paths(p, inputs=("file",))  # --out and --cache: folders it adds files to
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from ..study import load_spec, run_study, write_report
+    from ..study.runner import check_size
 
     if args.scheduler and args.executor != "dask":
         raise HybridfitError("--scheduler needs --executor dask")
@@ -37,8 +41,9 @@ def run(args) -> int:
             raise HybridfitError(f"{out}: no study.db to report from")
         print(f"report -> {write_report(out, study)}")
         return 0
+    check_size(study, args.allow_large, args.file)
     executor = args.executor or ("processes" if args.jobs > 1 else "serial")
     s = run_study(study, out, jobs=args.jobs, executor=executor, scheduler=args.scheduler, cache_dir=args.cache,
-                  progress=sys.stderr.isatty())  # bars on a terminal only, never written into logs
+                  progress=sys.stderr.isatty(), allow_large=args.allow_large)  # bars on a terminal only, never written into logs
     print(f"{s.total} trials: {s.skipped} already complete, {s.ran} run, {s.failed} failed -> {out}/report.md")
     return EXIT_INCOMPLETE if s.failed else EXIT_OK

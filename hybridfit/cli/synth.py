@@ -7,7 +7,7 @@ import sys
 
 from ..io import save_npz
 from ..synthetic.proposals import synthetic_proposals
-from ._common import load_toml, positive_int
+from ._common import declare_paths, load_toml, positive_int, seed_int, validate_settings
 
 
 def register(sub) -> None:
@@ -18,9 +18,10 @@ def register(sub) -> None:
     q.add_argument("--frames", type=positive_int, default=100)
     q.add_argument("-k", type=positive_int, default=3, help="proposals per joint (default 3)")
     q.add_argument("--noise", type=float, default=5.0, help="proposal noise, mm (default 5)")
-    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--seed", type=seed_int, default=0, help="random seed, >= 0 (default 0)")
     q.add_argument("--model", default="hand26")
     q.add_argument("--model-config", metavar="TOML")
+    declare_paths(q, inputs=("--model-config",), outputs=("--out",))
     q.set_defaults(func=run_proposals)
 
     t = kinds.add_parser("train", help="rendered training grid: finger articulations x viewpoints (default 7168 frames)")
@@ -31,11 +32,12 @@ def register(sub) -> None:
     for c in (t, s):
         c.add_argument("--out", required=True, help="output data set folder (replaced if it is a data set)")
         c.add_argument("--config", metavar="TOML", help="settings file (keys of hybridfit.synthetic.config.GridConfig / SequenceConfig)")
-        c.add_argument("--seed", type=int, help="random seed (motions and noise; default 0)")
+        c.add_argument("--seed", type=seed_int, help="random seed, >= 0 (motions and noise; default 0)")
         c.add_argument("--distance", type=float, metavar="MM", help="palm distance from the camera, mm (default 400)")
         c.add_argument("--noise", action="store_true", help="add the default sensor noise model")
         c.add_argument("--model", help="hand model plugin (default: the settings file's, else hand26)")
         c.add_argument("--model-config", metavar="TOML", help="hand model settings (default: the settings file's)")
+        declare_paths(c, inputs=("--config", "--model-config"), replaced_folders=("--out",))
 
 
 def run_proposals(args) -> int:
@@ -51,6 +53,7 @@ def _config(cls, args):
     from ..synthetic.config import parse_config
 
     base = load_toml(args.config)
+    validate_settings(cls, base, args.config, f"synth {args.synth_command}")  # the file alone: its errors name it
     options = {"seed": args.seed, "distance_mm": args.distance, "frames": getattr(args, "frames", None),
                "noise": base.get("noise", {}) if args.noise else None, "model": args.model,
                "model_settings": load_toml(args.model_config) if args.model_config else None}

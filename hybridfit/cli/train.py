@@ -7,8 +7,7 @@ import time
 
 from ..datasets import open_dataset
 from ..forest import ForestConfig, train_forest_dataset
-from ..io import check_output
-from ._common import load_toml, positive_int, seed_int
+from ._common import declare_paths, load_toml, positive_int, seed_int, validate_settings
 from ._forest import frame_indices
 
 
@@ -23,12 +22,13 @@ def register(sub) -> None:
     p.add_argument("--seed", type=seed_int, help="random seed, >= 0 (default 0)")
     p.add_argument("--frames", type=positive_int, help="train on the first N frames only")
     p.add_argument("--jobs", type=positive_int, help="trees grown in parallel (default: the available cores)")
+    declare_paths(p, inputs=("data", "--config"), outputs=("--out",))
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    check_output(args.out)
     settings = load_toml(args.config)
+    validate_settings(ForestConfig, settings, args.config, "the forest")  # the file alone: its errors name it
     for key, value in (("n_trees", args.trees), ("max_depth", args.max_depth),
                        ("pixels_per_frame", args.pixels_per_frame), ("seed", args.seed)):
         if value is not None:

@@ -27,6 +27,7 @@ checks every file is present and reports a missing or corrupt file by name.
 from __future__ import annotations
 
 import json
+import re
 import os
 import shutil
 import zipfile
@@ -40,6 +41,7 @@ from pydantic import ValidationError
 
 from .camera import Intrinsics, xyz_to_uvd
 from ..errors import HybridfitError
+from ..io import WriteError, process_alive, write_error
 
 FORMAT = "hybridfit-dataset"
 VERSION = 1
@@ -96,6 +98,7 @@ def write_dataset(path, depth: np.ndarray, parts: np.ndarray, joints_xyz: np.nda
         raise HybridfitError(f"{path}: exists and is not a hybridfit data set; refusing to overwrite it")
 
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    remove_stale_partials(path)
     shutil.rmtree(tmp, ignore_errors=True)
     try:
         (tmp / "depth").mkdir(parents=True)
@@ -127,10 +130,24 @@ def write_dataset(path, depth: np.ndarray, parts: np.ndarray, joints_xyz: np.nda
         else:
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp.rename(path)
-    except BaseException:
+    except BaseException as err:  # a Ctrl-C or stop signal included: no hidden folder is left
         shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(err, OSError) and not isinstance(err, WriteError):
+            raise write_error(path, err) from None
         raise
     return path
+
+
+def remove_stale_partials(path: Path) -> None:
+    """Remove the hidden ``.NAME.partial-PID`` / ``.NAME.old-PID`` folders that a run writing
+    the data set ``path`` left when it was killed (its process is gone)."""
+    if not path.parent.is_dir():
+        return
+    pattern = re.compile(rf"^\.{re.escape(path.name)}\.(partial|old)-(\d+)$")
+    for entry in path.parent.iterdir():
+        m = pattern.match(entry.name)
+        if m and not process_alive(int(m.group(2))):
+            shutil.rmtree(entry, ignore_errors=True)
 
 
 def _read_png(path: Path, shape: tuple[int, int], dtype) -> np.ndarray:

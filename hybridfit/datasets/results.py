@@ -15,27 +15,33 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import HybridfitError
+from ..io import require_file
+from ..plausible import check_uvd
+from .conventions import CONVENTIONS
 from .skeletons import convention
 from .skeletons import skeleton
 
 
 def read_uvd(path: str | os.PathLike, dataset: str) -> np.ndarray:
-    """A results file -> (F, J, 3) u, v, d; errors name the file and line."""
-    path, J = Path(path), len(skeleton(dataset))
-    if not path.is_file():
-        raise HybridfitError(f"{path}: no such file")
+    """A results file -> (F, J, 3) u, v, d; errors name the file and line. Rows of zeros, depths
+    not in millimetres and u, v outside the dataset camera's image are refused (``plausible``)."""
+    path, J = require_file(path), len(skeleton(dataset))
     try:
-        rows = _read_rows(path, dataset, J)
+        rows, lines = _read_rows(path, dataset, J)
     except UnicodeDecodeError:
         raise HybridfitError(f"{path}: not a text file; expected a results file (one line per frame, "
                              f"{J} {dataset} points x u v d)") from None
     if not rows:
         raise HybridfitError(f"{path}: no frames")
-    return np.stack(rows)
+    uvd = np.stack(rows)
+    name = skeleton(dataset).convention
+    if name is not None:  # units and pixel ranges for the dataset's camera
+        check_uvd(uvd, CONVENTIONS[name].intrinsics, str(path), lines, camera=name)
+    return uvd
 
 
-def _read_rows(path: Path, dataset: str, J: int) -> list[np.ndarray]:
-    rows = []
+def _read_rows(path: Path, dataset: str, J: int) -> tuple[list[np.ndarray], list[int]]:
+    rows, lines = [], []
     with open(path) as fh:
         for n, line in enumerate(fh, start=1):
             fields = line.split()
@@ -52,7 +58,8 @@ def _read_rows(path: Path, dataset: str, J: int) -> list[np.ndarray]:
             if not np.isfinite(values).all():
                 raise HybridfitError(f"{path}:{n}: NaN or inf value")
             rows.append(values.reshape(J, 3))
-    return rows
+            lines.append(n)
+    return rows, lines
 
 
 def read_xyz(path: str | os.PathLike, dataset: str) -> np.ndarray:
@@ -103,7 +110,7 @@ def proposals_from_results(predictions, confidences=None) -> dict[str, np.ndarra
     conf = np.ones(len(arrays)) if confidences is None else np.asarray(confidences, dtype=np.float64)
     if conf.shape != (len(arrays),) or not np.all(np.isfinite(conf)) or (conf < 0).any() or not conf.any():
         raise HybridfitError(f"need {len(arrays)} finite non-negative confidences (one per method, not all 0), "
-                             f"got {list(conf)}")
+                             f"got {', '.join(f'{float(c):g}' for c in np.ravel(conf))}")
     proposals = np.stack(arrays, axis=2)
     return {"proposals": proposals, "confidences": np.broadcast_to(conf, proposals.shape[:3]).copy(),
             "objective": np.asarray(ESTIMATES_OBJECTIVE)}
@@ -123,7 +130,8 @@ def read_proposals(files, dataset: str, confidences=None, ground_truth=None,
         if len(a) != len(xyz[0]):
             raise HybridfitError(f"{f}: {len(a)} frames, but {files[0]} has {len(xyz[0])}")
     if confidences is not None and len(confidences) != len(xyz):
-        raise HybridfitError(f"{confidences_option}: need {len(xyz)} values (one per file), got {list(confidences)}")
+        raise HybridfitError(f"{confidences_option}: need {len(xyz)} values (one per file), got "
+                             f"{', '.join(f'{float(c):g}' for c in confidences)}")
     try:
         out = proposals_from_results(xyz, confidences)
     except HybridfitError as err:

@@ -44,6 +44,8 @@ from .conventions import CONVENTIONS, Convention
 BUILTIN_DIR = Path(__file__).with_name("skeleton_files")
 _KEYS = ("name", "model", "convention", "fingertips", "points", "derived")
 _DEFAULT_MODEL = "hand26"
+#: each derived-point weight lies in this range (it may extrapolate a little beyond its joints)
+DERIVED_WEIGHT_RANGE = (-1.0, 2.0)
 
 
 @dataclass(frozen=True)
@@ -128,9 +130,14 @@ def _parse(raw: dict[str, Any], where: str, default_name: str) -> Skeleton:
             raise fail(key, f"not used by any point{_closest(dname, list(used))}")
         if not isinstance(weights, dict) or not weights:
             raise fail(key, "must be a non-empty table of joint = weight")
+        lo, hi = DERIVED_WEIGHT_RANGE
         for joint, w in weights.items():
             if not _number(w):
                 raise fail(f"{key}.{_key(joint)}", f"must be a finite number, got {w!r}")
+            if not lo <= w <= hi:
+                raise fail(f"{key}.{_key(joint)}", f"weight {w:g} is outside [{lo:g}, {hi:g}]: a derived point is a "
+                           "weighted mean of joints (weights summing to 1); weights this large put it far outside "
+                           "the hand")
         total = math.fsum(weights.values())
         if abs(total - 1.0) > 1e-6:
             raise fail(key, f"weights sum to {total:g}; they must sum to 1 (so the point moves rigidly with the hand)")
@@ -185,6 +192,8 @@ def check_model(sk: Skeleton) -> None:
 def load_skeleton(path: str | Path) -> Skeleton:
     """A skeleton TOML file, fully checked (the file's consistency and its model's points)."""
     p = Path(path)
+    if p.is_dir():
+        raise HybridfitError(f"{p}: is a folder, not a skeleton file")
     if not p.is_file():
         raise HybridfitError(f"{p}: no such skeleton file")
     stat = p.stat()
@@ -291,21 +300,43 @@ def fit_settings(names, n_points: int, dataset: str | None, model: str, model_co
     (or, without them, the dataset skeleton's model names, which must number ``n_points``)
     and ``model_config`` with the skeleton's derived points. Every name must be a point of
     the model; errors name ``where`` (the file)."""
+    from .. import registry
+
     if dataset:
         sk = skeleton(dataset)
         if names is None:
             if n_points != len(sk):
-                raise HybridfitError(f"{where}: {n_points} points, but the {sk.dataset} skeleton has {len(sk)}")
+                raise HybridfitError(f"{where}: {n_points} points, but the {sk.dataset} skeleton has {len(sk)}"
+                                     f"{_skeletons_hint(n_points)}")
             names = sk.model_names
         model_config = dataset_model_config(model, model_config, dataset)
+    elif names is None:
+        joints = registry.create("model", model, model_config).n_joints
+        if n_points != joints:
+            raise HybridfitError(f"{where}: {n_points} points without joint_names, and model {model} has {joints} "
+                                 f"joints: pass --dataset{_skeletons_hint(n_points, ' (')}{')' * bool(_of_size(n_points))}"
+                                 " or store the points' joint_names in the file")
     names = None if names is None else [str(n) for n in names]
     if names is not None:
-        from .. import registry
-
         instance = registry.create("model", model, model_config)
         if names != list(instance.joint_names):
             try:
                 instance.point_matrix(names)
             except HybridfitError as err:
+                whose = [n for n, k in SKELETONS.items() if set(k.model_names) == set(names) and n != (dataset or "")]
+                if whose:  # the whole file is another skeleton's, not one bad point
+                    given = f", not the {skeleton(dataset).dataset} skeleton's (--dataset {dataset})" if dataset else ""
+                    raise HybridfitError(f"{where}: joint_names are the {whose[0]} skeleton's points{given}: "
+                                         f"pass --dataset {whose[0]}") from None
                 raise HybridfitError(f"{where}: joint_names: {err}") from None
     return names, model_config
+
+
+def _of_size(n_points: int) -> list[str]:
+    return [n for n, sk in SKELETONS.items() if len(sk) == n_points]
+
+
+def _skeletons_hint(n_points: int, lead: str = "; ") -> str:
+    """'; the skeletons with N points: icvl, ...' (empty when none has N points)."""
+    names = _of_size(n_points)
+    return f"{lead}{n_points}-point skeletons: {', '.join(names)}" if names else ""

@@ -24,6 +24,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Callable
 
+from ..io import process_alive  # noqa: F401  (the study lock uses it too)
 from .expand import digest
 
 
@@ -115,19 +116,6 @@ def remove_stale(root: Path) -> int:
             _remove(entry)
             removed += 1
     return removed
-
-
-def process_alive(pid: int) -> bool:
-    """Whether a process with this id runs on this machine (this process counts)."""
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _write_json(path: Path, payload: Any) -> None:

@@ -159,7 +159,7 @@ class StudyData:
 
     def _file_proposals(self) -> ProposalSet:
         from ..datasets.results import read_proposals
-        from ..io import read_results as read_xyz  # a binary file is named, not decoded
+        from ..datasets.results import read_xyz  # a binary file is named, not decoded
         from ..datasets.skeletons import skeleton
         from ..io import load_proposals
 
@@ -316,7 +316,7 @@ class StudyData:
         """The model's settings calibrated on the ground truth's frames (cached per model)."""
         if model not in self._calibrated:
             from ..fitting.calibrate import calibrate
-            from ..io import read_results as read_xyz
+            from ..datasets.results import read_xyz
             from ..datasets.skeletons import dataset_model_config, skeleton
 
             d, c = self.data, self.data.calibrate

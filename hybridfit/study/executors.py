@@ -16,6 +16,8 @@ from ..errors import HybridfitError
 from ..optional import import_library
 
 EXECUTORS = ("serial", "processes", "dask")
+#: how long to wait for a dask scheduler at an address to answer
+CONNECT_TIMEOUT_S = 5
 Outcome = tuple[int, Any, "str | None"]
 
 
@@ -73,7 +75,11 @@ class Dask(Serial):
         Client, LocalCluster = distributed.Client, distributed.LocalCluster
         self.cluster = None
         if address:
-            self.client = Client(address)
+            try:
+                self.client = Client(address, timeout=CONNECT_TIMEOUT_S)
+            except Exception as err:  # nothing there, or something that is not a dask scheduler: the user's address
+                raise HybridfitError(f"--scheduler {address}: no dask scheduler answered within {CONNECT_TIMEOUT_S} s "
+                                     f"({type(err).__name__}: {err})") from None
         else:
             self.cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=processes,
                                         dashboard_address=None)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import os
 import socket
+import sqlite3
 import sys
 import time
 from dataclasses import dataclass
@@ -23,13 +24,15 @@ from .. import registry
 from ..errors import HybridfitError
 from ..fitting.frames import fit
 from ..metrics import joint_errors
+from ..optimizer import Task
+from ..problem import Problem
 from ..fitting.tracking import TrackingSettings, track
 from .cache import Cache, process_alive
 from .data import StudyData, baseline_errors
 from .executors import make_executor
 from .expand import Trial, digest, expand, trials
 from .spec import Study
-from .store import DB_NAME, Store
+from .store import DB_NAME, Store, storage_error
 
 LOCK_NAME = "study.lock"
 
@@ -139,11 +142,46 @@ class RunSummary:
     out: Path
 
 
+#: a study of more trials than this runs only when asked (``allow_large``): its database grows by
+#: hundreds of MB, and a grid that large is usually a mistake (a list where a range was meant)
+MAX_TRIALS = 10_000
+
+
+def count_trials(study: Study) -> int:
+    """The number of trials (variants x seeds) the study plans, computed without expanding it."""
+    variants = max(1, len(study.sweep.variants or []))
+    for values in study.sweep.grid.values():
+        variants *= max(1, len(values))
+    return variants * (len(study.seeds) if isinstance(study.seeds, list) else int(study.seeds))
+
+
+def check_size(study: Study, allow_large: bool, where: str = "study") -> None:
+    """Refuse a study above MAX_TRIALS trials unless ``allow_large``."""
+    n = count_trials(study)
+    if n > MAX_TRIALS and not allow_large:
+        raise HybridfitError(f"{where}: {n:,} trials planned (variants x seeds), more than {MAX_TRIALS:,}: check the "
+                             "sweep, or pass --allow-large to run them all")
+
+
 def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: str = "processes",
               scheduler: str | None = None, cache_dir: str | os.PathLike | None = None, progress: bool = True,
-              report: bool = True, dask_processes: bool = True, log=None) -> RunSummary:
-    """Run the study's unfinished trials into ``out`` and write the report (see the module doc)."""
-    out = Path(out)
+              report: bool = True, dask_processes: bool = True, log=None, allow_large: bool = False) -> RunSummary:
+    """Run the study's unfinished trials into ``out`` and write the report (see the module doc).
+    A study of more than MAX_TRIALS trials needs ``allow_large``; a budget too small for a
+    trial's optimiser is refused before any trial runs."""
+    check_size(study, allow_large)
+    try:
+        return _run_study(study, Path(out), jobs=jobs, executor=executor, scheduler=scheduler, cache_dir=cache_dir,
+                          progress=progress, report=report, dask_processes=dask_processes, log=log)
+    except sqlite3.Error as err:  # a full disk or read-only folder: one line naming the database
+        failure = storage_error(Path(out) / DB_NAME, err)
+        if failure is None:
+            raise
+        raise failure from None
+
+
+def _run_study(study: Study, out: Path, *, jobs, executor, scheduler, cache_dir, progress, report, dask_processes,
+               log) -> RunSummary:
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     with study_lock(out):
         store = Store(out / DB_NAME)
@@ -207,6 +245,33 @@ def _baselines(study: Study, data: StudyData, variants, store: Store) -> list[st
     return list(seen)
 
 
+def check_budgets(pending: list[Trial], sets: dict, data: StudyData) -> None:
+    """Refuse, before any trial runs, a trial whose budget is below its optimiser's minimum
+    (checked on the first frame with proposals of its proposal set), naming its settings."""
+    seen = set()
+    for t in pending:
+        s = t.variant.settings
+        key = digest([s.as_dict(), t.variant.name])
+        if key in seen:
+            continue
+        seen.add(key)
+        z = sets[(s.k, s.proposal_set, s.skeleton, _needs_depth(s))]
+        used = np.flatnonzero(~z["empty"]) if "empty" in z else np.arange(len(z["proposals"]))
+        if not len(used):
+            continue
+        f = int(used[0])
+        model = registry.create("model", s.model, data.model_config(s))
+        objective = registry.create("objective", s.objective, s.objective_settings)
+        optimizer = registry.create("optimizer", s.optimizer, s.optimizer_settings)
+        observation = z["observations"][f] if "observations" in z else None
+        try:
+            problem = Problem(model, objective, z["proposals"][f], z["confidences"][f],
+                              [str(n) for n in z["joint_names"]], s.search_radius_mm, observation)
+            optimizer.check_budget(Task(problem, s.budget))
+        except HybridfitError as err:
+            raise HybridfitError(f"trial {t.variant.name}: {err}; no trial was run") from None
+
+
 def _needs_depth(settings) -> bool:
     """Whether a trial needs the depth frames: its objective observes depth, or it tracks from
     the ground truth."""
@@ -223,6 +288,7 @@ def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: s
         if (s.k, s.proposal_set, s.skeleton, _needs_depth(s)) not in sets:
             z = data.proposals(s.k, s.proposal_set, s.skeleton)
             sets[(s.k, s.proposal_set, s.skeleton, _needs_depth(s))] = {**z, **data.depth_frames()} if _needs_depth(s) else z
+    check_budgets(pending, sets, data)
     kwargs = {"processes": dask_processes} if executor == "dask" else {}
     ex = make_executor(executor, jobs, scheduler, **kwargs)
     try:

@@ -242,7 +242,9 @@ def validation_error(where: str, err: ValidationError, prefix: str = "") -> Hybr
         loc = ".".join(path) or "(study)"
         msg = _unknown_key(e["loc"]) if e["type"] == "extra_forbidden" else e["msg"].removeprefix("Value error, ")
         if e["type"] in ("union_tag_invalid", "union_tag_not_found"):
-            msg = f"kind must be one of {_KINDS}"
+            given = str((e.get("ctx") or {}).get("tag", ""))
+            close = difflib.get_close_matches(given, _KINDS.split(", "), n=1) if given else []
+            msg = f"kind must be one of {_KINDS}" + (f" (did you mean {close[0]!r}?)" if close else "")
         parts.append(f"{loc}: {msg}")
     return HybridfitError(f"{where}: " + "; ".join(parts))
 
@@ -266,7 +268,8 @@ def _unknown_key(loc) -> str:
     return f"unknown key (did you mean {close[0]!r}?)" if close else "unknown key"
 
 
-_KINDS = "synthetic-proposals, synthetic-depth, dataset, proposals"
+#: the data kinds, from the [data] tables' ``kind`` literals (so a new kind is always listed)
+_KINDS = ", ".join(typing.get_args(m.model_fields["kind"].annotation)[0] for m in typing.get_args(typing.get_args(Data)[0]))
 SETTING_KEYS = {f.alias or n for n, f in TrialSettings.model_fields.items()}
 
 

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import HybridfitError
+from ..io import WriteError
 
 #: the file name of a study's store inside its output folder
 DB_NAME = "study.db"
@@ -56,6 +57,19 @@ CREATE TABLE IF NOT EXISTS frames (
     PRIMARY KEY (trial_id, frame)
 );
 """
+
+
+#: what SQLite says when the disk, not the program, is at fault
+_ENVIRONMENT = ("disk is full", "readonly", "read-only", "unable to open", "disk i/o error", "out of memory")
+
+
+def storage_error(path: Path, err: sqlite3.Error) -> WriteError | None:
+    """A one-line WriteError naming the database for SQLite's environment errors (a full
+    disk, a read-only folder); None for others (a bug)."""
+    msg = str(err)
+    if not any(m in msg.lower() for m in _ENVIRONMENT):
+        return None
+    return WriteError(28 if "full" in msg else 30, f"{path}: cannot write the study database: {msg}")
 
 
 class Store:

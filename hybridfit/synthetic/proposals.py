@@ -17,6 +17,7 @@ import numpy as np
 
 from .. import registry
 from ..errors import HybridfitError
+from ..io import check_memory
 from ..model.rotations import axis_angle_matrix, matrix_to_quaternion
 
 #: camera looking along +z, x right, y down: a palm facing the camera, fingers up
@@ -90,12 +91,16 @@ def synthetic_proposals(
     """Synthetic frames: a dict with ``proposals`` (F, J, k, 3) mm, ``confidences`` (F, J, k),
     ``joint_names`` (J,), ``ground_truth`` (F, J, 3) mm and ``params`` (F, P), ready for
     ``np.savez(path, **d)`` and ``hybridfit fit``."""
+    if int(seed) < 0:
+        raise HybridfitError(f"synthetic_proposals: seed must be a non-negative integer, got {seed}")
     if frames < 0 or k < 1 or noise_mm < 0 or not (0 <= p_missing <= 1) or not (0 <= p_true_top <= 1):
         raise HybridfitError(
             f"synthetic_proposals: need frames >= 0, k >= 1, noise_mm >= 0 and probabilities in [0, 1] "
             f"(got frames={frames}, k={k}, noise_mm={noise_mm}, p_missing={p_missing}, p_true_top={p_true_top})"
         )
     model = registry.create("model", model, model_config)
+    J = model.n_joints
+    check_memory(frames, 8 * (J * k * 4 + J * 3 + model.n_params) * 2, f"frames of synthetic proposals (k={k})")
     rng = np.random.default_rng(seed)
     params = random_poses(model, frames, rng, distance_mm=distance_mm)
     truth = model.forward(params) if frames else np.zeros((0, model.n_joints, 3))

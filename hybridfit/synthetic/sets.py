@@ -14,6 +14,7 @@ import numpy as np
 from ..datasets.camera import Intrinsics, xyz_to_uvd
 from ..datasets.folder import write_dataset
 from ..errors import HybridfitError
+from ..io import check_memory
 from ..model.render import Renderer
 from .config import GridConfig, SequenceConfig, _Common, parse_config
 from .noise import apply_noise
@@ -66,7 +67,14 @@ def render_poses(params: np.ndarray, config: _Common, model=None, *, progress: b
     return depth, parts, joints
 
 
+def _check_size(config: _Common, frames: int) -> None:
+    """Refuse, before any work, a data set whose frames would not fit in memory."""
+    k = config.intrinsics
+    check_memory(frames, k.width * k.height * 3 + 8 * 64, f"frames of {k.width}x{k.height} depth and part images")
+
+
 def _make(out, config: _Common, params: np.ndarray, generator: str, progress: bool) -> Path:
+    _check_size(config, len(params))
     model = _model(config)
     depth, parts, joints = render_poses(params, config, model, progress=progress)
     meta = {"generator": generator, "config": config.model_dump(mode="json"), "seed": config.seed,
@@ -88,4 +96,5 @@ def make_train(out, config: GridConfig | Mapping | None = None, *, progress: boo
 def make_test(out, config: SequenceConfig | Mapping | None = None, *, progress: bool = False) -> Path:
     """Render and write the TrackSeq-like test sequence data set to the folder ``out``."""
     config = parse_config(SequenceConfig, config)
+    _check_size(config, config.frames)
     return _make(out, config, sequence_poses(config), "hybridfit.synthetic.sets.make_test", progress)

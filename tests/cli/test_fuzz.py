@@ -2,6 +2,8 @@
 byte-flipped files; wrong keys, dtypes and shapes; NaN, inf and extreme values; malformed
 TOML and results lines) and runs them through ``hybridfit.cli.main`` in-process: ``fit``,
 ``evaluate``, ``export-results``, ``show``, ``proposals from-results``, ``study`` and ``propose``.
+It also sets semantic traps in well-formed files (permuted or duplicate point names, metres,
+the other hand): a fit that ends with exit 0 and no warning must then be a good fit.
 
 Every run must end with a documented exit code (0, 2 or 3), never an exception; a user error
 (2) is one line on stderr; an existing output file is never touched by a failed run, and no
@@ -42,6 +44,9 @@ def examples(request) -> int:
         codes = ", ".join(f"exit {c}: {TALLY[c]}" for c in CODES if TALLY[c])
         print(f"\nfuzz: {TALLY['inputs']} generated bad inputs ({codes}); "
               f"{TALLY['tracebacks']} tracebacks, {TALLY['destroyed']} outputs destroyed")
+        traps = sorted(k for k in TALLY if isinstance(k, str) and k.startswith("trap "))
+        if traps:
+            print("semantic traps: " + "; ".join(f"{k[5:]}: {TALLY[k]}" for k in traps))
 
 
 def fuzz(examples: int):
@@ -166,19 +171,21 @@ def line_mutation(draw):
 # ------------------------------------------------------------------------ running
 
 
-def run_cli(argv: list[str], out=None, capsys=None) -> int:
+def run_cli(argv: list[str], out=None, capsys=None, said: list | None = None) -> int:
     """Run the CLI; check the exit code, the one-line error, the untouched output and that
-    no temporary file is left."""
+    no temporary file is left. ``said``: a list that receives the warnings given."""
     if out is not None:
         out.write_bytes(SENTINEL)
     capsys.readouterr()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         try:
             code = main(argv)
         except BaseException as err:  # any exception escaping main is a traceback for the user
             TALLY["tracebacks"] += 1
             raise AssertionError(f"{argv}: {type(err).__name__}: {err}") from err
+    if said is not None:
+        said.extend(str(w.message) for w in caught)
     err = capsys.readouterr().err
     TALLY["inputs"] += 1
     TALLY[code] += 1
@@ -332,5 +339,49 @@ def test_propose_with_generated_bad_forests(valid, tmp_path_factory, capsys, exa
         raw = npz_bytes(d)
         src.write_bytes(flip(raw) if flip else raw)
         run_cli(["propose", str(src), str(valid["data"]), "--out", str(out), "--frames", "1"], out, capsys)
+
+    check()
+
+
+TRAPS = ("permuted-names", "duplicate-name", "metres", "proposals-in-metres", "left-hand", "none")
+#: a fit without error or warning is at most this far from the ground truth (mean, mm)
+SILENT_ERROR_MM = 25.0
+
+
+def set_trap(trap: str, seed: int) -> dict:
+    """Synthetic frames (6, ground truth included) with one semantic trap that numpy reads as valid."""
+    rng = np.random.default_rng(seed)
+    d = hybridfit.synthetic_proposals(6, seed=seed, model_config={"mirror": trap == "left-hand"})
+    names = [str(n) for n in d["joint_names"]]
+    if trap == "permuted-names":  # at least half of the points carry another point's name
+        idx = rng.permutation(len(names))[: len(names) // 2 + int(rng.integers(1, len(names) // 2))]
+        d["joint_names"] = np.asarray(names)
+        d["joint_names"][idx] = np.asarray(names)[np.roll(idx, 1)]
+    elif trap == "duplicate-name":
+        i, j = rng.choice(len(names), 2, replace=False)
+        d["joint_names"] = np.asarray([names[j] if k == i else n for k, n in enumerate(names)])
+    elif trap in ("metres", "proposals-in-metres"):
+        d["proposals"] = d["proposals"] / 1000.0
+        if trap == "metres":
+            d["ground_truth"] = d["ground_truth"] / 1000.0
+    return d
+
+
+def test_fit_on_semantic_traps(tmp_path_factory, capsys, examples):
+    @fuzz(examples)
+    @given(st.sampled_from(TRAPS), st.integers(0, 2**16))
+    def check(trap, seed):
+        d = set_trap(trap, seed)
+        work = tmp_path_factory.mktemp("trap")
+        src, out = work / "p.npz", work / "fits.npz"
+        np.savez(src, **d)
+        said: list[str] = []
+        code = run_cli(["fit", str(src), "--out", str(out), "--budget", "300", "--seed", str(seed % 7)], out, capsys,
+                       said)
+        TALLY[f"trap {trap}: exit {code}{' + warning' if said else ''}"] += 1
+        if code == 0 and not said:  # no word said: the fit must be good
+            with np.load(out) as fits:
+                error = float(np.mean(np.linalg.norm(fits["joints"] - d["ground_truth"], axis=-1)))
+            assert error < SILENT_ERROR_MM, f"trap {trap} (seed {seed}): silent {error:.1f} mm fit"
 
     check()

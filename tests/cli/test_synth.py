@@ -37,7 +37,7 @@ def test_synth_train_with_a_settings_file(tmp_path):
     (["synth", "test", "--distance", "-5"], "distance_mm"),
     (["synth", "test", "--distance", "45"], "leaves the"),
     (["synth", "train", "--config", "{toml}", "--distance", "60"], "leaves the"),
-    (["synth", "test", "--config", "{bad}"], "unknown setting"),
+    (["synth", "test", "--config", "{bad}"], "bad.toml: unknown key 'colour' for synth test"),
     (["synth", "test", "--config", "{far}"], "leaves the 320x240 image"),
     (["synth", "test", "--config", "missing.toml"], "no such file"),
 ])

@@ -6,12 +6,14 @@ import pytest
 from hybridfit import HybridfitError
 from hybridfit.datasets.results import read_uvd, read_xyz, write_uvd, write_xyz
 
+from hybridfit.datasets.skeletons import convention
+
 from .conftest import hand_points
 
 
 @pytest.mark.parametrize("dataset,J", [("icvl", 16), ("nyu", 14), ("msra", 21)])
 def test_xyz_round_trip(tmp_path, dataset, J):
-    xyz = hand_points(dataset, 4)
+    xyz = convention(dataset).to_camera(hand_points(dataset, 4))  # results files are read and written in camera xyz
     write_xyz(tmp_path / "r.txt", xyz, dataset)
     lines = (tmp_path / "r.txt").read_text().splitlines()
     assert len(lines) == 4 and len(lines[0].split()) == 3 * J

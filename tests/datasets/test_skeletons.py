@@ -9,7 +9,7 @@ import tomllib
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import hybridfit
@@ -125,6 +125,7 @@ def user_skeletons(draw):
             support = draw(st.lists(st.sampled_from(JOINTS), min_size=1, max_size=4, unique=True))
             w = draw(st.lists(st.integers(-4, 8), min_size=len(support), max_size=len(support)))
             w[-1] = 8 - sum(w[:-1])
+            assume(-8 <= w[-1] <= 16)  # weights within DERIVED_WEIGHT_RANGE [-1, 2]
             derived[f"d{i}"] = {j: v / 8 for j, v in zip(support, w)}
             points[n] = f"d{i}"
         else:
@@ -202,6 +203,8 @@ BREAKS = [
      "derived.icvl_palm.wirst", "did you mean 'wrist'"),
     (lambda r: r["derived"]["icvl_palm"].__setitem__("wrist", 0.5), "derived.icvl_palm", "must sum to 1"),
     (lambda r: r["derived"]["icvl_palm"].__setitem__("wrist", "0.4"), "derived.icvl_palm.wrist", "finite number"),
+    (lambda r: r["derived"]["icvl_palm"].update(wrist=5.4, index_mcp=-4.85), "derived.icvl_palm.wrist",
+     "outside [-1, 2]"),  # they still sum to 1
     (lambda r: r["derived"].__setitem__("icvl_palm", {}), "derived.icvl_palm", "non-empty table"),
     (lambda r: r.__setitem__("derived", {"wrist": {"wrist": 1.0}, **r["derived"]}), "derived.wrist",
      "not used by any point"),

@@ -1,0 +1,114 @@
+"""Real signals on real processes (issue #21): SIGTERM and SIGHUP stop a run like Ctrl-C (the
+finished frames written, the rest marked, exit 128 + the signal's number), Ctrl-C during
+start-up exits 130 without a traceback, and a stopped ``synth`` leaves no hidden folder.
+Each test waits for a sign of progress on stderr, with a bounded wait."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import hybridfit
+from hybridfit.cli import main
+
+WAIT_S = 120  # the most a test waits for its subprocess (start-up on a busy machine included)
+
+
+class Running:
+    """A subprocess whose stderr is collected in the background (tqdm bars use \\r, not lines)."""
+
+    def __init__(self, argv: list[str], cwd) -> None:
+        self.proc = subprocess.Popen(argv, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        self.err = b""
+        self.out = b""
+        threading.Thread(target=self._read, args=("err",), daemon=True).start()
+        threading.Thread(target=self._read, args=("out",), daemon=True).start()
+
+    def _read(self, which: str) -> None:
+        pipe = self.proc.stderr if which == "err" else self.proc.stdout
+        while chunk := os.read(pipe.fileno(), 65536):
+            setattr(self, which, getattr(self, which) + chunk)
+
+    def wait_for(self, pattern: str) -> re.Match:
+        end = time.monotonic() + WAIT_S
+        while time.monotonic() < end:
+            m = None
+            for m in re.finditer(pattern.encode(), self.err):
+                pass
+            if m is not None:
+                return m
+            assert self.proc.poll() is None, f"ended early ({self.proc.returncode}): {self.err.decode()[-2000:]}"
+            time.sleep(0.05)
+        self.proc.kill()
+        raise AssertionError(f"no {pattern!r} within {WAIT_S} s: {self.err.decode()[-2000:]}")
+
+    def stop(self, signum: int) -> int:
+        self.proc.send_signal(signum)
+        try:
+            code = self.proc.wait(WAIT_S)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            raise
+        time.sleep(0.1)  # the reader threads' last chunk
+        return code
+
+
+# a fit whose progress bar is on (stderr is not a terminal here), run as the hybridfit command
+SHOWING_PROGRESS = ("import sys, hybridfit.cli.fit as f; real = f.fit_frames; "
+                    "f.fit_frames = lambda *a, **k: real(*a, **{**k, 'progress': True}); "
+                    "from hybridfit.cli import main; sys.exit(main(sys.argv[1:]))")
+
+
+@pytest.mark.parametrize("name, code", [("SIGTERM", 143), ("SIGHUP", 129)])
+def test_a_stop_signal_keeps_the_finished_frames(tmp_path, name, code):
+    frames = 1500
+    np.savez(tmp_path / "p.npz", **hybridfit.synthetic_proposals(frames, seed=1))
+    run = Running([sys.executable, "-c", SHOWING_PROGRESS, "fit", "p.npz", "--out", "fits.npz",
+                   "--budget", "30000"], tmp_path)
+    run.wait_for(r"\| *(6[4-9]|[7-9]\d|\d{3,})/1500")  # at least one chunk of frames fitted
+    assert run.stop(getattr(signal, name)) == code, run.err.decode()[-2000:]
+    err = run.err.decode()
+    assert "Traceback" not in err and "interrupted: finished frames saved to fits.npz" in err
+    with np.load(tmp_path / "fits.npz") as fits:
+        done = ~fits["failed"]
+        assert 64 <= done.sum() < frames and np.isfinite(fits["joints"][done]).all()
+        assert set(fits["error_messages"]) == {"interrupted"} and len(fits["error_frames"]) == frames - done.sum()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fits.npz", "p.npz"]  # no temporary file
+
+
+def test_ctrl_c_during_start_up_exits_130_without_a_traceback(tmp_path):
+    """-X importtime shows when the command line's module is loaded: the heavy imports follow, in main."""
+    np.savez(tmp_path / "p.npz", **hybridfit.synthetic_proposals(2, seed=1))
+    run = Running([sys.executable, "-X", "importtime", "-m", "hybridfit", "fit", "p.npz", "--out", "o.npz"], tmp_path)
+    run.wait_for(r"\| hybridfit\.cli\n")
+    assert run.stop(signal.SIGINT) == 130, run.err.decode()[-2000:]
+    said = [ln for ln in run.err.decode().splitlines() if not ln.startswith("import time:")]
+    assert said == ["hybridfit: interrupted"] and not (tmp_path / "o.npz").exists()
+
+
+def test_a_stopped_synth_leaves_no_hidden_folder(tmp_path):
+    run = Running([sys.executable, "-X", "importtime", "-m", "hybridfit", "synth", "test", "--out", "set",
+                   "--frames", "3000"], tmp_path)
+    run.wait_for(r"\| +hybridfit\.synthetic\.sets\n")
+    time.sleep(1.0)
+    assert run.stop(signal.SIGTERM) == 143, run.err.decode()[-2000:]
+    assert os.listdir(tmp_path) == []
+
+
+def test_a_later_synth_removes_a_killed_runs_hidden_folder(tmp_path, capsys):
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = tmp_path / f".set.partial-{dead.pid}"
+    (stale / "depth").mkdir(parents=True)
+    alive = tmp_path / f".set.partial-{os.getppid()}"  # a live process's folder is left alone
+    alive.mkdir()
+    assert main(["synth", "test", "--out", str(tmp_path / "set"), "--frames", "2"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([alive.name, "set"])
