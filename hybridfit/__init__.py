@@ -7,6 +7,20 @@ optimisers (entry-point groups ``hybridfit.models``, ``hybridfit.objectives``,
 """
 
 import importlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the same names for type checkers and the API docs (never imported at run time)
+    from .errors import HybridfitError
+    from .fitting.estimator import HybridEstimator
+    from .fitting.frames import FitResult, fit
+    from .model.base import HandModel, Stage
+    from .objective import Objective
+    from .optimizer import OptimizeResult, Optimizer, Task
+    from .plugin import Plugin, Settings
+    from .problem import Problem
+    from .registry import available, create
+    from .synthetic.proposals import synthetic_proposals
+    from .synthetic.stress import stress_proposals
 
 #: public names -> the module that defines them, imported on first use (PEP 562), so that
 #: ``import hybridfit`` (and the command line's start-up) stays light and a Ctrl-C during
