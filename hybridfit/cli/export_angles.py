@@ -4,7 +4,7 @@ orientation and joint angles in degrees (``hybridfit.fitting.angles``)."""
 from __future__ import annotations
 
 from ..fitting.angles import export_angles
-from ..io import check_output
+from ._common import declare_paths
 
 
 def register(sub) -> None:
@@ -15,11 +15,11 @@ def register(sub) -> None:
                    "<parameter name>_deg for every joint angle; a failed frame's cells are empty")
     p.add_argument("--model", help="the model that made a fits file without parameter_names (hybridfit 0.3.0 "
                    "and older), e.g. hand26")
+    declare_paths(p, inputs=("fits",), outputs=("--out",))
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    check_output(args.out)
     result = export_angles(args.fits, args.out, args.model)
     failed = int(result.failed.sum())
     print(f"wrote {len(result.failed)} frames ({failed} failed, marked) -> {args.out}")
