@@ -12,15 +12,7 @@ from .errors import HybridfitError
 from .model.base import ORIENTATION, POSITION, HandModel
 from .model.kinematics import BLOCK, block_frames, block_points, sincos_rows
 from .model.rotations import quaternion_matrix
-from .objective import Objective, Observation, normalise_confidences
-
-
-#: an objective's compiled kernel: (points (Q, 3, N) mm, the hypothesis innermost, subset
-#: (m,) point indices, proposals (Q, K, 3) mm, weights (Q, K), constants (c,), out (n,),
-#: n <= N) -> None; writes into ``out`` the loss of each of the first n hypotheses over the
-#: points in ``subset``.
-KERNEL_SIGNATURE = nb.types.void(nb.types.float64[:, :, ::1], nb.types.int64[::1], nb.types.float64[:, :, ::1],
-                                 nb.types.float64[:, ::1], nb.types.float64[::1], nb.types.float64[::1])
+from .objective import KERNEL_SIGNATURE, Objective, Observation, compiled_kernel_of, normalise_confidences  # noqa: F401
 
 
 class Problem:
@@ -31,8 +23,8 @@ class Problem:
     bounds, with the position limited to ``search_radius_mm`` around the initial guess.
     observation: the frame's depth (needed by objectives that ``observes_depth``); x0: (P,)
     an initial guess (tracking: the previous frame's fit) instead of the proposals' one.
-    When the model has a ``kinematic_tree`` and the objective a ``compiled_kernel`` (which
-    must score as its ``bind`` does), :meth:`evaluate` runs compiled (:func:`tree_points`).
+    When the model has a ``kinematic_tree`` and the objective a valid ``compiled_kernel``
+    (:func:`hybridfit.objective.capability`), :meth:`evaluate` runs compiled (:func:`tree_points`).
     """
 
     def __init__(
@@ -70,10 +62,7 @@ class Problem:
         self.all_points = np.arange(len(self.point_names), dtype=np.int64)
         self._needed: dict[bytes, np.ndarray | None] = {}
         # a kinematic tree and a compiled kernel: points by :func:`tree_points`, then the kernel
-        self._kernel = (objective.compiled_kernel() if not self.observed and hasattr(objective, "compiled_kernel")
-                        and hasattr(model, "kinematic_tree") else None)
-        if self._kernel is not None:
-            self._kernel = (self._kernel[0], np.ascontiguousarray(self._kernel[1], dtype=np.float64))
+        self._kernel = compiled_kernel_of(objective) if callable(getattr(model, "kinematic_tree", None)) else None
         self._compiled_parts = None
         self.x0 = initial_guess(self) if x0 is None else model.clip(np.asarray(x0, dtype=float)[None])[0]
         lower, upper = search_boxes(self._structure(), self.x0[None], search_radius_mm)

@@ -32,7 +32,7 @@ from . import registry
 from .errors import HybridfitError
 from .model.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
 from .model.base import HandModel, Stage
-from .objective import Objective, normalise_confidences
+from .objective import Objective, capability, compiled_kernel_of, normalise_confidences
 from .optimizer import Optimizer, Task
 from .plugin import Settings
 from .problem import Problem
@@ -367,6 +367,37 @@ def check_objective_deterministic(objective: Objective) -> None:
     np.testing.assert_array_equal(first, second, err_msg=f"{_label(objective)}: not deterministic")
 
 
+def check_objective_capabilities(objective: Objective) -> None:
+    """A compiled kernel and a frame-batched scorer (``score_frames``) that the core would use
+    (:func:`hybridfit.objective.capability`) give ``bind``'s losses on random points, on the
+    whole frame and on a subset of points, for several frames at once."""
+    kernel = compiled_kernel_of(objective)
+    score_frames = capability(objective, "score_frames")
+    if objective.observes_depth or (kernel is None and score_frames is None):
+        return
+    frames = [_objective_frame(seed) for seed in (11, 12, 13)]
+    proposals = np.stack([f[0] for f in frames])
+    weights = np.stack([f[1] for f in frames])
+    points = np.stack([f[2] for f in frames])  # (F, N, Q, 3)
+    Q = proposals.shape[1]
+    for subset in (np.arange(Q, dtype=np.int64), np.array([0, 2, 3], dtype=np.int64)):
+        want = np.stack([objective.bind(proposals[f], weights[f])(points[f], subset) for f in range(len(frames))])
+        if kernel is not None:
+            function, consts = kernel
+            got = np.empty_like(want)
+            for f in range(len(frames)):
+                function(np.ascontiguousarray(points[f].transpose(1, 2, 0)), subset, np.ascontiguousarray(proposals[f]),
+                         np.ascontiguousarray(weights[f]), consts, got[f])
+            np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9,
+                                       err_msg=f"{_label(objective)}: compiled_kernel disagrees with bind")
+        if score_frames is not None:
+            got = np.asarray(score_frames(points.copy(), subset, proposals, weights))
+            _require(got.shape == want.shape, f"{_label(objective)}: score_frames returned shape {got.shape}, "
+                     f"expected {want.shape}")
+            np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9,
+                                       err_msg=f"{_label(objective)}: score_frames disagrees with bind")
+
+
 def check_objective_observed(objective: Objective) -> None:
     """An objective that observes depth scores the rendered pose itself at least as well as
     perturbed poses, and a Problem without the frame's depth is refused with a clear error.
@@ -556,7 +587,8 @@ _CHECKS: dict[str, tuple[Callable, ...]] = {
                         check_model_bone_lengths, check_model_stages, check_model_joint_subset,
                         check_model_stage_parameters),
     "objective": _COMMON + (check_objective_shapes, check_objective_batching, check_objective_sum_over_points,
-                            check_objective_lower_bound, check_objective_deterministic, check_objective_observed),
+                            check_objective_lower_bound, check_objective_deterministic, check_objective_capabilities,
+                            check_objective_observed),
     "optimizer": _COMMON + (check_optimizer_budget, check_optimizer_deterministic, check_optimizer_bounds,
                             check_optimizer_subset, check_optimizer_min_budget, check_optimizer_improves),
 }

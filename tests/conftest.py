@@ -46,10 +46,10 @@ def random_params(model, n, rng):
 @pytest.fixture
 def interrupt_at(monkeypatch):
     """interrupt_at(frame): make hybridfit.fit raise KeyboardInterrupt when it reaches that frame."""
-    from hybridfit.fitting import compiled, frames as fitting
+    from hybridfit.fitting import driver, frames as fitting
 
     real = fitting._fit_chunk
-    real_prepare = compiled.CompiledFitter.prepare
+    real_prepare = driver.Driver.prepare
 
     def arm(frame: int) -> None:
         def chunk(spec, frames, *rest):
@@ -63,7 +63,7 @@ def interrupt_at(monkeypatch):
             return real_prepare(fitter, frames, *rest)
 
         monkeypatch.setattr(fitting, "_fit_chunk", chunk)
-        monkeypatch.setattr(compiled.CompiledFitter, "prepare", prepare)
-        monkeypatch.setattr(fitting, "COMPILED_CHUNK", 1)  # the compiled path, one frame per call
+        monkeypatch.setattr(driver.Driver, "prepare", prepare)
+        monkeypatch.setattr(fitting, "CHUNK", 1)  # the driver, one frame per chunk
 
     return arm

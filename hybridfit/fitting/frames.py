@@ -21,7 +21,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .. import registry
-from . import compiled
+from . import driver
 from ..errors import HybridfitError, PluginError
 from ..io import validate_proposals
 from ..metrics import inliers
@@ -29,9 +29,9 @@ from ..optimizer import Task
 from ..problem import Problem
 
 
-#: frames per call of the compiled path (progress and Ctrl-C granularity; with jobs > 1
-#: one chunk is prepared while the one before is fitted)
-COMPILED_CHUNK = 64
+#: frames per chunk of the driver (progress and Ctrl-C granularity; with jobs > 1 one chunk
+#: is prepared while the one before is fitted)
+CHUNK = 256
 
 #: the inlier distance of objectives without a ``d_max_mm`` setting
 INLIER_DISTANCE_MM = 40.0
@@ -223,14 +223,14 @@ def fit(
              result.evaluations[f]) = values
             result.failed[f] = False
 
-    # PSO and stepwise PSO on a kinematic tree with a compiled objective: many frames per
-    # numba call, jobs as threads sharing memory (hybridfit.fitting.compiled)
-    fitter = (compiled.CompiledFitter(model, objective, optimizer, names, budget, seed, search_radius_mm)
-              if observations is None and compiled.supports(model, objective, optimizer) else None)
+    # optimisers with batch steps: the driver runs chunks of frames in lockstep (compiled with a
+    # compiled objective on a kinematic tree); callback solvers: a Task per frame
+    fitter = (driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm)
+              if observations is None and driver.supports(model, objective, optimizer, problem, budget) else None)
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
         if fitter is not None:
-            chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // COMPILED_CHUNK)))]
+            chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // CHUNK)))]
             for items in fitter.fit_chunks(chunks, proposals, confidences, jobs):
                 store(items)
                 bar.update(len(items))

@@ -199,6 +199,20 @@ def block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
 
 
 @nb.njit(cache=True)
+def mark_needed(parents, pm_ptr, pm_joint, points, needed):
+    """The one "which joints are needed" walker: sets ``needed[j]`` (J,) bool for every joint
+    that the points ``points`` (m,) read (the point map (Q, J) in CSR form: pm_ptr (Q + 1,),
+    pm_joint) and for all their ancestors."""
+    for t in range(points.shape[0]):
+        q = points[t]
+        for e in range(pm_ptr[q], pm_ptr[q + 1]):
+            j = pm_joint[e]
+            while j >= 0 and not needed[j]:
+                needed[j] = True
+                j = parents[j]
+
+
+@nb.njit(cache=True)
 def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, active, out):
     """params (N, P) -> out (N, J, 3) mm: forward kinematics of a KinematicTree.
 
@@ -275,12 +289,11 @@ class TreeHandModel(HandModel):
         key = joints.tobytes()
         active = self._active_cache.get(key)
         if active is None:
-            parents = self._tree.parents
+            parents = np.ascontiguousarray(self._tree.parents, dtype=np.int64)
             active = np.zeros(len(parents), dtype=np.bool_)
-            for j in joints:
-                while j >= 0 and not active[j]:
-                    active[j] = True
-                    j = parents[j]
+            # each joint is its own point: the identity point map
+            mark_needed(parents, np.arange(len(parents) + 1, dtype=np.int64), np.arange(len(parents), dtype=np.int64),
+                        joints, active)
             self._active_cache[key] = active
         return active
 

@@ -18,8 +18,7 @@ import numba as nb
 import numpy as np
 from pydantic import Field
 
-from hybridfit.fitting.compiled import KERNEL_SIGNATURE
-from hybridfit.objective import Objective, kernel_loss
+from hybridfit.objective import KERNEL_SIGNATURE, Objective, kernel_loss
 from hybridfit.plugin import Settings
 
 
@@ -81,7 +80,6 @@ class ClampedConfidence(Objective):
                            np.ascontiguousarray(weights, dtype=np.float64), *self.compiled_kernel()[1:])
 
     def compiled_kernel(self):
-        """(kernel, constants) for :mod:`hybridfit.fitting.compiled`."""
         return clamped_confidence_kernel, np.array([1.0 / self.settings.d_max_mm**2])
 
     def lower_bound(self, weights):
