@@ -580,6 +580,31 @@ def check_optimizer_improves(optimizer: Optimizer) -> None:
                  f"{IMPROVE_SHARE:.0%} of the gap closed")
 
 
+def check_optimizer_batch_steps(optimizer: Optimizer) -> None:
+    """An optimiser with batch steps (``hybridfit.optimizer.steps_of``), run by the driver for
+    several frames in lockstep, spends each frame's budget exactly, and fits each frame as it
+    fits it alone (its random numbers come from its own key). (Nothing to check otherwise.)"""
+    from .fitting.driver import Driver
+    from .optimizer import steps_of
+
+    if steps_of(optimizer) is None:
+        return
+    model = ToyHand()
+    data = synthetic_proposals(3, k=3, seed=7, model=model)
+    objective = registry.create("objective", "clamped-confidence")
+    problem = Problem(model, objective, data["proposals"][0], data["confidences"][0])
+    budget = _budget(optimizer, Task(problem, 1))
+    driver = Driver(model, objective, optimizer, model.joint_names, budget, seed=3)
+    together = driver.fit_chunk([0, 1, 2], data["proposals"], data["confidences"])
+    for f in range(3):
+        alone = driver.fit_chunk([f], data["proposals"][f:f + 1], data["confidences"][f:f + 1])[0]
+        _require(together[f][2] is None and alone[2] is None, f"{_label(optimizer)}: frame {f} failed")
+        _require(together[f][1][4] == budget, f"{_label(optimizer)}: {together[f][1][4]} evaluations for a budget "
+                 f"of {budget}")
+        _require(np.array_equal(together[f][1][0], alone[1][0]),
+                 f"{_label(optimizer)}: frame {f} fitted beside other frames differs from frame {f} fitted alone")
+
+
 # ------------------------------------------------------------------ registry of checks
 _COMMON = (check_config_round_trip, check_unknown_setting, check_pickle)
 _CHECKS: dict[str, tuple[Callable, ...]] = {
@@ -590,7 +615,8 @@ _CHECKS: dict[str, tuple[Callable, ...]] = {
                             check_objective_lower_bound, check_objective_deterministic, check_objective_capabilities,
                             check_objective_observed),
     "optimizer": _COMMON + (check_optimizer_budget, check_optimizer_deterministic, check_optimizer_bounds,
-                            check_optimizer_subset, check_optimizer_min_budget, check_optimizer_improves),
+                            check_optimizer_subset, check_optimizer_min_budget, check_optimizer_improves,
+                            check_optimizer_batch_steps),
 }
 
 

@@ -298,3 +298,19 @@ def test_a_capability_is_not_used_below_a_subclass_that_overrides_bind():
     Both = type("Both", (Shifted,), {"compiled_kernel": lambda self: type(clamped).compiled_kernel(self)})
     assert capability(Both(), "compiled_kernel") is not None
     assert capability(clamped, "score_frames") is None and capability(clamped, "casadi_loss") is None
+
+
+def test_batch_steps_whose_frames_share_random_numbers_fail_their_check():
+    from hybridfit_plugins.optimizers.pso import PSO, STEPS
+    from hybridfit.optimizer import BatchSteps
+
+    def init(start, lower, upper, keys, budget, settings):  # every frame draws from frame 0's key
+        return STEPS.init(start, lower, upper, keys[:1].repeat(len(keys)) + np.uint64(len(keys)), budget, settings)
+
+    class SharedKeys(PSO):
+        def batch_steps(self):
+            return BatchSteps(init, STEPS.ask, STEPS.tell)
+
+    with pytest.raises(AssertionError, match="fitted beside other frames differs"):
+        testing.check_optimizer_batch_steps(SharedKeys())
+    testing.check_optimizer_batch_steps(registry.create("optimizer", "pso"))

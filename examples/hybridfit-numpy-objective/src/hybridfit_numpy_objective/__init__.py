@@ -1,0 +1,53 @@
+"""``numpy-clamped``: the paper's clamped, confidence-weighted objective in plain numpy.
+
+    E(P, h) = sum_j max_r w_jr (1 - d_jr^2),   d_jr = min(1, ||p_jr - delta_j(h)|| / d_max)
+
+The loss is -E (optimisers minimise). ``bind`` is the contract: it scores N hypotheses of one
+frame. ``score_frames`` is the optional frame-batched capability: the same loss for F frames
+x N hypotheses in one call, so hybridfit's driver scores a whole chunk of frames per
+generation with one Python call. ``hybridfit.testing`` checks that the two agree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+
+from hybridfit.objective import Objective
+from hybridfit.plugin import Settings
+
+
+class NumpyClampedSettings(Settings):
+    d_max_mm: float = Field(40.0, gt=0, description="clamping distance d_max in millimetres")
+
+
+def clamped_loss(points, subset, proposals, weights, d_max_mm):
+    """points (..., N, Q, 3) mm, subset (m,), proposals (..., Q, K, 3) mm, weights (..., Q, K)
+    -> (..., N) losses -E over the points in ``subset``."""
+    pts = points[..., subset, None, :]  # (..., N, m, 1, 3)
+    props = proposals[..., None, subset, :, :]  # (..., 1, m, K, 3)
+    d2 = np.square(pts - props).sum(axis=-1) * (1.0 / d_max_mm**2)  # (..., N, m, K)
+    terms = weights[..., None, subset, :] * np.maximum(1.0 - d2, 0.0)
+    return -terms.max(axis=-1, initial=0.0).sum(axis=-1)
+
+
+class NumpyClamped(Objective):
+    """The paper's objective, numpy only; loss = -E in [-Q, 0]."""
+
+    Settings = NumpyClampedSettings
+
+    def bind(self, proposals, weights):
+        proposals, weights = np.asarray(proposals, float), np.asarray(weights, float)
+        d_max = self.settings.d_max_mm
+
+        def loss(points, subset):
+            return clamped_loss(np.asarray(points, float), np.asarray(subset), proposals, weights, d_max)
+
+        return loss
+
+    def score_frames(self, points, subset, proposals, weights):
+        """points (F, N, Q, 3), proposals (F, Q, K, 3), weights (F, Q, K) -> (F, N)."""
+        return clamped_loss(points, subset, proposals, weights, self.settings.d_max_mm)
+
+    def lower_bound(self, weights):
+        return -float(np.max(weights, axis=-1).sum())
