@@ -23,11 +23,31 @@ class NumpyClampedSettings(Settings):
 
 def clamped_loss(points, subset, proposals, weights, d_max_mm):
     """points (..., N, Q, 3) mm, subset (m,), proposals (..., Q, K, 3) mm, weights (..., Q, K)
-    -> (..., N) losses -E over the points in ``subset``."""
-    pts = points[..., subset, None, :]  # (..., N, m, 1, 3)
-    props = proposals[..., None, subset, :, :]  # (..., 1, m, K, 3)
-    d2 = np.square(pts - props).sum(axis=-1) * (1.0 / d_max_mm**2)  # (..., N, m, K)
-    terms = weights[..., None, subset, :] * np.maximum(1.0 - d2, 0.0)
+    -> (..., N) losses -E over the points in ``subset``.
+
+    One proposal at a time, on (..., N, m) arrays (K is small): fewer and smaller temporaries
+    than one (..., N, m, K, 3) difference array."""
+    h = points[..., subset, :]  # (..., N, m, 3)
+    hx, hy, hz = h[..., 0], h[..., 1], h[..., 2]
+    p = proposals[..., None, subset, :, :]  # (..., 1, m, K, 3)
+    w = weights[..., None, subset, :]  # (..., 1, m, K)
+    scale = 1.0 / d_max_mm**2
+    best = np.zeros(hx.shape)
+    for k in range(p.shape[-2]):
+        d2 = np.square(hx - p[..., k, 0])
+        d2 += np.square(hy - p[..., k, 1])
+        d2 += np.square(hz - p[..., k, 2])
+        term = np.maximum(1.0 - scale * d2, 0.0)
+        term *= w[..., k]
+        np.maximum(best, term, out=best)
+    return -best.sum(axis=-1)
+
+
+def clamped_loss_small(points, subset, proposals, weights, d_max_mm):
+    """:func:`clamped_loss` of one frame in a few numpy calls (for small batches, where the
+    cost is per call): points (N, Q, 3), proposals (Q, K, 3), weights (Q, K) -> (N,)."""
+    d2 = np.square(points[:, subset, None, :] - proposals[subset]).sum(axis=-1)  # (N, m, K)
+    terms = weights[subset] * np.maximum(1.0 - d2 * (1.0 / d_max_mm**2), 0.0)
     return -terms.max(axis=-1, initial=0.0).sum(axis=-1)
 
 
@@ -41,7 +61,7 @@ class NumpyClamped(Objective):
         d_max = self.settings.d_max_mm
 
         def loss(points, subset):
-            return clamped_loss(np.asarray(points, float), np.asarray(subset), proposals, weights, d_max)
+            return clamped_loss_small(np.asarray(points, float), np.asarray(subset), proposals, weights, d_max)
 
         return loss
 
