@@ -46,7 +46,7 @@ BUDGET, BATCH, OWNS_ALL, PARAMS, POINTS, OWNED = 0, 1, 2, 3, 5, 7
 
 # ---------------------------------------------------------------- helpers of the loop (numba, callable from Python)
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def stage_box(base, lower, upper, pidx):
     """(lower, upper, start) (F, d) of a stage's parameters ``pidx``: the start is base, clipped."""
     F = base.shape[0]
@@ -60,7 +60,7 @@ def stage_box(base, lower, upper, pidx):
     return lo, hi, start
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def keep_best(X, losses, best_x, best_loss):
     """Each frame's best of the batch X (F, m, d) with losses (F, >= m) into best_x, best_loss."""
     F, m, d = X.shape
@@ -75,7 +75,7 @@ def keep_best(X, losses, best_x, best_loss):
                 best_x[f, k] = X[f, i, k]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def same_points(a, b):
     if a.shape[0] != b.shape[0]:
         return False
@@ -85,7 +85,7 @@ def same_points(a, b):
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def commit(base, pidx, best_x, owned_loss, owns_all, frame_loss, committed):
     """Fix each frame's stage best into ``base``; a stage owning every point replaces the
     stages before only where it is better."""

@@ -1,8 +1,10 @@
 """``hybridfit.fit``: fit a hand model to every frame's joint proposals.
 
-Frames are independent: frame i is optimised with the random stream
-``numpy.random.default_rng([seed, i])``, so results are identical for any number of
-``jobs``. A frame whose input cannot be fitted (a ``HybridfitError``: all confidences 0,
+Frames are independent: optimisers with batch steps run in the driver
+(:mod:`.driver`), stage s of frame i drawing from the key ``stage_key(seed, i, s)``
+(:mod:`.streams`); callback solvers run on a Task per frame with
+``numpy.random.default_rng([seed, i])``. So results are identical for any number of
+``jobs`` and any chunking. A frame whose input cannot be fitted (a ``HybridfitError``: all confidences 0,
 say) is recorded (``failed``, ``errors``) and the others go on; options and errors that would
 fail every frame (a bad seed, a budget too small, an unknown point name) are raised before
 any work; a plugin's bug (``BudgetExceeded``, a wrong shape) raises ``PluginError`` naming

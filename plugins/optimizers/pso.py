@@ -50,7 +50,7 @@ def constriction(c1: float, c2: float) -> float:
 C1, C2, CHI, SIGMA, VMAX, NEAR = range(6)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def pso_init(start, lower, upper, keys, budget, settings):
     """The swarm state of F frames: start, lower, upper (F, d), keys (F,) uint64; settings
     (c1, c2, chi, init_sigma, max_velocity, particles near the start); the swarm size is
@@ -85,7 +85,7 @@ def pso_init(start, lower, upper, keys, budget, settings):
         settings.copy(), counters
 
 
-@nb.njit(cache=True, fastmath=True)
+@nb.njit(cache=True, nogil=True, fastmath=True)
 def pso_ask(state, m):
     """The first m particles of every frame after one constricted update (the first call: the
     initial swarm) -> (F, m, d)."""
@@ -113,7 +113,7 @@ def pso_ask(state, m):
     return x[:, :m]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def pso_tell(state, X, losses):
     """Personal and swarm bests of every frame after scoring the batch (losses (F, m))."""
     x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters = state
