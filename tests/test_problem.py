@@ -50,7 +50,7 @@ def test_the_initial_alignment_survives_one_decoy_on_the_palm_point():
     import hybridfit
     from hybridfit.datasets.skeletons import dataset_model_config, skeleton
     from hybridfit.model.rotations import kabsch
-    from hybridfit.problem import robust_alignment
+    from hybridfit.alignment import robust_alignment
 
     model = hybridfit.create("model", "hand26", dataset_model_config("hand26", {}, "icvl"))
     names = list(skeleton("icvl").model_names)
@@ -89,7 +89,7 @@ def test_horns_rotation_is_the_svd_kabsch_rotation():
     from hypothesis import strategies as st
     from scipy.spatial.transform import Rotation
 
-    from hybridfit.problem import _weighted_kabsch
+    from hybridfit.alignment import _weighted_kabsch
     from hybridfit.model.rotations import kabsch
 
     @settings(max_examples=60, deadline=None)

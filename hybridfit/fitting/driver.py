@@ -25,7 +25,6 @@ objective's compiled kernel, or its numpy ``score_frames``, or ``bind`` per fram
 
 from __future__ import annotations
 
-import functools
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
