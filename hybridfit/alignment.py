@@ -8,7 +8,7 @@ import numba as nb
 import numpy as np
 
 from .errors import HybridfitError
-from .guides import _guides
+from .stages import _guides
 from .model.base import POSITION
 from .model.rotations import quaternion_matrix
 

@@ -2,8 +2,8 @@
 mapping of proposal points onto model points, the search box and an initial guess; and the
 same set-up for many frames at once (:func:`prepare_frames`).
 
-Its parts live by job: the model's structure over the points (:mod:`.structure`), guide
-points (:mod:`.guides`), the initial alignment (:mod:`.alignment`)."""
+Its parts live by job: the model's stages over the points and guide points (:mod:`.stages`),
+the initial alignment (:mod:`.alignment`)."""
 
 from __future__ import annotations
 
@@ -13,11 +13,11 @@ import numpy as np
 
 from .alignment import INLIER_MM, _aligned_guesses, alignment_points, initial_guess, robust_alignment  # noqa: F401
 from .errors import HybridfitError
-from .guides import MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, guide_points, rotation_lever_mm  # noqa: F401
 from .model.base import ORIENTATION, POSITION, HandModel
 from .model.kinematics import scratch_size, tree_points
 from .objective import Objective, Observation, compiled_kernel_of, normalise_confidences
-from .structure import _Structure, point_depths, structure_of  # noqa: F401
+from .stages import (MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, _Structure, guide_points, point_depths,  # noqa: F401
+                     rotation_lever_mm, structure_of)
 
 
 class Problem:

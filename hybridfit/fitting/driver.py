@@ -3,7 +3,7 @@
 An optimiser's schedule (``optimizer.plan(task)``: stages of parameters, points, owned
 points and budgets, :class:`~hybridfit.optimizer.StagePlan`) is laid out as data
 (:class:`Layout`). :func:`make_run_schedule` builds the driver loop from an optimiser's
-:class:`~hybridfit.optimizer.BatchSteps` and a scorer (:mod:`.scoring`):
+:class:`~hybridfit.optimizer.BatchSteps` and a scorer (:mod:`.evaluator`):
 
 - frames whose layouts are equal run together, the frame the leading array axis: one call of
   ``ask``, ``score`` and ``tell`` per generation serves the whole group;
@@ -19,7 +19,7 @@ points and budgets, :class:`~hybridfit.optimizer.StagePlan`) is laid out as data
 
 The loop is written once (:func:`run_schedule`), in Python: it makes a few calls per
 generation for a whole group of frames, and the work is in the optimiser's steps (numba for
-the built-in PSO, numpy for others) and the scorer (:mod:`.scoring`: numba kinematics and the
+the built-in PSO, numpy for others) and the scorer (:mod:`.evaluator`: numba kinematics and the
 objective's compiled kernel, or its numpy ``score_frames``, or ``bind`` per frame).
 """
 
@@ -35,7 +35,7 @@ from ..errors import HybridfitError, PluginError
 from ..objective import capability, compiled_kernel_of
 from ..optimizer import BatchSteps, StagePlan, Task, _defining_class, steps_of
 from ..problem import Problem, prepare_frames
-from .scoring import KernelScorer, NumpyScorer
+from .evaluator import KernelScorer, NumpyScorer
 from .streams import stage_keys
 
 #: columns of the integer stage table: budget, rows per ask, whether the stage owns every

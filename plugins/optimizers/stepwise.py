@@ -30,7 +30,7 @@ from hybridfit import registry
 from hybridfit.errors import HybridfitError, UnknownPluginError
 from hybridfit.optimizer import Optimizer, StagePlan, Task
 from hybridfit.plugin import Settings
-from hybridfit.guides import MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, guide_points
+from hybridfit.stages import MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, guide_points
 
 
 class StepwiseSettings(Settings):

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 import hybridfit
 from hybridfit.fitting import driver, frames as fitting
-from hybridfit.fitting.scoring import NumpyScorer
+from hybridfit.fitting.evaluator import NumpyScorer
 from hybridfit.objective import capability
 from hybridfit.optimizer import Task
 from hybridfit.problem import Problem

@@ -16,9 +16,12 @@ hypotheses (the parameters outside the stage at ``base``) scored over ``points``
 from __future__ import annotations
 
 import functools
+import warnings
 
 import numba as nb
 from numba import types as T
+from numba.core.dispatcher import Dispatcher
+from numba.core.errors import NumbaWarning
 import numpy as np
 
 from ..errors import PluginError
@@ -259,6 +262,19 @@ def frame_points(parents, offsets, rest, rest_identity, axes, axis_params, mirro
                     out[f, i, q, c] = pts[q, c, i]
 
 
+@functools.cache
+def as_cfunc(kernel):
+    """A numba kernel (a dispatcher of :data:`~hybridfit.objective.KERNEL_SIGNATURE`) as a C
+    callback with the same compiler options (cached on disk where numba can): passing it to
+    :func:`kernel_frames` costs a fraction of passing the dispatcher, once per generation."""
+    if not isinstance(kernel, Dispatcher):
+        return kernel
+    options = {k: v for k, v in kernel.targetoptions.items() if k in ("fastmath", "error_model", "boundscheck")}
+    with warnings.catch_warnings():  # a kernel defined in a closure cannot be cached: compiled per process
+        warnings.simplefilter("ignore", NumbaWarning)
+        return nb.cfunc(KERNEL_SIGNATURE, cache=True, **options)(kernel.py_func)
+
+
 class KernelScorer:
     """Scores by an objective's compiled kernel on a kinematic tree (see the module doc).
     tree: (parents, offsets, rest, rest_identity, axes, axis_params, mirror); point_map:
@@ -266,7 +282,7 @@ class KernelScorer:
     constants); proposals (F, Q, K, 3) mm, weights (F, Q, K)."""
 
     def __init__(self, tree, point_map, kernel, proposals, weights) -> None:
-        self.tree, self.point_map, self.kernel = tree, point_map, kernel
+        self.tree, self.point_map, self.kernel = tree, point_map, (as_cfunc(kernel[0]), kernel[1])
         self.proposals, self.weights = proposals, weights
         self._run = kernel_frames()
 
