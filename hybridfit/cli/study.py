@@ -20,6 +20,8 @@ def register(sub) -> None:
     p.add_argument("--cache", metavar="DIR", help="cache folder for shared steps (default: OUT/cache)")
     p.add_argument("--quick", action="store_true", help="apply the study's [quick] overrides")
     p.add_argument("--report-only", action="store_true", help="rewrite the report from the database only")
+    p.add_argument("--keep-going", action="store_true",
+                   help="record a trial that fails on a bug and go on (default: stop; bad input never stops)")
     p.set_defaults(func=run)
 
 
@@ -39,6 +41,6 @@ def run(args) -> int:
         return 0
     executor = args.executor or ("processes" if args.jobs > 1 else "serial")
     s = run_study(study, out, jobs=args.jobs, executor=executor, scheduler=args.scheduler, cache_dir=args.cache,
-                  progress=sys.stderr.isatty())  # bars on a terminal only, never written into logs
+                  progress=sys.stderr.isatty(), keep_going=args.keep_going)  # bars on a terminal only, never written into logs
     print(f"{s.total} trials: {s.skipped} already complete, {s.ran} run, {s.failed} failed -> {out}/report.md")
     return EXIT_INCOMPLETE if s.failed else EXIT_OK

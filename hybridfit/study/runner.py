@@ -20,7 +20,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .. import registry
-from ..errors import HybridfitError
+from ..errors import HybridfitError, PluginError
 from ..fitting.frames import fit
 from ..metrics import joint_errors
 from ..fitting.tracking import TrackingSettings, track
@@ -141,8 +141,13 @@ class RunSummary:
 
 def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: str = "processes",
               scheduler: str | None = None, cache_dir: str | os.PathLike | None = None, progress: bool = True,
-              report: bool = True, dask_processes: bool = True, log=None) -> RunSummary:
-    """Run the study's unfinished trials into ``out`` and write the report (see the module doc)."""
+              report: bool = True, dask_processes: bool = True, log=None, keep_going: bool = False) -> RunSummary:
+    """Run the study's unfinished trials into ``out`` and write the report (see the module doc).
+
+    A trial that fails on bad input (a ``HybridfitError``: a budget too small, data without
+    depth for a depth objective) is recorded as failed and the study goes on. A trial that
+    fails on a bug (any other exception, or a worker that died) is recorded and stops the
+    study with a ``PluginError``, the finished trials kept, unless ``keep_going``."""
     out = Path(out)
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     with study_lock(out):
@@ -166,7 +171,8 @@ def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: 
             pending = [t for t in todo if states.get(t.key) != "complete"]
             summary = RunSummary(len(todo), len(todo) - len(pending), 0, 0, out)
             if pending:
-                _run_trials(pending, data, store, executor, jobs, scheduler, progress, dask_processes, summary)
+                _run_trials(pending, data, store, executor, jobs, scheduler, progress, dask_processes, summary,
+                            keep_going)
         finally:
             store.close()
         if report:
@@ -216,7 +222,8 @@ def _needs_depth(settings) -> bool:
 
 
 def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: str, jobs: int,
-                scheduler: str | None, progress: bool, dask_processes: bool, summary: RunSummary) -> None:
+                scheduler: str | None, progress: bool, dask_processes: bool, summary: RunSummary,
+                keep_going: bool = False) -> None:
     sets = {}
     for t in pending:  # shared steps first, once each, in this process
         s = t.variant.settings
@@ -243,6 +250,9 @@ def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: s
                     store.fail(t.key, error)
                     summary.failed += 1
                     bar.write(f"trial {t.variant.name}, seed {t.seed} failed: {error}")
+                    if not keep_going and not getattr(error, "user", False):
+                        raise PluginError(f"trial {t.variant.name}, seed {t.seed}: {error} (a bug, not bad input: "
+                                          f"the study stops; keep_going=True records it and goes on)")
                 summary.ran += 1
                 bar.update(1)
                 bar.set_postfix(failed=summary.failed)
