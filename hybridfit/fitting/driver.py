@@ -327,9 +327,17 @@ class Driver:
                                                                   for p, w in zip(proposals, weights)]
             scorer = NumpyScorer(self.model, self.tree, self.point_map, self.point_matrix, proposals, weights,
                                  self.score_frames, losses, where=f"objective {_name(self.objective)}")
-        run_schedule(lay.optimizer, lay.steps, scorer, lay.stages, lay.indices, lay.settings,
-                     _require(chunk.x0[sel], np.float64), _require(chunk.lower[sel], np.float64),
-                     _require(chunk.upper[sel], np.float64), _require(keys, np.uint64), out_params, out_loss)
+        try:
+            run_schedule(lay.optimizer, lay.steps, scorer, lay.stages, lay.indices, lay.settings,
+                         _require(chunk.x0[sel], np.float64), _require(chunk.lower[sel], np.float64),
+                         _require(chunk.upper[sel], np.float64), _require(keys, np.uint64), out_params, out_loss)
+        except (HybridfitError, PluginError, KeyboardInterrupt):
+            raise
+        except Exception as err:  # a plugin's bug: it propagates, naming the plugins
+            frames = [chunk.frames[chunk.kept[n]] for n in sel]
+            raise PluginError(f"frames {frames[0]}..{frames[-1]}: {type(err).__name__} while fitting with model "
+                              f"{_name(self.model)}, objective {_name(self.objective)}, optimizer "
+                              f"{_name(self.optimizer)}: {err}") from err
 
     def finish(self, chunk: Chunk, fitted) -> list:
         """A list of (frame, (params (P,), points (Q, 3), joints (J, 3), loss, evaluations),

@@ -217,3 +217,24 @@ def test_jobs_split_chunks_with_failed_frames_alike(frames, monkeypatch):
     assert sorted(one.errors) == sorted(three.errors) == [2, 5]
     assert np.array_equal(one.params, three.params, equal_nan=True)
     assert np.array_equal(one.objective, three.objective, equal_nan=True)
+
+
+def test_a_bug_in_a_bound_loss_is_a_plugin_error_naming_the_plugins(frames):
+    from hybridfit.errors import PluginError
+    from hybridfit.objective import Objective
+
+    class Broken(Objective):
+        def bind(self, proposals, weights):
+            return lambda points, subset: np.zeros(len(points) + 1)  # one loss too many
+
+    with pytest.raises(PluginError, match="Broken.*shape"):
+        hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], objective=Broken(), budget=300)
+
+    class Raising(Objective):
+        def bind(self, proposals, weights):
+            def loss(points, subset):
+                raise ZeroDivisionError("oops")
+            return loss
+
+    with pytest.raises(PluginError, match="ZeroDivisionError.*objective Raising"):
+        hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], objective=Raising(), budget=300)
