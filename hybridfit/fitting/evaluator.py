@@ -340,7 +340,9 @@ class NumpyScorer:
             losses[:, :m] = out
             return
         for f, loss in enumerate(self.losses):
-            out = np.asarray(loss(points[f], subset), dtype=np.float64)
+            out = loss(points[f], subset)
+            if type(out) is not np.ndarray or out.shape != (m,):
+                out = np.asarray(out, dtype=np.float64)
             if out.shape != (m,):
                 raise PluginError(f"{self.where}: its bound loss returned shape {out.shape}, expected {(m,)}")
             losses[f, :m] = out

@@ -43,12 +43,24 @@ def clamped_loss(points, subset, proposals, weights, d_max_mm):
     return -best.sum(axis=-1)
 
 
-def clamped_loss_small(points, subset, proposals, weights, d_max_mm):
-    """:func:`clamped_loss` of one frame in a few numpy calls (for small batches, where the
-    cost is per call): points (N, Q, 3), proposals (Q, K, 3), weights (Q, K) -> (N,)."""
-    d2 = np.square(points[:, subset, None, :] - proposals[subset]).sum(axis=-1)  # (N, m, K)
-    terms = weights[subset] * np.maximum(1.0 - d2 * (1.0 / d_max_mm**2), 0.0)
-    return -terms.max(axis=-1, initial=0.0).sum(axis=-1)
+def bound_clamped_loss(proposals, weights, d_max_mm):
+    """loss(points (N, Q, 3), subset (m,)) -> (N,) of one frame, in a few numpy calls (for small
+    batches the cost is per call): the frame's proposals and weights cut to each subset once."""
+    scale = 1.0 / d_max_mm**2
+    cut = {}
+
+    def loss(points, subset):
+        key = subset.tobytes()
+        if key not in cut:
+            w = weights[subset]
+            cut[key] = (proposals[subset], w, w * scale)
+        p, w, ws = cut[key]
+        diff = points[:, subset, None, :] - p  # (N, m, K, 3)
+        d2 = np.einsum("nmkc,nmkc->nmk", diff, diff)
+        terms = np.maximum(w - ws * d2, 0.0)  # w (1 - d^2 / d_max^2), clamped at 0
+        return -terms.max(axis=-1, initial=0.0).sum(axis=-1)
+
+    return loss
 
 
 class NumpyClamped(Objective):
@@ -57,13 +69,7 @@ class NumpyClamped(Objective):
     Settings = NumpyClampedSettings
 
     def bind(self, proposals, weights):
-        proposals, weights = np.asarray(proposals, float), np.asarray(weights, float)
-        d_max = self.settings.d_max_mm
-
-        def loss(points, subset):
-            return clamped_loss_small(np.asarray(points, float), np.asarray(subset), proposals, weights, d_max)
-
-        return loss
+        return bound_clamped_loss(np.asarray(proposals, float), np.asarray(weights, float), self.settings.d_max_mm)
 
     def score_frames(self, points, subset, proposals, weights):
         """points (F, N, Q, 3), proposals (F, Q, K, 3), weights (F, Q, K) -> (F, N)."""
