@@ -160,7 +160,7 @@ class Layout:
     optimizer: object
 
 
-def layout(plan: list[StagePlan], n_points: int, where: str) -> Layout | None:
+def layout(plan: list[StagePlan], n_points: int) -> Layout | None:
     """Lay out a frame's stages; None when a stage's optimiser has no valid batch steps or the
     stages' steps differ (such schedules run on the Task path)."""
     rows, parts, settings, at, steps = [], [], [], 0, None
@@ -191,7 +191,7 @@ def runs_batched(optimizer, task: Task) -> bool:
     cls = type(optimizer)
     if not issubclass(_defining_class(cls, "plan"), _defining_class(cls, "minimize")):
         return False
-    return layout(optimizer.plan(task), len(task.problem.point_names), _name(optimizer)) is not None
+    return layout(optimizer.plan(task), len(task.problem.point_names)) is not None
 
 
 def supports(model, objective, optimizer, problem: Problem | None, budget: int) -> bool:
@@ -256,8 +256,7 @@ class Driver:
         key = observed.tobytes()
         if key not in self._layouts:
             problem = Problem(self.model, self.objective, proposals, confidences, self.names, self.search_radius_mm)
-            self._layouts[key] = layout(self.optimizer.plan(Task(problem, self.budget)), len(self.names),
-                                        _name(self.optimizer))
+            self._layouts[key] = layout(self.optimizer.plan(Task(problem, self.budget)), len(self.names))
         return self._layouts[key]
 
     def prepare(self, frames, proposals: np.ndarray, confidences: np.ndarray) -> Chunk:

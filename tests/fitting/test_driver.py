@@ -160,7 +160,7 @@ def test_a_schedule_depends_on_a_frame_only_through_its_observed_points():
         c = data["confidences"][f].copy()
         c[masks[f % 3]] = 0.0
         plan = optimizer.plan(Task(Problem(model, objective, data["proposals"][f], c), 3400))
-        lay = driver.layout(plan, 21, "stepwise-pso")
+        lay = driver.layout(plan, 21)
         first = plans.setdefault(f % 3, lay)
         assert np.array_equal(first.stages, lay.stages) and np.array_equal(first.indices, lay.indices)
 
