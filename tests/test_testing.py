@@ -314,3 +314,20 @@ def test_batch_steps_whose_frames_share_random_numbers_fail_their_check():
     with pytest.raises(AssertionError, match="fitted beside other frames differs"):
         testing.check_optimizer_batch_steps(SharedKeys())
     testing.check_optimizer_batch_steps(registry.create("optimizer", "pso"))
+
+
+def test_casadi_symbols_follow_the_same_rule():
+    class WithSymbols(_ShiftedScores):
+        def casadi_loss(self, points, proposals, weights, subset):
+            return 0.0
+
+    class OwnBind(WithSymbols):
+        def bind(self, proposals, weights):
+            return super().bind(proposals, weights)
+
+    assert capability(WithSymbols(), "casadi_loss") is not None
+    assert capability(OwnBind(), "casadi_loss") is None
+    from hybridfit_plugins.optimizers.casadi_ik import optimised_loss
+
+    assert optimised_loss(WithSymbols(), 10.0) is None
+    assert "surrogate" in optimised_loss(OwnBind(), 10.0)
