@@ -25,6 +25,7 @@ objective's compiled kernel, or its numpy ``score_frames``, or ``bind`` per fram
 
 from __future__ import annotations
 
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -361,26 +362,30 @@ class Driver:
 
     def fit_chunks(self, chunks, proposals: np.ndarray, confidences: np.ndarray, jobs: int = 1):
         """Yield :meth:`fit_chunk`'s result for each chunk of frame indices, in order. With
-        ``jobs`` > 1 compiled groups run on ``jobs`` threads while the next chunk is prepared;
-        an interrupt while preparing still yields the chunk that was running."""
+        ``jobs`` > 1 up to ``jobs`` chunks run at once on threads (the numba parts release the
+        GIL) while the next chunk is prepared; an interrupt while preparing still yields the
+        chunks that were running."""
         if jobs <= 1:
             for c in chunks:
                 yield self.fit_chunk(c, proposals[c], confidences[c])
             return
-        with ThreadPoolExecutor(max_workers=1) as pool:
-            running = None
+        with ThreadPoolExecutor(max_workers=jobs) as pool:
+            running: deque = deque()
             for c in chunks:
                 try:
                     chunk = self.prepare(c, proposals[c], confidences[c])
                 except BaseException:
-                    if running is not None:
-                        yield self.finish(running[0], running[1].result())
+                    while running:
+                        done, future = running.popleft()
+                        yield self.finish(done, future.result())
                     raise
-                if running is not None:
-                    yield self.finish(running[0], running[1].result())
-                running = (chunk, pool.submit(self.run, chunk, jobs))
-            if running is not None:
-                yield self.finish(running[0], running[1].result())
+                running.append((chunk, pool.submit(self.run, chunk)))
+                if len(running) >= jobs:
+                    done, future = running.popleft()
+                    yield self.finish(done, future.result())
+            while running:
+                done, future = running.popleft()
+                yield self.finish(done, future.result())
 
 
 def _name(plugin) -> str:

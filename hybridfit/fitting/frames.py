@@ -31,8 +31,8 @@ from ..optimizer import Task
 from ..problem import Problem
 
 
-#: frames per chunk of the driver (progress and Ctrl-C granularity; with jobs > 1 one chunk
-#: is prepared while the one before is fitted)
+#: frames per chunk of the driver (progress and Ctrl-C granularity; with jobs > 1, jobs
+#: chunks run at once while the next is prepared)
 CHUNK = 256
 
 #: the inlier distance of objectives without a ``d_max_mm`` setting
@@ -232,7 +232,8 @@ def fit(
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
         if fitter is not None:
-            chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // CHUNK)))]
+            size = min(CHUNK, max(1, -(-F // jobs)))  # with jobs > 1, at least jobs chunks
+            chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // size)))]
             for items in fitter.fit_chunks(chunks, proposals, confidences, jobs):
                 store(items)
                 bar.update(len(items))
