@@ -27,7 +27,7 @@ import numpy as np
 
 from .datasets.camera import Intrinsics
 from .errors import HybridfitError
-from .plugin import Plugin
+from .plugin import Plugin, defining_class
 
 #: an objective's compiled kernel: (points (Q, 3, N) mm, the hypothesis innermost, subset
 #: (m,) point indices, proposals (Q, K, 3) mm, weights (Q, K), constants (c,), out (n,),
@@ -147,13 +147,6 @@ class Objective(Plugin, abc.ABC):
 CAPABILITIES = ("compiled_kernel", "score_frames", "casadi_loss")
 
 
-def _defining_class(cls: type, name: str) -> type:
-    for klass in cls.__mro__:
-        if name in vars(klass):
-            return klass
-    raise AttributeError(name)
-
-
 def capability(objective: Any, name: str) -> Callable | None:
     """The objective's bound method ``name`` (one of :data:`CAPABILITIES`) when it may stand in
     for its ``bind``, else None.
@@ -166,10 +159,10 @@ def capability(objective: Any, name: str) -> Callable | None:
     if not isinstance(objective, Objective):
         return None
     cls = type(objective)
-    provider = _defining_class(cls, name)
+    provider = defining_class(cls, name)
     if provider is Objective:
         return None
-    binder = _defining_class(cls, "bind_observed" if objective.observes_depth else "bind")
+    binder = defining_class(cls, "bind_observed" if objective.observes_depth else "bind")
     if not issubclass(provider, binder):
         return None
     return getattr(objective, name)

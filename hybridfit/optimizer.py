@@ -26,7 +26,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from .errors import BudgetExceeded, HybridfitError, PluginError
-from .plugin import Plugin
+from .plugin import Plugin, defining_class
 from .problem import Problem
 
 
@@ -259,13 +259,6 @@ class Optimizer(Plugin, abc.ABC):
         return task.result()
 
 
-def _defining_class(cls: type, name: str) -> type:
-    for klass in cls.__mro__:
-        if name in vars(klass):
-            return klass
-    raise AttributeError(name)
-
-
 def steps_of(optimizer) -> BatchSteps | None:
     """The optimiser's valid :class:`BatchSteps`, or None: valid when the class that defines
     ``batch_steps`` is the one that defines the ``minimize`` in effect, or a subclass of it (a
@@ -273,8 +266,8 @@ def steps_of(optimizer) -> BatchSteps | None:
     if not isinstance(optimizer, Optimizer):
         return None
     cls = type(optimizer)
-    provider = _defining_class(cls, "batch_steps")
-    if provider is Optimizer or not issubclass(provider, _defining_class(cls, "minimize")):
+    provider = defining_class(cls, "batch_steps")
+    if provider is Optimizer or not issubclass(provider, defining_class(cls, "minimize")):
         return None
     return optimizer.batch_steps()
 

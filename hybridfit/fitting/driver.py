@@ -34,7 +34,8 @@ import numpy as np
 
 from ..errors import HybridfitError, PluginError
 from ..objective import capability, compiled_kernel_of
-from ..optimizer import BatchSteps, StagePlan, Task, _defining_class, steps_of
+from ..optimizer import BatchSteps, StagePlan, Task, steps_of
+from ..plugin import defining_class
 from ..problem import Problem, prepare_frames
 from .evaluator import KernelScorer, NumpyScorer
 from .streams import stage_keys
@@ -190,7 +191,7 @@ def runs_batched(optimizer, task: Task) -> bool:
     its ``minimize`` follows (a subclass overriding ``minimize`` is not run by its parent's
     plan), and the stages' optimisers share valid batch steps (:func:`layout`)."""
     cls = type(optimizer)
-    if not issubclass(_defining_class(cls, "plan"), _defining_class(cls, "minimize")):
+    if not issubclass(defining_class(cls, "plan"), defining_class(cls, "minimize")):
         return False
     return layout(optimizer.plan(task), len(task.problem.point_names)) is not None
 
