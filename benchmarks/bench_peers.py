@@ -19,7 +19,7 @@ the swarm Gaussian around it with 0.1 of the range, the rest uniform):
   range), batched ask/tell with the swarm size as ``num_workers``.
 
 Budgets are exact: a library's last generation is cut to the evaluations left (the rest get
-an infinite loss without being evaluated). Ours is ``hybridfit.fit`` (the compiled path).
+an infinite loss without being evaluated). Ours is ``hybridfit.fit`` (the driver).
 Prints CPU ms per frame (median), the ratio to ours, mean joint error and mean objective.
 """
 
@@ -162,7 +162,7 @@ def main() -> None:
         ours = hybridfit.fit(data["proposals"], data["confidences"], budget=args.budget, optimizer_config=SCHEDULE)
         times.append((time.process_time() - t) / args.frames)
     ours_time = float(np.median(times))
-    rows = [["ours (stepwise-pso, compiled path, hybridfit.fit end to end)", f"{ours_time * 1e3:.2f}", "1", f"{error(ours.params):.2f}",
+    rows = [["ours (stepwise-pso, hybridfit.fit end to end)", f"{ours_time * 1e3:.2f}", "1", f"{error(ours.params):.2f}",
              f"{ours.objective.mean():.3f}"]]
     # every optimiser above and below runs with seed 0; ours over more seeds shows the spread
     seeds = [error(hybridfit.fit(data["proposals"], data["confidences"], budget=args.budget, seed=s,

@@ -22,11 +22,19 @@ import abc
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar
 
+import numba as nb
 import numpy as np
 
 from .datasets.camera import Intrinsics
 from .errors import HybridfitError
-from .plugin import Plugin
+from .plugin import Plugin, defining_class
+
+#: an objective's compiled kernel: (points (Q, 3, N) mm, the hypothesis innermost, subset
+#: (m,) point indices, proposals (Q, K, 3) mm, weights (Q, K), constants (c,), out (n,),
+#: n <= N) -> None; writes into ``out`` the loss of each of the first n hypotheses over the
+#: points in ``subset``.
+KERNEL_SIGNATURE = nb.types.void(nb.types.float64[:, :, ::1], nb.types.int64[::1], nb.types.float64[:, :, ::1],
+                                 nb.types.float64[:, ::1], nb.types.float64[::1], nb.types.float64[::1])
 
 #: loss(points (N, Q, 3) mm, subset (m,) int64 point indices) -> (N,) float64 losses
 Loss = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -82,7 +90,12 @@ def dataset_observations(ds, indices, where: str = "data") -> list[Observation |
 
 
 class Objective(Plugin, abc.ABC):
-    """Scores hypotheses' points against a frame's proposals; lower is better."""
+    """Scores hypotheses' points against a frame's proposals; lower is better.
+
+    ``bind`` is the contract. ``compiled_kernel``, ``score_frames`` and ``casadi_loss`` are
+    optional capabilities (faster or symbolic forms of the same loss), used by the core only
+    through :func:`capability`; ``hybridfit.testing`` checks that they agree with ``bind``.
+    """
 
     #: capability: bind_observed needs the frame's depth Observation and the model
     observes_depth: ClassVar[bool] = False
@@ -107,6 +120,61 @@ class Objective(Plugin, abc.ABC):
     def lower_bound(self, weights: np.ndarray) -> float:
         """A lower bound of the loss for these weights (-inf when unknown)."""
         return -np.inf
+
+    # ---- optional capabilities: faster ways to compute what ``bind`` computes. The core
+    # uses one only where :func:`capability` finds it valid for this object's ``bind``.
+
+    def compiled_kernel(self) -> tuple[Callable, np.ndarray] | None:
+        """Capability: (kernel, constants (c,) float64), a numba function of
+        :data:`KERNEL_SIGNATURE` scoring exactly as ``bind`` does; None (the default): none."""
+        return None
+
+    def score_frames(self, points: np.ndarray, subset: np.ndarray, proposals: np.ndarray,
+                     weights: np.ndarray) -> np.ndarray | None:
+        """Capability: the losses of many frames at once, plain numpy allowed. points
+        (F, N, Q, 3) mm, subset (m,) int64, proposals (F, Q, K, 3) mm, weights (F, Q, K)
+        normalised -> (F, N) float64, row f equal to ``bind(proposals[f], weights[f])(points[f],
+        subset)``. None (the default): not offered."""
+        return None
+
+    def casadi_loss(self, points: Any, proposals: np.ndarray, weights: np.ndarray, subset: np.ndarray) -> Any:
+        """Capability: the loss as CasADi symbols of points (Q, 3) SX for gradient-based
+        solvers (``casadi-ik``); None (the default): not offered."""
+        return None
+
+
+#: the optional capabilities of :class:`Objective` (each overrides a base method returning None)
+CAPABILITIES = ("compiled_kernel", "score_frames", "casadi_loss")
+
+
+def capability(objective: Any, name: str) -> Callable | None:
+    """The objective's bound method ``name`` (one of :data:`CAPABILITIES`) when it may stand in
+    for its ``bind``, else None.
+
+    A capability is valid only when the class that defines it is the class that defines the
+    ``bind`` in effect, or a subclass of it: a subclass that overrides ``bind`` never runs its
+    parent's kernel. Objects that are not :class:`Objective` subclasses offer nothing."""
+    if name not in CAPABILITIES:
+        raise ValueError(f"unknown objective capability {name!r}; choose from {CAPABILITIES}")
+    if not isinstance(objective, Objective):
+        return None
+    cls = type(objective)
+    provider = defining_class(cls, name)
+    if provider is Objective:
+        return None
+    binder = defining_class(cls, "bind_observed" if objective.observes_depth else "bind")
+    if not issubclass(provider, binder):
+        return None
+    return getattr(objective, name)
+
+
+def compiled_kernel_of(objective: Any) -> tuple[Callable, np.ndarray] | None:
+    """The objective's valid compiled kernel and constants (see :func:`capability`), or None."""
+    method = capability(objective, "compiled_kernel")
+    found = None if method is None or objective.observes_depth else method()
+    if found is None:
+        return None
+    return found[0], np.ascontiguousarray(found[1], dtype=np.float64)
 
 
 def kernel_loss(kernel: Callable, *frame_data) -> Loss:

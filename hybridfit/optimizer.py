@@ -1,21 +1,32 @@
-"""The abstract optimiser and the budget-keeping task it works on.
+"""The abstract optimiser, the batch interface it may offer, and the budget-keeping task.
 
 An optimiser minimises (see :mod:`hybridfit.objective`). It never calls the objective
-directly: it receives a :class:`Task` whose ``evaluate(X (n, d)) -> (n,)`` counts every
-row against the budget and raises :class:`BudgetExceeded` rather than overshoot, and which
-keeps the best parameters seen and a best-so-far history. So no plugin can overshoot or
-undercount, and the result is always the best hypothesis actually evaluated.
+directly. Two ways to write one:
+
+- **Batch steps** (preferred): ``batch_steps()`` returns :class:`BatchSteps`, three pure
+  functions over arrays with a leading frame axis (ask/tell). The core's one driver
+  (:mod:`hybridfit.fitting.driver`) runs them for many frames in lockstep, one call per
+  generation for a whole chunk of frames, scoring the batches itself; when the functions are
+  numba-compiled and the objective has a compiled kernel the same driver loop runs compiled.
+  ``minimize`` then comes for free (the same steps on one frame's :class:`Task`).
+- **A callback solver** (NLopt, IPOPT, ...) overrides ``minimize(task, rng)`` and calls
+  ``task.evaluate``.
+
+Either way the budget is kept by the core: a :class:`Task`'s ``evaluate(X (n, d)) -> (n,)``
+counts every row and raises :class:`BudgetExceeded` rather than overshoot, and the driver
+asks exactly the budget's rows. The result is always the best hypothesis actually evaluated.
 """
 
 from __future__ import annotations
 
 import abc
 from dataclasses import dataclass, field
+from typing import Callable, NamedTuple
 
 import numpy as np
 
-from .errors import BudgetExceeded, HybridfitError
-from .plugin import Plugin
+from .errors import BudgetExceeded, HybridfitError, PluginError
+from .plugin import Plugin, defining_class
 from .problem import Problem
 
 
@@ -176,19 +187,57 @@ def _same_set(a: np.ndarray, b: np.ndarray) -> bool:
     return len(a) == len(b) and np.array_equal(np.sort(a), np.sort(b))
 
 
+class BatchSteps(NamedTuple):
+    """An optimiser's batch interface: pure functions over arrays with a leading frame axis F.
+
+    ``init(start (F, d), lower (F, d), upper (F, d), keys (F,) uint64, budget, settings (c,)
+    float64) -> state`` (a tuple of arrays); ``ask(state, m) -> X (F, m, d)`` the next m
+    hypotheses of every frame, within the bounds; ``tell(state, X (F, m, d), losses (F, m))``.
+    The driver asks ``m = min(batch, evaluations left)`` rows each time, so the budget is spent
+    exactly. Frame f's random numbers must come from ``keys[f]`` only (see
+    :mod:`hybridfit.fitting.streams`), so a frame's result does not depend on the frames beside
+    it. When all three are numba ``njit`` functions, the driver may run compiled.
+    """
+
+    init: Callable
+    ask: Callable
+    tell: Callable
+
+
 class Optimizer(Plugin, abc.ABC):
-    """Minimises a task's loss within its evaluation budget."""
+    """Minimises a task's loss within its evaluation budget (see the module doc)."""
+
+    def batch_steps(self) -> BatchSteps | None:
+        """Capability: this optimiser's :class:`BatchSteps` (the same functions for every
+        configuration of the class); None (the default): it only has ``minimize``."""
+        return None
+
+    def batch_settings(self, budget: int) -> tuple[int, np.ndarray]:
+        """(batch, settings): the rows per ``ask`` and the ``settings`` (c,) float64 handed to
+        ``init`` for a run (or stage) with this budget. Needed with ``batch_steps``."""
+        raise NotImplementedError(f"optimizer {self.name or type(self).__name__} has batch_steps but no batch_settings")
+
+    def plan(self, task: "Task") -> list[StagePlan]:
+        """The stage schedule this optimiser runs on a task: by default one stage of all the
+        task's parameters and points, run by itself (``stepwise`` splits it)."""
+        return [StagePlan("all", task.parameters, task.points, task.points, task.budget, self)]
 
     def min_budget(self, task: Task) -> int:
         """The smallest budget this optimiser can work with on this task."""
         return 1
 
-    @abc.abstractmethod
     def minimize(self, task: Task, rng: np.random.Generator) -> None:
         """Spend at most ``task.budget`` evaluations through ``task.evaluate``.
 
-        The task keeps the best hypothesis; all randomness comes from ``rng``.
+        The task keeps the best hypothesis; all randomness comes from ``rng``. The default
+        runs the optimiser's ``batch_steps`` on the task (one frame; its key is one draw from
+        ``rng``); a callback solver overrides this.
         """
+        steps = steps_of(self)
+        if steps is None:
+            raise NotImplementedError(f"optimizer {self.name or type(self).__name__} has neither batch_steps nor "
+                                      f"minimize")
+        run_steps(self, steps, task, np.array([rng.integers(0, 2**64, dtype=np.uint64)], dtype=np.uint64))
 
     def check_budget(self, task: Task) -> None:
         """Raise a HybridfitError naming the minimum when the task's budget is below it."""
@@ -208,3 +257,38 @@ class Optimizer(Plugin, abc.ABC):
         if task.used == 0:
             raise HybridfitError(f"optimizer {self.name or type(self).__name__} evaluated nothing")
         return task.result()
+
+
+def steps_of(optimizer) -> BatchSteps | None:
+    """The optimiser's valid :class:`BatchSteps`, or None: valid when the class that defines
+    ``batch_steps`` is the one that defines the ``minimize`` in effect, or a subclass of it (a
+    subclass that overrides ``minimize`` is never run through its parent's steps)."""
+    if not isinstance(optimizer, Optimizer):
+        return None
+    cls = type(optimizer)
+    provider = defining_class(cls, "batch_steps")
+    if provider is Optimizer or not issubclass(provider, defining_class(cls, "minimize")):
+        return None
+    return optimizer.batch_steps()
+
+
+def checked_batch(optimizer, X, frames: int, m: int, dim: int) -> np.ndarray:
+    """X as a (frames, m, dim) float64 array, or a PluginError naming the optimiser."""
+    X = np.asarray(X, dtype=np.float64)
+    if X.shape != (frames, m, dim):
+        raise PluginError(f"optimizer {optimizer.name or type(optimizer).__name__}: ask returned hypotheses of shape "
+                          f"{X.shape}, expected {(frames, m, dim)}")
+    return X
+
+
+def run_steps(optimizer, steps: BatchSteps, task: Task, keys: np.ndarray) -> None:
+    """Run batch steps on one task (the Task adapter of :meth:`Optimizer.minimize`)."""
+    n, settings = optimizer.batch_settings(task.budget)
+    n = max(1, min(int(n), task.remaining))
+    state = steps.init(task.x0[None].copy(), task.lower[None].copy(), task.upper[None].copy(), keys, task.remaining,
+                       np.asarray(settings, dtype=np.float64))
+    while task.remaining > 0:
+        m = min(n, task.remaining)
+        X = checked_batch(optimizer, steps.ask(state, m), 1, m, task.dim)
+        f = task.evaluate(X[0])
+        steps.tell(state, X, f[None])

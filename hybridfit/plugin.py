@@ -70,6 +70,15 @@ class Plugin:
         return f"{type(self).__name__}({args})"
 
 
+def defining_class(cls: type, name: str) -> type:
+    """The class in ``cls``'s method resolution order that defines attribute ``name``: how the
+    core tells whether an optional capability belongs to the method it stands in for."""
+    for klass in cls.__mro__:
+        if name in vars(klass):
+            return klass
+    raise AttributeError(f"{cls.__name__} has no attribute {name!r}")
+
+
 def _has_defaults(settings: type[Settings]) -> bool:
     return all(not f.is_required() for f in settings.model_fields.values())
 

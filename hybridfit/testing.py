@@ -33,7 +33,7 @@ from .errors import HybridfitError
 from .fitting.angles import PARAMETER_NAME
 from .model.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
 from .model.base import ANGLES, HandModel, Stage
-from .objective import Objective, normalise_confidences
+from .objective import Objective, capability, compiled_kernel_of, normalise_confidences
 from .optimizer import Optimizer, Task
 from .plugin import Settings
 from .problem import Problem
@@ -383,6 +383,37 @@ def check_objective_deterministic(objective: Objective) -> None:
     np.testing.assert_array_equal(first, second, err_msg=f"{_label(objective)}: not deterministic")
 
 
+def check_objective_capabilities(objective: Objective) -> None:
+    """A compiled kernel and a frame-batched scorer (``score_frames``) that the core would use
+    (:func:`hybridfit.objective.capability`) give ``bind``'s losses on random points, on the
+    whole frame and on a subset of points, for several frames at once."""
+    kernel = compiled_kernel_of(objective)
+    score_frames = capability(objective, "score_frames")
+    if objective.observes_depth or (kernel is None and score_frames is None):
+        return
+    frames = [_objective_frame(seed) for seed in (11, 12, 13)]
+    proposals = np.stack([f[0] for f in frames])
+    weights = np.stack([f[1] for f in frames])
+    points = np.stack([f[2] for f in frames])  # (F, N, Q, 3)
+    Q = proposals.shape[1]
+    for subset in (np.arange(Q, dtype=np.int64), np.array([0, 2, 3], dtype=np.int64)):
+        want = np.stack([objective.bind(proposals[f], weights[f])(points[f], subset) for f in range(len(frames))])
+        if kernel is not None:
+            function, consts = kernel
+            got = np.empty_like(want)
+            for f in range(len(frames)):
+                function(np.ascontiguousarray(points[f].transpose(1, 2, 0)), subset, np.ascontiguousarray(proposals[f]),
+                         np.ascontiguousarray(weights[f]), consts, got[f])
+            np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9,
+                                       err_msg=f"{_label(objective)}: compiled_kernel disagrees with bind")
+        if score_frames is not None:
+            got = np.asarray(score_frames(points.copy(), subset, proposals, weights))
+            _require(got.shape == want.shape, f"{_label(objective)}: score_frames returned shape {got.shape}, "
+                     f"expected {want.shape}")
+            np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9,
+                                       err_msg=f"{_label(objective)}: score_frames disagrees with bind")
+
+
 def check_objective_observed(objective: Objective) -> None:
     """An objective that observes depth scores the rendered pose itself at least as well as
     perturbed poses, and a Problem without the frame's depth is refused with a clear error.
@@ -565,6 +596,31 @@ def check_optimizer_improves(optimizer: Optimizer) -> None:
                  f"{IMPROVE_SHARE:.0%} of the gap closed")
 
 
+def check_optimizer_batch_steps(optimizer: Optimizer) -> None:
+    """An optimiser with batch steps (``hybridfit.optimizer.steps_of``), run by the driver for
+    several frames in lockstep, spends each frame's budget exactly, and fits each frame as it
+    fits it alone (its random numbers come from its own key). (Nothing to check otherwise.)"""
+    from .fitting.driver import Driver
+    from .optimizer import steps_of
+
+    if steps_of(optimizer) is None:
+        return
+    model = ToyHand()
+    data = synthetic_proposals(3, k=3, seed=7, model=model)
+    objective = registry.create("objective", "clamped-confidence")
+    problem = Problem(model, objective, data["proposals"][0], data["confidences"][0])
+    budget = _budget(optimizer, Task(problem, 1))
+    driver = Driver(model, objective, optimizer, model.joint_names, budget, seed=3)
+    together = driver.fit_chunk([0, 1, 2], data["proposals"], data["confidences"])
+    for f in range(3):
+        alone = driver.fit_chunk([f], data["proposals"][f:f + 1], data["confidences"][f:f + 1])[0]
+        _require(together[f][2] is None and alone[2] is None, f"{_label(optimizer)}: frame {f} failed")
+        _require(together[f][1][4] == budget, f"{_label(optimizer)}: {together[f][1][4]} evaluations for a budget "
+                 f"of {budget}")
+        _require(np.array_equal(together[f][1][0], alone[1][0]),
+                 f"{_label(optimizer)}: frame {f} fitted beside other frames differs from frame {f} fitted alone")
+
+
 # ------------------------------------------------------------------ registry of checks
 _COMMON = (check_config_round_trip, check_unknown_setting, check_pickle)
 _CHECKS: dict[str, tuple[Callable, ...]] = {
@@ -572,9 +628,11 @@ _CHECKS: dict[str, tuple[Callable, ...]] = {
                         check_model_default_pose, check_model_bone_lengths, check_model_stages,
                         check_model_joint_subset, check_model_stage_parameters),
     "objective": _COMMON + (check_objective_shapes, check_objective_batching, check_objective_sum_over_points,
-                            check_objective_lower_bound, check_objective_deterministic, check_objective_observed),
+                            check_objective_lower_bound, check_objective_deterministic, check_objective_capabilities,
+                            check_objective_observed),
     "optimizer": _COMMON + (check_optimizer_budget, check_optimizer_deterministic, check_optimizer_bounds,
-                            check_optimizer_subset, check_optimizer_min_budget, check_optimizer_improves),
+                            check_optimizer_subset, check_optimizer_min_budget, check_optimizer_improves,
+                            check_optimizer_batch_steps),
 }
 
 

@@ -47,10 +47,10 @@ def random_params(model, n, rng):
 def interrupt_at(monkeypatch):
     """interrupt_at(frame): make hybridfit.fit raise KeyboardInterrupt when it reaches that frame
     (and skip the CLI's set-up check)."""
-    from hybridfit.fitting import compiled, frames as fitting
+    from hybridfit.fitting import driver, frames as fitting
 
     real = fitting._fit_chunk
-    real_prepare = compiled.CompiledFitter.prepare
+    real_prepare = driver.Driver.prepare
 
     def arm(frame: int) -> None:
         def chunk(spec, frames, *rest):
@@ -64,8 +64,8 @@ def interrupt_at(monkeypatch):
             return real_prepare(fitter, frames, *rest)
 
         monkeypatch.setattr(fitting, "_fit_chunk", chunk)
-        monkeypatch.setattr(compiled.CompiledFitter, "prepare", prepare)
-        monkeypatch.setattr(fitting, "COMPILED_CHUNK", 1)  # the compiled path, one frame per call
+        monkeypatch.setattr(driver.Driver, "prepare", prepare)
+        monkeypatch.setattr(fitting, "CHUNK", 1)  # the driver, one frame per chunk
         # `hybridfit fit` checks the hand on a few frames first (fits of their own, numbered from 0): skipped here,
         # so that the frame counted is the main fit's
         import hybridfit.cli.fit as cli_fit

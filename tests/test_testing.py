@@ -260,3 +260,93 @@ def test_an_optimizer_that_only_re_evaluates_its_start_passes_every_other_check(
 
 def test_improvement_check_passes_a_plain_random_search():
     testing.check_optimizer_improves(registry.create("optimizer", "pso"))
+
+
+# ------------------------------------------------------------------ objective capabilities
+from hybridfit.objective import KERNEL_SIGNATURE, Objective, capability  # noqa: E402
+
+
+class _ShiftedScores(Objective):
+    """Least squares on the top proposal, with a frame scorer that is off by a constant."""
+
+    def bind(self, proposals, weights):
+        target = proposals[np.arange(len(proposals)), weights.argmax(-1)]
+        used = weights.sum(-1) > 0
+
+        def loss(points, subset):
+            d = ((points[:, subset] - target[subset]) ** 2).sum(-1)
+            return (d * used[subset]).sum(-1)
+
+        return loss
+
+    def score_frames(self, points, subset, proposals, weights):
+        return np.stack([self.bind(p, w)(x, subset) for x, p, w in zip(points, proposals, weights)]) + 1.0
+
+
+def test_a_frame_scorer_that_disagrees_with_bind_fails_its_check():
+    with pytest.raises(AssertionError, match="score_frames disagrees with bind"):
+        testing.check_objective_capabilities(_ShiftedScores())
+    fixed = type("Agreeing", (_ShiftedScores,), {"score_frames": lambda self, *a: _ShiftedScores.score_frames(self, *a) - 1.0})
+    testing.check_objective_capabilities(fixed())
+
+
+def test_a_kernel_that_disagrees_with_bind_fails_its_check():
+    import numba as nb
+
+    clamped = registry.create("objective", "clamped-confidence")
+    kernel, consts = clamped.compiled_kernel()
+
+    @nb.njit(KERNEL_SIGNATURE)
+    def doubled(points, subset, proposals, weights, consts, out):
+        kernel(points, subset, proposals, weights, consts, out)
+        for i in range(out.shape[0]):
+            out[i] *= 2.0
+
+    broken = type("Doubled", (type(clamped),), {"compiled_kernel": lambda self: (doubled, consts)})()
+    with pytest.raises(AssertionError, match="compiled_kernel disagrees with bind"):
+        testing.check_objective_capabilities(broken)
+    testing.check_objective_capabilities(clamped)
+
+
+def test_a_capability_is_not_used_below_a_subclass_that_overrides_bind():
+    clamped = registry.create("objective", "clamped-confidence")
+    assert capability(clamped, "compiled_kernel") is not None
+    Shifted = type("Shifted", (type(clamped),), {"bind": lambda self, p, w: type(clamped).bind(self, p, w)})
+    assert capability(Shifted(), "compiled_kernel") is None
+    # overriding bind and the kernel together: the subclass's own kernel is used
+    Both = type("Both", (Shifted,), {"compiled_kernel": lambda self: type(clamped).compiled_kernel(self)})
+    assert capability(Both(), "compiled_kernel") is not None
+    assert capability(clamped, "score_frames") is None and capability(clamped, "casadi_loss") is None
+
+
+def test_batch_steps_whose_frames_share_random_numbers_fail_their_check():
+    from hybridfit_plugins.optimizers.pso import PSO, STEPS
+    from hybridfit.optimizer import BatchSteps
+
+    def init(start, lower, upper, keys, budget, settings):  # every frame draws from frame 0's key
+        return STEPS.init(start, lower, upper, keys[:1].repeat(len(keys)) + np.uint64(len(keys)), budget, settings)
+
+    class SharedKeys(PSO):
+        def batch_steps(self):
+            return BatchSteps(init, STEPS.ask, STEPS.tell)
+
+    with pytest.raises(AssertionError, match="fitted beside other frames differs"):
+        testing.check_optimizer_batch_steps(SharedKeys())
+    testing.check_optimizer_batch_steps(registry.create("optimizer", "pso"))
+
+
+def test_casadi_symbols_follow_the_same_rule():
+    class WithSymbols(_ShiftedScores):
+        def casadi_loss(self, points, proposals, weights, subset):
+            return 0.0
+
+    class OwnBind(WithSymbols):
+        def bind(self, proposals, weights):
+            return super().bind(proposals, weights)
+
+    assert capability(WithSymbols(), "casadi_loss") is not None
+    assert capability(OwnBind(), "casadi_loss") is None
+    from hybridfit_plugins.optimizers.casadi_ik import optimised_loss
+
+    assert optimised_loss(WithSymbols(), 10.0) is None
+    assert "surrogate" in optimised_loss(OwnBind(), 10.0)

@@ -22,6 +22,8 @@ def register(sub) -> None:
     p.add_argument("--report-only", action="store_true", help="rewrite the report from the database only")
     p.add_argument("--allow-large", action="store_true", help="run a study of more than 10,000 trials "
                    "(refused without it: such a sweep is usually a mistake, and its database grows by hundreds of MB)")
+    p.add_argument("--keep-going", action="store_true",
+                   help="record a trial that fails on a bug and go on (default: stop; bad input never stops)")
     declare_paths(p, inputs=("file",))  # --out and --cache: folders it adds files to
     p.set_defaults(func=run)
 
@@ -44,6 +46,7 @@ def run(args) -> int:
     check_size(study, args.allow_large, args.file)
     executor = args.executor or ("processes" if args.jobs > 1 else "serial")
     s = run_study(study, out, jobs=args.jobs, executor=executor, scheduler=args.scheduler, cache_dir=args.cache,
-                  progress=sys.stderr.isatty(), allow_large=args.allow_large)  # bars on a terminal only, never written into logs
+                  progress=sys.stderr.isatty(), allow_large=args.allow_large,
+                  keep_going=args.keep_going)  # bars on a terminal only, never written into logs
     print(f"{s.total} trials: {s.skipped} already complete, {s.ran} run, {s.failed} failed -> {out}/report.md")
     return EXIT_INCOMPLETE if s.failed else EXIT_OK

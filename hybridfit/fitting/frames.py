@@ -1,8 +1,10 @@
 """``hybridfit.fit``: fit a hand model to every frame's joint proposals.
 
-Frames are independent: frame i is optimised with the random stream
-``numpy.random.default_rng([seed, i])``, so results are identical for any number of
-``jobs``. A frame whose input cannot be fitted (a ``HybridfitError``: all confidences 0,
+Frames are independent: optimisers with batch steps run in the driver
+(:mod:`.driver`), stage s of frame i drawing from the key ``stage_key(seed, i, s)``
+(:mod:`.streams`); callback solvers run on a Task per frame with
+``numpy.random.default_rng([seed, i])``. So results are identical for any number of
+``jobs`` and any chunking. A frame whose input cannot be fitted (a ``HybridfitError``: all confidences 0,
 say) is recorded (``failed``, ``errors``) and the others go on; options and errors that would
 fail every frame (a bad seed, a budget too small, an unknown point name) are raised before
 any work; a plugin's bug (``BudgetExceeded``, a wrong shape) raises ``PluginError`` naming
@@ -21,7 +23,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .. import registry
-from . import compiled
+from . import driver
 from ..errors import HybridfitError, PluginError
 from ..io import validate_proposals
 from ..metrics import inliers
@@ -30,9 +32,9 @@ from ..optimizer import Task
 from ..problem import Problem
 
 
-#: frames per call of the compiled path (progress and Ctrl-C granularity; with jobs > 1
-#: one chunk is prepared while the one before is fitted)
-COMPILED_CHUNK = 64
+#: frames per chunk of the driver (progress and Ctrl-C granularity; with jobs > 1, jobs
+#: chunks run at once while the next is prepared)
+CHUNK = 256
 
 #: the inlier distance of objectives without a ``d_max_mm`` setting
 INLIER_DISTANCE_MM = 40.0
@@ -236,14 +238,15 @@ def fit(
              result.evaluations[f]) = values
             result.failed[f] = False
 
-    # PSO and stepwise PSO on a kinematic tree with a compiled objective: many frames per
-    # numba call, jobs as threads sharing memory (hybridfit.fitting.compiled)
-    fitter = (compiled.CompiledFitter(model, objective, optimizer, names, budget, seed, search_radius_mm)
-              if observations is None and compiled.supports(model, objective, optimizer) else None)
+    # optimisers with batch steps: the driver runs chunks of frames in lockstep (compiled with a
+    # compiled objective on a kinematic tree); callback solvers: a Task per frame
+    fitter = (driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm)
+              if observations is None and driver.supports(model, objective, optimizer, problem, budget) else None)
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
         if fitter is not None:
-            chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // COMPILED_CHUNK)))]
+            size = min(CHUNK, max(1, -(-F // jobs)))  # with jobs > 1, at least jobs chunks
+            chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // size)))]
             for items in fitter.fit_chunks(chunks, proposals, confidences, jobs):
                 store(items)
                 bar.update(len(items))

@@ -199,6 +199,20 @@ def block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
 
 
 @nb.njit(cache=True)
+def mark_needed(parents, pm_ptr, pm_joint, points, needed):
+    """The one "which joints are needed" walker: sets ``needed[j]`` (J,) bool for every joint
+    that the points ``points`` (m,) read (the point map (Q, J) in CSR form: pm_ptr (Q + 1,),
+    pm_joint) and for all their ancestors."""
+    for t in range(points.shape[0]):
+        q = points[t]
+        for e in range(pm_ptr[q], pm_ptr[q + 1]):
+            j = pm_joint[e]
+            while j >= 0 and not needed[j]:
+                needed[j] = True
+                j = parents[j]
+
+
+@nb.njit(cache=True)
 def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, active, out):
     """params (N, P) -> out (N, J, 3) mm: forward kinematics of a KinematicTree.
 
@@ -275,12 +289,11 @@ class TreeHandModel(HandModel):
         key = joints.tobytes()
         active = self._active_cache.get(key)
         if active is None:
-            parents = self._tree.parents
+            parents = np.ascontiguousarray(self._tree.parents, dtype=np.int64)
             active = np.zeros(len(parents), dtype=np.bool_)
-            for j in joints:
-                while j >= 0 and not active[j]:
-                    active[j] = True
-                    j = parents[j]
+            # each joint is its own point: the identity point map
+            mark_needed(parents, np.arange(len(parents) + 1, dtype=np.int64), np.arange(len(parents), dtype=np.int64),
+                        joints, active)
             self._active_cache[key] = active
         return active
 
@@ -290,3 +303,49 @@ class TreeHandModel(HandModel):
         out = np.empty((params.shape[0], len(t.parents), 3))
         return tree_forward(params, t.parents, t.offsets, t.rest, t.rest_is_identity, t.axes, t.axis_params,
                             float(t.mirror), active, out)
+def scratch_size(P: int, J: int, Q: int) -> int:
+    """Floats of :func:`tree_points`' working space for P parameters, J joints and Q points."""
+    return BLOCK * (3 * P + 12 * J + 9 + 3 * Q)
+
+
+@nb.njit(cache=True, nogil=True)
+def tree_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
+                order, count, oriented, rows, n_rows, params, subset, out, scratch):
+    """out (Q, 3, N) mm = the points ``subset`` of params (N, P), the hypothesis innermost (a
+    compiled kernel's input): forward kinematics of the joints ``order[:count]`` (their
+    rotations where ``oriented``, angles ``rows[:n_rows]``), in blocks of ``BLOCK``; scratch:
+    working space of :func:`scratch_size` (P, J, Q) floats."""
+    N, P = params.shape
+    J = parents.shape[0]
+    Q = out.shape[0]
+    at = 0
+    pB = scratch[at:at + P * BLOCK].reshape((P, BLOCK))
+    at += P * BLOCK
+    sinB = scratch[at:at + P * BLOCK].reshape((P, BLOCK))
+    at += P * BLOCK
+    cosB = scratch[at:at + P * BLOCK].reshape((P, BLOCK))
+    at += P * BLOCK
+    WB = scratch[at:at + J * 9 * BLOCK].reshape((J, 3, 3, BLOCK))
+    at += J * 9 * BLOCK
+    WpB = scratch[at:at + J * 3 * BLOCK].reshape((J, 3, BLOCK))
+    at += J * 3 * BLOCK
+    GB = scratch[at:at + 9 * BLOCK].reshape((3, 3, BLOCK))
+    at += 9 * BLOCK
+    pts = scratch[at:at + Q * 3 * BLOCK].reshape((Q, 3, BLOCK))
+    for n0 in range(0, N, BLOCK):
+        B = min(BLOCK, N - n0)
+        for i in range(B):
+            for k in range(P):
+                pB[k, i] = params[n0 + i, k]
+        sincos_rows(rows, n_rows, pB, sinB, cosB, B)
+        block_frames(B, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
+                     axis_params, mirror, WB, WpB, GB)
+        if N <= BLOCK:  # one block: straight into out
+            block_points(B, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out)
+            return
+        block_points(B, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], pts)
+        for t in range(subset.shape[0]):
+            q = subset[t]
+            for c in range(3):
+                for i in range(B):
+                    out[q, c, n0 + i] = pts[q, c, i]

@@ -2,7 +2,8 @@
 (``pip install "hybridfit[dask]"``).
 
 Each executor takes a function and a list of argument tuples and yields ``(index, result,
-error)`` as tasks finish (``error`` a message where the task raised or its worker died).
+error)`` as tasks finish (``error`` a :class:`TrialError` where the task raised or its worker
+died: its message, and whether the failure is the user's bad input).
 Large shared inputs go through ``share`` once (dask scatters them to the workers).
 """
 
@@ -21,8 +22,17 @@ CONNECT_TIMEOUT_S = 5
 Outcome = tuple[int, Any, "str | None"]
 
 
-def _message(err: BaseException) -> str:
-    return f"{type(err).__name__}: {err}"
+class TrialError(str):
+    """A failed task's message; ``user`` is True when it failed on the user's bad input (a
+    ``HybridfitError``), False for a bug or a worker that died."""
+
+    user: bool = False
+
+
+def _message(err: BaseException) -> TrialError:
+    out = TrialError(f"{type(err).__name__}: {err}")
+    out.user = isinstance(err, HybridfitError)
+    return out
 
 
 class Serial:
@@ -38,7 +48,7 @@ class Serial:
         for i, args in enumerate(tasks):
             try:
                 yield i, fn(*args), None
-            except Exception as err:  # a failing trial is recorded, the study goes on
+            except Exception as err:  # recorded; the runner decides whether the study goes on
                 yield i, None, _message(err)
 
     def close(self) -> None:

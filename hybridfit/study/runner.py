@@ -21,7 +21,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .. import registry
-from ..errors import HybridfitError
+from ..errors import HybridfitError, PluginError
 from ..fitting.frames import fit
 from ..metrics import joint_errors
 from ..optimizer import Task
@@ -165,14 +165,21 @@ def check_size(study: Study, allow_large: bool, where: str = "study") -> None:
 
 def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: str = "processes",
               scheduler: str | None = None, cache_dir: str | os.PathLike | None = None, progress: bool = True,
-              report: bool = True, dask_processes: bool = True, log=None, allow_large: bool = False) -> RunSummary:
+              report: bool = True, dask_processes: bool = True, log=None, allow_large: bool = False,
+              keep_going: bool = False) -> RunSummary:
     """Run the study's unfinished trials into ``out`` and write the report (see the module doc).
+
     A study of more than MAX_TRIALS trials needs ``allow_large``; a budget too small for a
-    trial's optimiser is refused before any trial runs."""
+    trial's optimiser is refused before any trial runs. A trial that fails on bad input (a
+    ``HybridfitError``: data without depth for a depth objective, say) is recorded as failed
+    and the study goes on. A trial that fails on a bug (any other exception, or a worker that
+    died) is recorded and stops the study with a ``PluginError``, the finished trials kept,
+    unless ``keep_going``."""
     check_size(study, allow_large)
     try:
         return _run_study(study, Path(out), jobs=jobs, executor=executor, scheduler=scheduler, cache_dir=cache_dir,
-                          progress=progress, report=report, dask_processes=dask_processes, log=log)
+                          progress=progress, report=report, dask_processes=dask_processes, log=log,
+                          keep_going=keep_going)
     except sqlite3.Error as err:  # a full disk or read-only folder: one line naming the database
         failure = storage_error(Path(out) / DB_NAME, err)
         if failure is None:
@@ -181,7 +188,7 @@ def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: 
 
 
 def _run_study(study: Study, out: Path, *, jobs, executor, scheduler, cache_dir, progress, report, dask_processes,
-               log) -> RunSummary:
+               log, keep_going) -> RunSummary:
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     with study_lock(out):
         store = Store(out / DB_NAME)
@@ -204,7 +211,8 @@ def _run_study(study: Study, out: Path, *, jobs, executor, scheduler, cache_dir,
             pending = [t for t in todo if states.get(t.key) != "complete"]
             summary = RunSummary(len(todo), len(todo) - len(pending), 0, 0, out)
             if pending:
-                _run_trials(pending, data, store, executor, jobs, scheduler, progress, dask_processes, summary)
+                _run_trials(pending, data, store, executor, jobs, scheduler, progress, dask_processes, summary,
+                            keep_going)
         finally:
             store.close()
         if report:
@@ -281,7 +289,8 @@ def _needs_depth(settings) -> bool:
 
 
 def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: str, jobs: int,
-                scheduler: str | None, progress: bool, dask_processes: bool, summary: RunSummary) -> None:
+                scheduler: str | None, progress: bool, dask_processes: bool, summary: RunSummary,
+                keep_going: bool = False) -> None:
     sets = {}
     for t in pending:  # shared steps first, once each, in this process
         s = t.variant.settings
@@ -309,6 +318,9 @@ def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: s
                     store.fail(t.key, error)
                     summary.failed += 1
                     bar.write(f"trial {t.variant.name}, seed {t.seed} failed: {error}")
+                    if not keep_going and not getattr(error, "user", False):
+                        raise PluginError(f"trial {t.variant.name}, seed {t.seed}: {error} (a bug, not bad input: "
+                                          f"the study stops; keep_going=True records it and goes on)")
                 summary.ran += 1
                 bar.update(1)
                 bar.set_postfix(failed=summary.failed)

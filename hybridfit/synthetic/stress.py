@@ -36,7 +36,7 @@ from ..datasets.skeletons import dataset_model_config, skeleton
 from ..errors import HybridfitError
 from ..model.rotations import quaternions_to_matrices
 from ..plugin import format_validation_error
-from ..problem import point_depths
+from ..stages import point_depths
 from .proposals import proposals_around, random_poses
 
 

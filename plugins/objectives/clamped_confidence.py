@@ -6,10 +6,13 @@ w_jr are the confidences normalised per joint (they sum to 1, or are all 0 for a
 without proposals, which then contributes nothing). E lies in [0, J]; optimisers minimise,
 so the loss returned is -E, in [-J, 0].
 
-d_max (the clamping distance) is not given in the paper. The default, 40 mm, was chosen by
-measurement on synthetic proposals (``benchmarks/bench_dmax.py``): it is about twice the
-typical proposal error and half a finger's length, so a proposal on a neighbouring finger
-(15-20 mm away) still pulls, while outliers further than 40 mm are ignored.
+d_max (the clamping distance) is not given in the paper. The default, 40 mm, was chosen on
+synthetic proposals (``benchmarks/bench_dmax.py``; figures: the docs' results page): about
+twice the typical proposal error and half a finger's length, so a proposal on a neighbouring
+finger still pulls while outliers further than d_max are ignored.
+
+Offers a compiled kernel (``compiled_kernel``), which ``bind`` itself runs, so the two agree
+by construction.
 """
 
 from __future__ import annotations
@@ -18,8 +21,7 @@ import numba as nb
 import numpy as np
 from pydantic import Field
 
-from hybridfit.fitting.compiled import KERNEL_SIGNATURE
-from hybridfit.objective import Objective, kernel_loss
+from hybridfit.objective import KERNEL_SIGNATURE, Objective, kernel_loss
 from hybridfit.plugin import Settings
 
 
@@ -81,7 +83,6 @@ class ClampedConfidence(Objective):
                            np.ascontiguousarray(weights, dtype=np.float64), *self.compiled_kernel()[1:])
 
     def compiled_kernel(self):
-        """(kernel, constants) for :mod:`hybridfit.fitting.compiled`."""
         return clamped_confidence_kernel, np.array([1.0 / self.settings.d_max_mm**2])
 
     def lower_bound(self, weights):

@@ -48,6 +48,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
+from hybridfit.objective import capability
 from hybridfit.errors import HybridfitError
 from hybridfit.optimizer import Optimizer, Task
 from hybridfit.plugin import Settings
@@ -77,7 +78,7 @@ class CasadiIKSettings(Settings):
 def optimised_loss(objective, sigma_mm: float) -> str | None:
     """None when IPOPT minimises the objective itself (it offers ``casadi_loss``), else a
     sentence naming the surrogate it minimises instead."""
-    if callable(getattr(objective, "casadi_loss", None)):
+    if capability(objective, "casadi_loss") is not None:
         return None
     name = objective.name or type(objective).__name__
     return (f"casadi-ik: objective {name!r} offers no CasADi symbols (casadi_loss), so IPOPT minimises a "
@@ -103,7 +104,7 @@ def surrogate(task: Task, sigma_mm: float, span: np.ndarray):
     joints = casadi_forward(model.kinematic_tree(), full)
     points = joints if problem.point_matrix is None else ca.mtimes(ca.DM(problem.point_matrix), joints)
     if optimised_loss(problem.objective, sigma_mm) is None:
-        f = problem.objective.casadi_loss(points, problem.proposals, problem.weights, task.points)
+        f = capability(problem.objective, "casadi_loss")(points, problem.proposals, problem.weights, task.points)
     else:
         f = _mixture_nll(points, problem, task.points, sigma_mm)
     if set(range(3, 7)) <= set(int(i) for i in task.parameters):

@@ -5,23 +5,27 @@ variant of the FORTH hand tracker (Oikonomidis, Kyriazis & Argyros, BMVC 2011, w
 cognitive c1 = 2.8 and social c2 = 1.3, so psi = c1 + c2 = 4.1 and the constriction factor
 chi = 2 / |2 - psi - sqrt(psi^2 - 4 psi)| = 0.7298).
 
-Initialisation: a share of the particles is drawn around the task's initial guess
-(Gaussian, ``init_sigma`` times the search range), the rest uniformly in the bounds.
-Positions are clipped to the bounds (a particle that hits a bound stops in that
-dimension). Every random number comes from a counter-based stream keyed by one draw from
-the run's generator (:mod:`hybridfit.fitting.streams`), which the compiled path computes
-inside its loop. The whole swarm is evaluated in one batched call per generation; the last
-generation is cut short so the budget is used exactly.
+Initialisation: a share of the particles is drawn around the start (Gaussian, ``init_sigma``
+times the search range), the rest uniformly in the bounds; particle 0 is the start itself.
+Positions are clipped to the bounds (a particle that hits a bound stops in that dimension).
+The whole swarm is one batch per generation; the last generation is cut short so the budget
+is used exactly.
+
+Written as :class:`~hybridfit.optimizer.BatchSteps` (numba-compiled, a frame axis first):
+the core's driver runs it for many frames in lockstep, compiled together with a compiled
+objective. Frame f's random numbers: uniform number c of its stage key (``keys[f]``,
+:mod:`hybridfit.fitting.streams`) for the initial swarm (c = i * d + k) and then r1, r2 of
+each generation in order; the Gaussian spread from the key's normal stream (i * d + k).
 """
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 from pydantic import Field
 
-from hybridfit.fitting.compiled import constriction, pso_step, update_bests
-from hybridfit.fitting.streams import Stream
-from hybridfit.optimizer import Optimizer, Task
+from hybridfit.fitting.streams import normal, uniform
+from hybridfit.optimizer import BatchSteps, Optimizer, Task
 from hybridfit.plugin import Settings
 
 
@@ -36,8 +40,100 @@ class PSOSettings(Settings):
     max_velocity: float = Field(0.5, gt=0, description="velocity limit per generation, as a fraction of the range")
 
 
+def constriction(c1: float, c2: float) -> float:
+    """Clerc-Kennedy constriction factor for psi = c1 + c2 (1.0 when psi <= 4)."""
+    psi = c1 + c2
+    return 1.0 if psi <= 4 else 2.0 / abs(2.0 - psi - np.sqrt(psi * psi - 4.0 * psi))
+
+
+#: columns of the settings array handed to pso_init
+C1, C2, CHI, SIGMA, VMAX, NEAR = range(6)
+
+
+@nb.njit(cache=True, nogil=True)
+def pso_init(start, lower, upper, keys, budget, settings):
+    """The swarm state of F frames: start, lower, upper (F, d), keys (F,) uint64; settings
+    (c1, c2, chi, init_sigma, max_velocity, particles near the start); the swarm size is
+    min(particles, budget) with particles = settings' batch (row count of ``start``'s swarm,
+    see :meth:`PSO.batch_settings`) -> state."""
+    F, d = start.shape
+    n = int(settings[6])
+    n = min(n, budget)
+    near = min(int(settings[NEAR]), n)
+    x = np.empty((F, n, d))
+    span = upper - lower
+    for f in range(F):
+        key = keys[f]
+        for i in range(n):
+            for k in range(d):
+                x[f, i, k] = lower[f, k] + span[f, k] * uniform(key, i * d + k)
+        for i in range(near):
+            for k in range(d):
+                x[f, i, k] = start[f, k] + (settings[SIGMA] * normal(key, i * d + k)) * span[f, k]
+        if near:
+            for k in range(d):
+                x[f, 0, k] = start[f, k]
+        for i in range(n):
+            for k in range(d):
+                x[f, i, k] = min(max(x[f, i, k], lower[f, k]), upper[f, k])
+    v = np.zeros((F, n, d))
+    pbest_x = x.copy()
+    pbest_f = np.full((F, n), np.inf)
+    best = np.zeros(F, dtype=np.int64)
+    counters = np.array([n * d, 1])  # the next uniform number; 1 while the first swarm is unscored
+    return x, v, pbest_x, pbest_f, best, lower.copy(), upper.copy(), settings[VMAX] * span, keys.copy(), \
+        settings.copy(), counters
+
+
+@nb.njit(cache=True, nogil=True, fastmath=True)
+def pso_ask(state, m):
+    """The first m particles of every frame after one constricted update (the first call: the
+    initial swarm) -> (F, m, d)."""
+    x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters = state
+    if counters[1]:
+        return x[:, :m]
+    F, n, d = x.shape
+    c1, c2, chi = settings[C1], settings[C2], settings[CHI]
+    at = counters[0]
+    for f in range(F):
+        key = keys[f]
+        g = best[f]
+        for i in range(m):
+            for k in range(d):
+                r1 = uniform(key, at + i * d + k)
+                r2 = uniform(key, at + (m + i) * d + k)
+                vk = chi * (v[f, i, k] + c1 * r1 * (pbest_x[f, i, k] - x[f, i, k])
+                            + c2 * r2 * (pbest_x[f, g, k] - x[f, i, k]))
+                vk = min(max(vk, -vmax[f, k]), vmax[f, k])
+                xk = x[f, i, k] + vk
+                xc = min(max(xk, lower[f, k]), upper[f, k])  # a particle that hits a bound stops there
+                x[f, i, k] = xc
+                v[f, i, k] = vk if xc == xk else 0.0
+    counters[0] = at + 2 * m * d
+    return x[:, :m]
+
+
+@nb.njit(cache=True, nogil=True)
+def pso_tell(state, X, losses):
+    """Personal and swarm bests of every frame after scoring the batch (losses (F, m))."""
+    x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters = state
+    F, m = losses.shape
+    d = x.shape[2]
+    counters[1] = 0
+    for f in range(F):
+        for i in range(m):
+            if losses[f, i] < pbest_f[f, i]:
+                pbest_f[f, i] = losses[f, i]
+                for k in range(d):
+                    pbest_x[f, i, k] = X[f, i, k]
+        best[f] = np.argmin(pbest_f[f])
+
+
+STEPS = BatchSteps(pso_init, pso_ask, pso_tell)
+
+
 class PSO(Optimizer):
-    """Particle Swarm Optimisation with constriction (global best), batched per generation."""
+    """Particle Swarm Optimisation with constriction (global best), one batch per generation."""
 
     Settings = PSOSettings
 
@@ -51,40 +147,15 @@ class PSO(Optimizer):
         n = min(self.swarm_size(budget), budget if available is None else available)
         return n, int(round(self.settings.init_share * n))
 
-    def coefficients(self) -> np.ndarray:
-        """(c1, c2, chi, init_sigma, max_velocity), the settings of the compiled path."""
-        s = self.settings
-        return np.array([s.cognitive, s.social, constriction(s.cognitive, s.social), s.init_sigma, s.max_velocity])
+    def batch_steps(self) -> BatchSteps:
+        return STEPS
 
-    def compiled_pso(self) -> "PSO | None":
-        """This optimiser for :mod:`hybridfit.fitting.compiled` (None for a subclass that changes
-        ``minimize``, which the compiled path would not follow)."""
-        return self if type(self).minimize is PSO.minimize else None
+    def batch_settings(self, budget: int) -> tuple[int, np.ndarray]:
+        s = self.settings
+        n, near = self.swarm(budget)
+        return n, np.array([s.cognitive, s.social, constriction(s.cognitive, s.social), s.init_sigma,
+                            s.max_velocity, near, n], dtype=np.float64)
 
     def min_budget(self, task: Task) -> int:
         # one initial generation and at least one update
         return 2 * (self.settings.particles or 2)
-
-    def minimize(self, task: Task, rng: np.random.Generator) -> None:
-        s = self.settings
-        n, near = self.swarm(task.budget, task.remaining)
-        lower, upper = task.lower, task.upper
-        span = upper - lower
-        stream = Stream.from_generator(rng)  # one draw from rng keys all of this run's numbers
-        x = lower + span * stream.uniform((n, task.dim))
-        if near:
-            x[:near] = task.x0 + (s.init_sigma * stream.normal((near, task.dim))) * span
-            x[0] = task.x0  # the guess itself is always tried
-        np.clip(x, lower, upper, out=x)
-        v = np.zeros_like(x)
-        f = task.evaluate(x)
-        pbest_x, pbest_f = x.copy(), f.copy()
-        g = int(np.argmin(pbest_f))
-        chi = constriction(s.cognitive, s.social)
-        vmax = s.max_velocity * span
-        while task.remaining > 0:
-            m = min(n, task.remaining)
-            r = stream.uniform((2, m, task.dim))
-            pso_step(x, v, pbest_x, pbest_x[g].copy(), r[0], r[1], chi, s.cognitive, s.social, vmax, lower, upper, m)
-            f[:m] = task.evaluate(x[:m])
-            g = update_bests(x, f, pbest_x, pbest_f, m)

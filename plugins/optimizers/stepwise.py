@@ -10,13 +10,10 @@ Budget split: ``root_share`` of the budget goes to the first (global) stage and 
 is split equally between the other stages; ``stage_weights`` overrides this with one
 relative weight per stage (the paper's ablation: [4096, 841, 841, 841, 841, 841]).
 Stage budgets are rounded by largest remainder, so they add up to the budget exactly.
-The paper's ablation gives the palm 4096 of 8301 evaluations (0.49) but leaves the split of
-its default 3400 open. Measured with ``benchmarks/bench_stepwise.py`` (200 synthetic frames,
-budget 3400), root shares 0.3, 0.5 and 0.7 are equally good (mean joint error 10.95, 11.00
-and 10.96 mm; success rate at 40 mm 0.87, 0.86, 0.87): the default, 0.3, leaves the most
-budget to the fingers.
-``refine_share`` (an extension; 0 for ``stepwise``, 0.25 for ``stepwise-pso``, chosen by
-measurement: README, "Fitting real data robustly") keeps a share of the budget for a final
+The paper leaves the split of its default 3400 open; the default root share, 0.3, was chosen
+on synthetic frames with ``benchmarks/bench_stepwise.py`` (figures: the docs' results page).
+``refine_share`` (an extension; 0 for ``stepwise``, 0.25 for ``stepwise-pso``, chosen on
+tuning data: the docs' robust-fitting page) keeps a share of the budget for a final
 joint refinement of all parameters starting from the stepwise result, run with the inner
 optimiser's settings overridden by ``refine_config``.
 """
@@ -33,7 +30,7 @@ from hybridfit import registry
 from hybridfit.errors import HybridfitError, UnknownPluginError
 from hybridfit.optimizer import Optimizer, StagePlan, Task
 from hybridfit.plugin import Settings
-from hybridfit.problem import MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, guide_points
+from hybridfit.stages import MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, guide_points
 
 
 class StepwiseSettings(Settings):
@@ -161,6 +158,8 @@ class Stepwise(Optimizer):
         return self.inner.with_params(**self.settings.refine_config) if self.settings.refine_config else self.inner
 
     def minimize(self, task: Task, rng: np.random.Generator) -> None:
+        """The plan on one frame's Task (the driver runs the same plan for many frames when
+        the stages' optimisers offer batch steps; this is the path of callback solvers)."""
         for st in self.plan(task):
             stage = task.stage(st.name, st.parameters, st.points, st.budget, st.owned)
             st.optimizer.minimize(stage, rng)

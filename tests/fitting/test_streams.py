@@ -1,4 +1,4 @@
-"""Counter-based random streams, and the compiled copy of numpy's default_rng([seed, frame])."""
+"""Counter-based random streams and their documented keys."""
 
 from __future__ import annotations
 
@@ -6,18 +6,38 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hybridfit.fitting.streams import Stream, fill_normal, fill_uniform, frame_keys, int_words
+from hybridfit.fitting.streams import fill_normal, fill_uniform, normals, stage_keys, uniforms
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**70), frames=st.lists(st.integers(0, 2**63 - 1), min_size=1, max_size=4),
-       draws=st.integers(1, 7))
-def test_frame_keys_are_the_raw_outputs_of_numpys_default_rng(seed, frames, draws):
-    at = np.arange(len(frames) + 1, dtype=np.int64) * draws
-    out = np.empty(at[-1], dtype=np.uint64)
-    frame_keys(np.array(int_words(seed), dtype=np.uint64), np.array(frames, dtype=np.int64), at, out)
+@given(seed=st.integers(0, 2**63 - 1), frames=st.lists(st.integers(0, 2**63 - 1), min_size=1, max_size=4),
+       stages=st.integers(1, 7))
+def test_stage_keys_are_splitmix_of_seed_frame_and_stage(seed, frames, stages):
+    """The documented keys: mix(mix(mix(seed) + frame) + stage), mix = splitmix64 of z + golden."""
+    M = 2**64
+
+    def mix(z):
+        z = (z + 0x9E3779B97F4A7C15) % M
+        z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) % M
+        z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) % M
+        return z ^ (z >> 31)
+
+    keys = stage_keys(seed, frames, stages)
     for i, f in enumerate(frames):
-        assert np.array_equal(out[at[i]:at[i + 1]], np.random.default_rng([seed, f]).bit_generator.random_raw(draws))
+        for s in range(stages):
+            assert int(keys[i, s]) == mix((mix((mix(seed) + f) % M) + s) % M)
+
+
+def test_numpy_helpers_read_the_streams_of_their_keys():
+    keys = np.array([5, 9], dtype=np.uint64)
+    u, z = uniforms(keys, 3, (2, 4)), normals(keys, 1, (3,))
+    for f in range(2):
+        want = np.empty(8)
+        fill_uniform(keys[f], 3, want)
+        assert np.array_equal(u[f].ravel(), want)
+        want = np.empty(3)
+        fill_normal(keys[f], 1, want)
+        assert np.array_equal(z[f], want)
 
 
 def test_a_number_depends_only_on_its_key_and_counter():
@@ -31,14 +51,6 @@ def test_a_number_depends_only_on_its_key_and_counter():
     assert not np.any(other == whole)
 
 
-def test_a_stream_continues_where_it_stopped():
-    one, two = Stream(7), Stream(7)
-    a = np.concatenate([one.uniform((3, 4)).ravel(), one.uniform(5)])
-    assert np.array_equal(a, two.uniform(17))
-    z = np.concatenate([one.normal(6), one.normal((2, 2)).ravel()])
-    assert np.array_equal(z, two.normal(10))
-
-
 def test_uniform_and_normal_numbers_have_their_distributions():
     u, z = np.empty(200_000), np.empty(200_000)
     fill_uniform(np.uint64(3), 0, u)
@@ -47,11 +59,3 @@ def test_uniform_and_normal_numbers_have_their_distributions():
     assert abs(u.mean() - 0.5) < 0.005 and abs(u.var() - 1 / 12) < 0.002
     assert abs(np.corrcoef(u[:-1], u[1:])[0, 1]) < 0.01
     assert abs(z.mean()) < 0.01 and abs(z.std() - 1.0) < 0.01 and abs((np.abs(z) > 2).mean() - 0.0455) < 0.003
-
-
-def test_a_stream_takes_one_draw_from_its_generator():
-    rng = np.random.default_rng([4, 2])
-    first = Stream.from_generator(rng)
-    second = Stream.from_generator(rng)
-    raw = np.random.default_rng([4, 2]).bit_generator.random_raw(2)
-    assert (first.key, second.key) == (raw[0], raw[1])

@@ -195,3 +195,29 @@ def test_report_shows_only_the_current_study_file(tiny_file, tmp_path):
     names = {r["variant"] for r in aggregate(store) if r["method"] == "fit"}
     store.close()
     assert names == {"k=3, optimizer_config.schedule=stepwise", "k=3, optimizer_config.schedule=joint"}
+
+
+def test_a_bug_stops_the_study_unless_asked_to_keep_going(tmp_path, monkeypatch):
+    """Bad input is a failed trial (above); a bug (here: a plugin raising ZeroDivisionError) is
+    recorded too but stops the study, the finished trials kept, unless keep_going."""
+    from hybridfit.errors import PluginError
+    from hybridfit.study import runner
+
+    real = runner.run_trial
+    calls = []
+
+    def buggy(settings, *rest):
+        calls.append(settings["budget"])
+        if settings["budget"] == 2:
+            raise ZeroDivisionError("a plugin's bug")
+        return real(settings, *rest)
+
+    monkeypatch.setattr(runner, "run_trial", buggy)
+    text = TINY.split("[sweep.grid]")[0] + '[sweep.grid]\nbudget = [400, 2]\n'
+    with pytest.raises(PluginError, match="ZeroDivisionError.*the study stops"):
+        run(load_spec(write(tmp_path, text)), tmp_path / "stop", executor="serial")
+    store = Store(tmp_path / "stop" / "study.db")
+    assert len(store.trials("failed")) == 1 and len(calls) < 4
+    store.close()
+    s = run(load_spec(write(tmp_path, text)), tmp_path / "go", executor="serial", keep_going=True)
+    assert (s.ran, s.failed) == (4, 2)

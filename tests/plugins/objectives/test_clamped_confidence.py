@@ -75,3 +75,22 @@ def test_d_max_setting():
     assert wide.bind(p, w)(x, np.array([0]))[0] == pytest.approx(-0.75)
     with pytest.raises(HybridfitError, match="d_max_mm"):
         OBJ.with_params(d_max_mm=0)
+
+
+def test_a_subclass_that_overrides_bind_moves_the_fit():
+    """The issue: a subclass moving every proposal 30 mm in x was fitted with its parent's
+    compiled kernel (0.0 mm). Its bind is what scores now."""
+    import hybridfit
+    from hybridfit_plugins.objectives.clamped_confidence import ClampedConfidence
+
+    class ShiftedX(ClampedConfidence):
+        def bind(self, proposals, weights):
+            moved = np.array(proposals, dtype=float)
+            moved[..., 0] += 30.0
+            return super().bind(moved, weights)
+
+    data = hybridfit.synthetic_proposals(4, k=3, seed=5)
+    plain = hybridfit.fit(data["proposals"], data["confidences"], budget=600, seed=1)
+    shifted = hybridfit.fit(data["proposals"], data["confidences"], objective=ShiftedX(), budget=600, seed=1)
+    move = (shifted.model_joints - plain.model_joints).mean(axis=(0, 1))
+    assert 20.0 < move[0] < 40.0 and abs(move[1]) < 10.0 and abs(move[2]) < 10.0

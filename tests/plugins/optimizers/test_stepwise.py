@@ -10,7 +10,7 @@ import hybridfit
 from hybridfit.datasets.skeletons import dataset_model_config, skeleton
 from hybridfit.optimizer import Task
 from hybridfit.problem import Problem
-from hybridfit.problem import rotation_lever_mm
+from hybridfit.stages import rotation_lever_mm
 
 
 def nyu_problem(frames_data, f=0, confidences=None):

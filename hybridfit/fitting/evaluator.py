@@ -1,0 +1,348 @@
+"""Scoring a stage's hypotheses for many frames at once: forward kinematics of the joints the
+stage moves (:mod:`hybridfit.model.kinematics`' block kernel and walker), then the objective.
+
+A *scorer* has two methods the driver (:mod:`.driver`) calls: ``prepare(base (F, P),
+parameters (d,), points (m,), owned (o,), batch) -> stage`` once per stage, and ``score(stage,
+X (F, m, d), points, losses (F, >= m))`` per generation: ``losses[:, :m]`` = each frame's
+hypotheses (the parameters outside the stage at ``base``) scored over ``points``.
+
+- :class:`KernelScorer`: a kinematic tree and an objective's compiled kernel: one numba call
+  per generation for all frames of a group.
+- :class:`NumpyScorer`: a kinematic tree's points by the same numba kinematics (or, for a model
+  without a kinematic tree, its ``forward``), scored by the objective's ``score_frames`` (one
+  call per generation for all frames) or ``bind`` (one call per frame).
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+
+import numba as nb
+from numba import types as T
+from numba.core.dispatcher import Dispatcher
+from numba.core.errors import NumbaWarning
+import numpy as np
+
+from ..errors import PluginError
+from ..objective import KERNEL_SIGNATURE
+from ..model.kinematics import block_frames, block_points, mark_needed, sincos1
+
+#: the tree's first parameters: position x, y, z (mm) and the quaternion w, x, y, z
+GLOBAL_PARAMS = 7
+
+
+#: header of a stage's integer array: counts of listed joints, fixed joints read, stage angle
+#: rows, fixed parameter rows read; batch n, frames F, parameters P, joints J, points Q
+_HEADER = 9
+
+
+@nb.njit(cache=True, nogil=True)
+def stage_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
+                base, pidx, subset, owned, n):
+    """What a stage's scoring reuses, as (ints, floats): the joints to recompute per hypothesis
+    (those that the stage's points or owned points need and its parameters move, parents first;
+    :func:`~hybridfit.model.kinematics.mark_needed`), the joints and parameters read but fixed,
+    every frame's joints at ``base`` (F, P), and block buffers for batches of up to n
+    hypotheses (see :func:`_views`)."""
+    F, P = base.shape
+    J = parents.shape[0]
+    Q = pm_ptr.shape[0] - 1
+    A = axes.shape[1]
+    n = max(n, 1)
+    needed = np.zeros(J, dtype=np.bool_)
+    mark_needed(parents, pm_ptr, pm_joint, subset, needed)
+    mark_needed(parents, pm_ptr, pm_joint, owned, needed)
+    ints = np.zeros(_HEADER + 3 * J + 3 * P, dtype=np.int64)
+    order = ints[_HEADER:_HEADER + J]
+    oriented = ints[_HEADER + J:_HEADER + 2 * J]
+    fixed = ints[_HEADER + 2 * J:_HEADER + 3 * J]
+    rows = ints[_HEADER + 3 * J:_HEADER + 3 * J + P]
+    frows = ints[_HEADER + 3 * J + P:_HEADER + 3 * J + 2 * P]
+    stage_pos = ints[_HEADER + 3 * J + 2 * P:]
+    stage_pos[:] = -1
+    is_global = False
+    for t in range(pidx.shape[0]):
+        stage_pos[pidx[t]] = t
+        if pidx[t] < GLOBAL_PARAMS:
+            is_global = True
+    is_angle = np.zeros(P, dtype=np.bool_)
+    for j in range(J):
+        for a in range(A):
+            if axes[j, a] >= 0:
+                is_angle[axis_params[j, a]] = True
+    for j in range(J):
+        if needed[j] and parents[j] >= 0:
+            oriented[parents[j]] = 1
+    listed = np.zeros(J, dtype=np.bool_)
+    variable = np.zeros(J, dtype=np.bool_)
+    count = 0
+    for j in range(J):
+        v = is_global or (parents[j] >= 0 and variable[parents[j]])
+        for a in range(A):
+            if axes[j, a] >= 0 and stage_pos[axis_params[j, a]] >= 0:
+                v = True
+        variable[j] = v
+        if v and needed[j]:
+            order[count] = j
+            listed[j] = True
+            count += 1
+    read = np.zeros(J, dtype=np.bool_)  # fixed joints that a listed joint or a point reads
+    for c in range(count):
+        if parents[order[c]] >= 0:
+            read[parents[order[c]]] = True
+    for t in range(subset.shape[0]):
+        for e in range(pm_ptr[subset[t]], pm_ptr[subset[t] + 1]):
+            read[pm_joint[e]] = True
+    for t in range(owned.shape[0]):
+        for e in range(pm_ptr[owned[t]], pm_ptr[owned[t] + 1]):
+            read[pm_joint[e]] = True
+    n_fixed = 0
+    for j in range(J):
+        if read[j] and not listed[j]:
+            fixed[n_fixed] = j
+            n_fixed += 1
+    reads_param = np.zeros(P, dtype=np.bool_)  # parameters the listed joints read
+    if count and parents[order[0]] < 0:
+        for k in range(GLOBAL_PARAMS):
+            reads_param[k] = True
+    for c in range(count):
+        for a in range(A):
+            if axes[order[c], a] >= 0:
+                reads_param[axis_params[order[c], a]] = True
+    n_rows = 0
+    n_frows = 0
+    for k in range(P):
+        if stage_pos[k] >= 0 and is_angle[k]:
+            rows[n_rows] = k
+            n_rows += 1
+        elif stage_pos[k] < 0 and reads_param[k]:
+            frows[n_frows] = k
+            n_frows += 1
+    ints[0], ints[1], ints[2], ints[3] = count, n_fixed, n_rows, n_frows
+    ints[4], ints[5], ints[6], ints[7], ints[8] = n, F, P, J, Q
+    floats = np.zeros(3 * F * P + 12 * F * J + 3 * P * n + 12 * J * n + 9 * n + 3 * Q * n)
+    (b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = _views(ints, floats)
+    b[:] = base
+    every = np.arange(J)
+    all_oriented = np.ones(J, dtype=np.int64)
+    for f in range(F):  # every frame's joints at base, by the same code as the hypotheses'
+        for k in range(P):
+            pB[k, 0] = base[f, k]
+            bcos[f, k] = 1.0
+            if is_angle[k]:
+                bsin[f, k], bcos[f, k] = sincos1(base[f, k])
+            sinB[k, 0], cosB[k, 0] = bsin[f, k], bcos[f, k]
+        block_frames(1, pB, sinB, cosB, every, J, all_oriented, parents, offsets, rest, rest_identity, axes,
+                     axis_params, mirror, WB, WpB, GB)
+        for j in range(J):
+            for r in range(3):
+                Wp0[f, j, r] = WpB[j, r, 0]
+                for c in range(3):
+                    W0[f, j, r, c] = WB[j, r, c, 0]
+    return ints, floats
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _views(ints, floats):
+    """The arrays of a stage's floats: base, bsin, bcos (F, P); W0 (F, J, 3, 3), Wp0 (F, J, 3)
+    the frames' joints at base; block buffers pB, sinB, cosB (P, n), WB (J, 3, 3, n), WpB
+    (J, 3, n), GB (3, 3, n), pts (Q, 3, n)."""
+    n, F, P, J, Q = ints[4], ints[5], ints[6], ints[7], ints[8]
+    a = 0
+    b = floats[a:a + F * P].reshape((F, P))
+    a += F * P
+    bsin = floats[a:a + F * P].reshape((F, P))
+    a += F * P
+    bcos = floats[a:a + F * P].reshape((F, P))
+    a += F * P
+    W0 = floats[a:a + F * J * 9].reshape((F, J, 3, 3))
+    a += F * J * 9
+    Wp0 = floats[a:a + F * J * 3].reshape((F, J, 3))
+    a += F * J * 3
+    pB = floats[a:a + P * n].reshape((P, n))
+    a += P * n
+    sinB = floats[a:a + P * n].reshape((P, n))
+    a += P * n
+    cosB = floats[a:a + P * n].reshape((P, n))
+    a += P * n
+    WB = floats[a:a + J * 9 * n].reshape((J, 3, 3, n))
+    a += J * 9 * n
+    WpB = floats[a:a + J * 3 * n].reshape((J, 3, n))
+    a += J * 3 * n
+    GB = floats[a:a + 9 * n].reshape((3, 3, n))
+    a += 9 * n
+    pts = floats[a:a + Q * 3 * n].reshape((Q, 3, n))
+    return b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts
+
+
+@nb.njit(cache=True, nogil=True, fastmath=True)
+def stage_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
+                 ints, floats, f, X, subset):
+    """Frame f's hypotheses X[f] (m, d): the points ``subset`` into the stage's block ``pts``
+    (Q, 3, n) mm, the hypothesis innermost (returned)."""
+    (base, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = _views(ints, floats)
+    J, P = ints[7], ints[6]
+    order = ints[_HEADER:_HEADER + J]
+    oriented = ints[_HEADER + J:_HEADER + 2 * J]
+    fixed = ints[_HEADER + 2 * J:_HEADER + 3 * J]
+    rows = ints[_HEADER + 3 * J:_HEADER + 3 * J + P]
+    frows = ints[_HEADER + 3 * J + P:_HEADER + 3 * J + 2 * P]
+    stage_pos = ints[_HEADER + 3 * J + 2 * P:]
+    m = X.shape[1]
+    count, n_fixed, n_rows, n_frows = ints[0], ints[1], ints[2], ints[3]
+    for k in range(P):
+        t = stage_pos[k]
+        if t >= 0:
+            for i in range(m):
+                pB[k, i] = X[f, i, t]
+    for r in range(n_rows):
+        k = rows[r]
+        for i in range(m):
+            sinB[k, i], cosB[k, i] = sincos1(pB[k, i])
+    for r in range(n_frows):
+        k = frows[r]
+        v, s, c = base[f, k], bsin[f, k], bcos[f, k]
+        for i in range(m):
+            pB[k, i] = v
+            sinB[k, i] = s
+            cosB[k, i] = c
+    for t in range(n_fixed):
+        j = fixed[t]
+        for r in range(3):
+            w = Wp0[f, j, r]
+            for i in range(m):
+                WpB[j, r, i] = w
+            for c in range(3):
+                w = W0[f, j, r, c]
+                for i in range(m):
+                    WB[j, r, c, i] = w
+    block_frames(m, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
+                 axis_params, mirror, WB, WpB, GB)
+    block_points(m, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], pts)
+    return pts
+
+
+def _kernel_frames(kernel, consts, proposals, weights, parents, offsets, rest, rest_identity, axes, axis_params,
+                   mirror, pm_ptr, pm_joint, pm_weight, ints, floats, X, subset, losses):
+    """losses[f, :m] = the kernel's loss over ``subset`` of frame f's hypotheses X[f] (m, d)."""
+    m = X.shape[1]
+    for f in range(X.shape[0]):
+        pts = stage_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint,
+                           pm_weight, ints, floats, f, X, subset)
+        kernel(pts, subset, proposals[f], weights[f], consts, losses[f, :m])
+
+
+_KERNEL_FRAMES = T.void(
+    T.FunctionType(KERNEL_SIGNATURE), T.float64[::1], T.float64[:, :, :, ::1], T.float64[:, :, ::1],
+    T.int64[::1], T.float64[:, ::1], T.float64[:, :, ::1], T.boolean[::1], T.int64[:, ::1], T.int64[:, ::1], T.float64,
+    T.int64[::1], T.int64[::1], T.float64[::1], T.int64[::1], T.float64[::1], T.float64[:, :, :], T.int64[::1],
+    T.float64[:, ::1])
+
+
+@functools.cache
+def kernel_frames():
+    """:func:`_kernel_frames` compiled for :data:`KERNEL_SIGNATURE` kernels (on first use)."""
+    return nb.njit(_KERNEL_FRAMES, cache=True, nogil=True)(_kernel_frames)
+
+
+@nb.njit(cache=True, nogil=True, fastmath=True)
+def frame_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
+                 ints, floats, X, subset, out):
+    """out (F, m, Q, 3) mm: the points ``subset`` of every frame's hypotheses X (F, m, d) (the
+    other points are left as they are)."""
+    m = X.shape[1]
+    for f in range(X.shape[0]):
+        pts = stage_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint,
+                           pm_weight, ints, floats, f, X, subset)
+        for t in range(subset.shape[0]):
+            q = subset[t]
+            for c in range(3):
+                for i in range(m):
+                    out[f, i, q, c] = pts[q, c, i]
+
+
+@functools.cache
+def as_cfunc(kernel):
+    """A numba kernel (a dispatcher of :data:`~hybridfit.objective.KERNEL_SIGNATURE`) as a C
+    callback with the same compiler options (cached on disk where numba can): passing it to
+    :func:`kernel_frames` costs a fraction of passing the dispatcher, once per generation."""
+    if not isinstance(kernel, Dispatcher):
+        return kernel
+    options = {k: v for k, v in kernel.targetoptions.items() if k in ("fastmath", "error_model", "boundscheck")}
+    with warnings.catch_warnings():  # a kernel defined in a closure cannot be cached: compiled per process
+        warnings.simplefilter("ignore", NumbaWarning)
+        return nb.cfunc(KERNEL_SIGNATURE, cache=True, **options)(kernel.py_func)
+
+
+class KernelScorer:
+    """Scores by an objective's compiled kernel on a kinematic tree (see the module doc).
+    tree: (parents, offsets, rest, rest_identity, axes, axis_params, mirror); point_map:
+    (pm_ptr, pm_joint, pm_weight), the (Q, J) point matrix in CSR form; kernel: (function,
+    constants); proposals (F, Q, K, 3) mm, weights (F, Q, K)."""
+
+    def __init__(self, tree, point_map, kernel, proposals, weights) -> None:
+        self.tree, self.point_map, self.kernel = tree, point_map, (as_cfunc(kernel[0]), kernel[1])
+        self.proposals, self.weights = proposals, weights
+        self._run = kernel_frames()
+
+    def prepare(self, base, pidx, subset, owned, n):
+        return stage_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n)
+
+    def score(self, stage, X, subset, losses):
+        self._run(self.kernel[0], self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map, *stage,
+                  X, subset, losses)
+
+
+class NumpyScorer:
+    """Scores by the objective's ``score_frames`` or ``bind`` (plain numpy allowed).
+
+    tree: as :class:`KernelScorer`'s, or None (then the model's ``forward`` gives the joints);
+    point_map, point_matrix: the (Q, J) point matrix in CSR form and dense (None: the model's
+    joints); score_frames: the objective's valid capability or None, then ``losses`` (one bound
+    loss per frame) are called one frame at a time. ``where`` names the objective in errors."""
+
+    def __init__(self, model, tree, point_map, point_matrix, proposals, weights, score_frames=None, losses=None,
+                 where: str = "objective") -> None:
+        self.model, self.tree, self.point_map, self.point_matrix = model, tree, point_map, point_matrix
+        self.proposals, self.weights = proposals, weights
+        self.score_frames, self.losses, self.where = score_frames, losses, where
+        self.Q = len(point_map[0]) - 1
+
+    def prepare(self, base, pidx, subset, owned, n):
+        if self.tree is not None:
+            stage = stage_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n)
+        else:
+            stage = (base.copy(), pidx)
+        return stage, np.zeros((len(base), max(n, 1), self.Q, 3))
+
+    def points(self, stage, X, subset):
+        """(F, m, Q, 3) points of hypotheses X (F, m, d) (those in ``subset`` guaranteed)."""
+        stage, buffer = stage
+        F, m = X.shape[:2]
+        if self.tree is not None:
+            out = buffer[:, :m]
+            frame_points(*self.tree, *self.point_map, *stage, X, subset, out)
+            return out
+        base, pidx = stage
+        full = np.repeat(base[:, None], m, axis=1)
+        full[:, :, pidx] = X
+        joints = self.model.forward(full.reshape(F * m, -1)).reshape(F, m, -1, 3)
+        return joints if self.point_matrix is None else np.einsum("qj,fnjc->fnqc", self.point_matrix, joints)
+
+    def score(self, stage, X, subset, losses):
+        m = X.shape[1]
+        points = self.points(stage, X, subset)
+        if self.score_frames is not None:
+            out = np.asarray(self.score_frames(points, subset, self.proposals, self.weights), dtype=np.float64)
+            if out.shape != (len(X), m):
+                raise PluginError(f"{self.where}: score_frames returned shape {out.shape}, expected {(len(X), m)}")
+            losses[:, :m] = out
+            return
+        for f, loss in enumerate(self.losses):
+            out = loss(points[f], subset)
+            if type(out) is not np.ndarray or out.shape != (m,):
+                out = np.asarray(out, dtype=np.float64)
+            if out.shape != (m,):
+                raise PluginError(f"{self.where}: its bound loss returned shape {out.shape}, expected {(m,)}")
+            losses[f, :m] = out

@@ -1,0 +1,155 @@
+"""A model's stages over a set of points, and the guide points of an ill-posed root stage.
+
+Computed once per model and point names (:func:`structure_of`): the stages (parameters and
+the points each scores), the points' depths in the kinematic tree and positions in the neutral
+pose, and the tree's arrays for compiled scoring with the joints each set of points needs
+(:func:`~hybridfit.model.kinematics.mark_needed`, the one walker). When a root stage's own
+observed points cannot determine the global rotation (too few, or nearly collinear), it is
+also scored on each later stage's observed points nearest to the root (:func:`guide_points`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .model.base import HandModel
+from .model.kinematics import mark_needed
+
+
+
+
+def structure_of(model: HandModel, point_names: tuple[str, ...], point_matrix: np.ndarray | None) -> "_Structure":
+    """The model's :class:`_Structure` over these points (point_matrix: None for the model's
+    joints, else ``model.point_matrix(point_names)``), computed once."""
+    key = (id(model), point_names)
+    found = _STRUCTURES.get(key)
+    if found is None or found.model is not model:
+        if len(_STRUCTURES) >= 32:
+            _STRUCTURES.clear()
+        found = _STRUCTURES[key] = _Structure(model, point_matrix)
+    return found
+
+
+class _Structure:
+    """A model's stages over a set of points, the points' depths in the kinematic tree and
+    their positions in the model's neutral pose (mm), computed once per model and points."""
+
+    def __init__(self, model: HandModel, point_matrix: np.ndarray | None) -> None:
+        self.model = model
+        owner = model.stage_of_joint()
+        M = np.eye(model.n_joints) if point_matrix is None else point_matrix
+        point_stage = np.array([owner[np.flatnonzero(row)].max() for row in M])
+        self.stages = [
+            (st.name, np.asarray(st.parameters, dtype=np.int64), np.flatnonzero(point_stage == s).astype(np.int64))
+            for s, st in enumerate(model.stages())
+        ]
+        self.depths = point_depths(model.parents, M)
+        self.neutral = np.einsum("qj,jc->qc", M, model.forward(model.default_params()))
+        self.guides: dict[tuple, np.ndarray] = {}
+        self.alignments: dict[bytes, np.ndarray | None] = {}
+        lower, upper = model.bounds()
+        self.bounds = lower.astype(float).copy(), upper.astype(float).copy()
+        self.default_params = model.default_params().astype(float).copy()
+        # the points in the default pose, as Problem.points gives them
+        joints = model.forward(self.default_params[None])
+        self.canonical = np.ascontiguousarray(
+            joints[0] if point_matrix is None else np.einsum("qj,njc->nqc", M, np.nan_to_num(joints, nan=0.0))[0])
+        self.point_matrix = point_matrix
+        self._tree: _Tree | None = None
+
+    def tree(self) -> "_Tree":
+        """The model's kinematic tree and point map as :func:`tree_points` reads them."""
+        if self._tree is None:
+            self._tree = _Tree(self.model.kinematic_tree(), self.point_matrix, self.model.n_joints)
+        return self._tree
+
+
+class _Tree:
+    """A kinematic tree's arrays, a point map (Q, J) in CSR form and, per subset of points,
+    the joints to compute (cached)."""
+
+    def __init__(self, tree, point_matrix: np.ndarray | None, n_joints: int) -> None:
+        req = lambda a, dtype: np.require(a, dtype=dtype, requirements=["C", "W"])  # noqa: E731
+        self.parents = req(tree.parents, np.int64)
+        self.axes, self.axis_params = req(tree.axes, np.int64), req(tree.axis_params, np.int64)
+        self.arrays = (self.parents, req(tree.offsets, np.float64), req(tree.rest, np.float64),
+                       req(tree.rest_is_identity, np.bool_), self.axes, self.axis_params, float(tree.mirror))
+        M = np.eye(n_joints) if point_matrix is None else point_matrix
+        rows, cols = np.nonzero(M)
+        self.point_map = (req(np.searchsorted(rows, np.arange(len(M) + 1)), np.int64), req(cols, np.int64),
+                          req(M[rows, cols], np.float64))
+        self._joints: dict[bytes, tuple] = {}
+
+    def joints_for(self, subset: np.ndarray) -> tuple:
+        """(order (J,), count, oriented (J,), angle rows (P,), angle count): the joints the
+        points ``subset`` need, parents first, those whose rotation a needed child reads, and
+        the parameters that are their angles."""
+        key = np.asarray(subset, dtype=np.int64).tobytes()
+        found = self._joints.get(key)
+        if found is None:
+            needed = np.zeros(len(self.parents), dtype=np.bool_)
+            mark_needed(self.parents, self.point_map[0], self.point_map[1], np.asarray(subset, dtype=np.int64), needed)
+            order = np.flatnonzero(needed).astype(np.int64)
+            oriented = np.zeros(len(self.parents), dtype=np.bool_)
+            oriented[self.parents[order][self.parents[order] >= 0]] = True
+            rows = np.unique(self.axis_params[order][self.axes[order] >= 0]).astype(np.int64)
+            order_full = np.zeros(len(self.parents), dtype=np.int64)
+            order_full[:len(order)] = order
+            found = self._joints[key] = (order_full, len(order), oriented, rows, len(rows))
+        return found
+
+
+_STRUCTURES: dict[tuple, _Structure] = {}
+
+
+def point_depths(parents: np.ndarray, point_matrix: np.ndarray) -> np.ndarray:
+    """(Q,) each point's depth in the kinematic tree (root joint 0): that of the deepest joint
+    it depends on. parents (J,), point_matrix (Q, J) as ``HandModel.point_matrix``."""
+    depth = np.zeros(len(parents), dtype=np.int64)
+    for j, p in enumerate(parents):  # parents precede children
+        depth[j] = 0 if p < 0 else depth[p] + 1
+    return np.array([depth[np.flatnonzero(row)].max() for row in point_matrix], dtype=np.int64)
+
+
+
+#: a root stage with fewer observed points than this cannot determine the global rotation
+#: robustly (one wrong proposal of three moves it freely) ...
+MIN_ROOT_POINTS = 4
+#: ... nor one whose observed points are nearly collinear (``rotation_lever_mm`` below this, mm)
+MIN_ROOT_LEVER_MM = 10.0
+
+
+def rotation_lever_mm(points: np.ndarray) -> float:
+    """How well (Q, 3) points determine a rotation: the root-mean-square distance of the points
+    from the axis (through their centroid) about which they constrain a rotation least, mm.
+    0 for collinear points; a rotation error is about noise / (lever * sqrt(Q)) radians."""
+    if len(points) < 3:
+        return 0.0
+    c = points - points.mean(axis=0)
+    inertia = np.eye(3) * (c * c).sum() - c.T @ c
+    return float(np.sqrt(max(np.linalg.eigvalsh(inertia)[0], 0.0) / len(points)))
+
+
+def guide_points(problem, root_points: np.ndarray, later: list[np.ndarray],
+                 min_points: int = MIN_ROOT_POINTS, min_lever_mm: float = MIN_ROOT_LEVER_MM) -> np.ndarray:
+    """The points that guide an ill-posed root stage: each later stage's observed points
+    nearest to the root in the kinematic tree (``later``: each stage's points); none when
+    the root's own observed points (fewer than ``min_points``, or nearly collinear) suffice."""
+    return _guides(problem._structure(), problem.weights.sum(axis=-1) > 0, root_points, later, min_points,
+                   min_lever_mm)
+
+
+def _guides(structure: "_Structure", observed: np.ndarray, root_points: np.ndarray, later: list[np.ndarray],
+            min_points: int = MIN_ROOT_POINTS, min_lever_mm: float = MIN_ROOT_LEVER_MM) -> np.ndarray:
+    """:func:`guide_points` for the points ``observed`` (Q,) bool (cached per structure)."""
+    key = (observed.tobytes(), root_points.tobytes(), tuple(p.tobytes() for p in later), min_points, min_lever_mm)
+    if key not in structure.guides:
+        own = root_points[observed[root_points]]
+        if len(own) >= min_points and rotation_lever_mm(structure.neutral[own]) >= min_lever_mm:
+            structure.guides[key] = np.zeros(0, dtype=np.int64)
+        else:
+            depth = structure.depths
+            later = [p[observed[p]] for p in later]
+            structure.guides[key] = np.concatenate(
+                [p[depth[p] == depth[p].min()] for p in later if len(p)] + [np.zeros(0)]).astype(np.int64)
+    return structure.guides[key]

@@ -1,0 +1,240 @@
+"""The driver: one stage loop for every scorer, exact budgets, and results that depend on a
+frame only (not its chunk, batch, threads or --jobs)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import hybridfit
+from hybridfit.fitting import driver, frames as fitting
+from hybridfit.fitting.evaluator import NumpyScorer
+from hybridfit.objective import capability
+from hybridfit.optimizer import Task
+from hybridfit.problem import Problem
+
+
+def driver_path(data, optimizer, budget, seed, frames, names=None, threads=1, model=None, scorer="kernel",
+                objective=None):
+    """(params (F, P), loss (F,), evaluations (F,)) fitted by the driver, scoring with the
+    objective's compiled kernel, its ``bind`` per frame ("bind"), or bind on a model without a
+    kinematic tree ("forward")."""
+    model = model or hybridfit.create("model", "hand26")
+    objective = objective or hybridfit.create("objective", "clamped-confidence")
+    problem = Problem(model, objective, data["proposals"][0], data["confidences"][0], names or data["joint_names"])
+    assert driver.supports(model, objective, optimizer, problem, budget)
+    fitter = driver.Driver(model, objective, optimizer, names or data["joint_names"], budget, seed)
+    if scorer != "kernel":
+        fitter.kernel = None
+    if scorer == "forward":
+        fitter.tree = None
+    items = fitter.fit_chunk(list(frames), data["proposals"][frames], data["confidences"][frames], threads)
+    assert [item[0] for item in items] == list(frames)
+    return tuple(np.array([item[1][k] for item in items]) for k in (0, 3, 4))
+
+
+def frame_losses(data, params, names=None, model=None):
+    """Each frame's full clamped-confidence loss at params (F, P)."""
+    model = model or hybridfit.create("model", "hand26")
+    objective = hybridfit.create("objective", "clamped-confidence")
+    return np.array([Problem(model, objective, data["proposals"][f], data["confidences"][f],
+                             names or data["joint_names"]).evaluate(params[n][None])[0]
+                     for n, f in enumerate(range(len(params)))])
+
+
+@pytest.fixture(scope="module")
+def partial():
+    """6 frames; frames 3-5 lose all but two palm points, so the root stage is guided by points
+    of the fingers, and frame 5 also loses its whole index finger (a skipped stage)."""
+    data = dict(hybridfit.synthetic_proposals(6, k=3, seed=4))
+    c = data["confidences"].copy()
+    c[3:, [0, 5, 9, 13]] = 0.0
+    c[5, 6:9] = 0.0
+    data["confidences"] = c
+    return data
+
+
+OPTIMIZERS = {
+    "stepwise-pso": ("stepwise-pso", {}),
+    "refine": ("stepwise-pso", {"refine_share": 0.3, "refine_config": {"init_sigma": 0.02}}),
+    "joint": ("stepwise-pso", {"schedule": "joint"}),
+    "stepwise+pso": ("stepwise", {"optimizer": "pso", "optimizer_config": {"cognitive": 2.0, "social": 2.0}}),
+    "pso": ("pso", {"particles": 12, "init_share": 0.25}),
+}
+
+
+@pytest.mark.parametrize("name", OPTIMIZERS)
+@pytest.mark.parametrize("budget", [300, 1100])
+def test_every_scorer_gives_the_same_fits_and_the_losses_add_up(partial, name, budget):
+    optimizer = hybridfit.create("optimizer", *OPTIMIZERS[name])
+    frames = np.arange(6)
+    params, loss, used = driver_path(partial, optimizer, budget, 7, frames)
+    assert used.tolist() == [budget] * 6
+    for scorer in ("bind", "forward"):
+        other_params, other_loss, _ = driver_path(partial, optimizer, budget, 7, frames, scorer=scorer)
+        np.testing.assert_allclose(other_params, params, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(other_loss, loss, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(frame_losses(partial, params), loss, rtol=0, atol=1e-9)
+
+
+def test_derived_points_are_scored_alike_by_every_scorer():
+    data = dict(hybridfit.synthetic_proposals(3, k=2, seed=2))
+    names = ["palm_centre"] + list(data["joint_names"][1:])  # the wrist replaced by the palm centre
+    optimizer = hybridfit.create("optimizer", "stepwise-pso")
+    params, loss, _ = driver_path(data, optimizer, 700, 1, np.arange(3), names)
+    for scorer in ("bind", "forward"):
+        ref_params, ref_loss, _ = driver_path(data, optimizer, 700, 1, np.arange(3), names, scorer=scorer)
+        np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(frame_losses(data, params, names), loss, rtol=0, atol=1e-9)
+
+
+def test_a_left_hand_with_other_bones_is_scored_alike_by_every_scorer():
+    model = hybridfit.create("model", "hand26", {"mirror": True, "scale": 1.1})
+    data = dict(hybridfit.synthetic_proposals(3, k=3, seed=8, model=model))
+    optimizer = hybridfit.create("optimizer", "stepwise-pso")
+    params, loss, _ = driver_path(data, optimizer, 500, 2, np.arange(3), model=model)
+    ref_params, ref_loss, _ = driver_path(data, optimizer, 500, 2, np.arange(3), model=model, scorer="forward")
+    np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)
+
+
+def test_a_frame_does_not_depend_on_its_batch_or_threads(frames):
+    optimizer = hybridfit.create("optimizer", "stepwise-pso")
+    everything = driver_path(frames, optimizer, 500, 3, np.arange(8), threads=2)
+    for batch in ([5], [6, 1], [7, 0, 3]):
+        for threads in (1, 2):
+            part = driver_path(frames, optimizer, 500, 3, np.array(batch), threads=threads)
+            for got, want in zip(part, everything):
+                assert np.array_equal(got, want[batch])
+
+
+@pytest.mark.parametrize("chunk", [1, 3, 256])
+def test_fit_gives_the_same_results_for_any_jobs_and_chunking(frames, chunk, monkeypatch):
+    ref_params, ref_loss, _ = driver_path(frames, hybridfit.create("optimizer", "stepwise-pso"), 600, 5, np.arange(8))
+    monkeypatch.setattr(fitting, "CHUNK", chunk)
+    one = hybridfit.fit(frames["proposals"], frames["confidences"], budget=600, seed=5)
+    two = hybridfit.fit(frames["proposals"], frames["confidences"], budget=600, seed=5, jobs=2)
+    assert np.array_equal(one.params, two.params) and np.array_equal(one.objective, two.objective)
+    assert np.array_equal(one.params, ref_params) and np.array_equal(one.objective, ref_loss)
+    assert (one.evaluations == 600).all()
+
+
+def test_the_random_keys_are_documented_functions_of_seed_frame_and_stage():
+    from hybridfit.fitting.streams import stage_key, stage_keys
+
+    keys = stage_keys(3, [0, 7, 2], 4)
+    assert keys.shape == (3, 4) and len(np.unique(keys)) == 12
+    assert keys[1, 2] == stage_key(3, 7, 2) and stage_keys(3, [7], 4)[0, 2] == keys[1, 2]
+    assert stage_key(4, 7, 2) != keys[1, 2]
+
+
+@settings(max_examples=12, deadline=None)
+@given(budget=st.integers(12, 2500), seed=st.integers(0, 2**32 - 1), name=st.sampled_from(list(OPTIMIZERS)))
+def test_budgets_are_exact_and_fits_stay_in_bounds(frames, budget, seed, name):
+    optimizer = hybridfit.create("optimizer", *OPTIMIZERS[name])
+    problem = Problem(hybridfit.create("model", "hand26"), hybridfit.create("objective", "clamped-confidence"),
+                      frames["proposals"][0], frames["confidences"][0])
+    if budget < optimizer.min_budget(Task(problem, budget)):
+        return
+    params, _, used = driver_path(frames, optimizer, budget, seed, np.array([0, 1]))
+    assert used.tolist() == [budget, budget]
+    for f in (0, 1):
+        p = Problem(problem.model, problem.objective, frames["proposals"][f], frames["confidences"][f])
+        assert (params[f] >= p.lower).all() and (params[f] <= p.upper).all()
+
+
+def test_a_schedule_depends_on_a_frame_only_through_its_observed_points():
+    """What the Driver's cache of layouts assumes: frames whose points with proposals are the
+    same get the same stages."""
+    rng = np.random.default_rng(0)
+    data = hybridfit.synthetic_proposals(24, k=3, seed=9)
+    masks = rng.random((3, 21)) < 0.3
+    model = hybridfit.create("model", "hand26")
+    objective = hybridfit.create("objective", "clamped-confidence")
+    optimizer = hybridfit.create("optimizer", "stepwise-pso", {"refine_share": 0.2})
+    plans = {}
+    for f in range(24):
+        c = data["confidences"][f].copy()
+        c[masks[f % 3]] = 0.0
+        plan = optimizer.plan(Task(Problem(model, objective, data["proposals"][f], c), 3400))
+        lay = driver.layout(plan, 21)
+        first = plans.setdefault(f % 3, lay)
+        assert np.array_equal(first.stages, lay.stages) and np.array_equal(first.indices, lay.indices)
+
+
+def test_the_driver_runs_what_offers_batch_steps_and_follows_overrides():
+    model = hybridfit.create("model", "hand26")
+    clamped = hybridfit.create("objective", "clamped-confidence")
+    data = hybridfit.synthetic_proposals(1, k=3, seed=3)
+    problem = Problem(model, clamped, data["proposals"][0], data["confidences"][0])
+    from hybridfit_plugins.optimizers.pso import PSO
+
+    class Greedy(PSO):  # changes minimize: the driver would not follow it
+        def minimize(self, task, rng):
+            task.evaluate(task.x0[None])
+
+    assert driver.supports(model, clamped, hybridfit.create("optimizer", "stepwise-pso"), problem, 3400)
+    assert not driver.supports(model, clamped, Greedy(), problem, 3400)
+    assert not driver.supports(model, clamped, hybridfit.create("optimizer", "stepwise", {"optimizer": "cmaes"}),
+                               problem, 3400)
+    # an objective with bind only runs through the driver too (scored per frame by bind)
+    mixture = hybridfit.create("objective", "gaussian-mixture")
+    assert capability(mixture, "compiled_kernel") is None
+    assert driver.supports(model, mixture, hybridfit.create("optimizer", "pso"), problem, 3400)
+
+
+def test_a_wrong_batch_shape_is_a_plugin_error_naming_the_optimizer(frames):
+    from hybridfit_plugins.optimizers.pso import PSO, STEPS
+    from hybridfit.errors import PluginError
+    from hybridfit.optimizer import BatchSteps
+
+    class Sloppy(PSO):
+        def batch_steps(self):
+            return BatchSteps(STEPS.init, lambda state, m: STEPS.ask(state, m)[:, :1], STEPS.tell)
+
+    with pytest.raises(PluginError, match="Sloppy.*ask"):
+        hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], optimizer=Sloppy(), budget=300)
+
+
+@pytest.mark.parametrize("jobs", [1, 3])
+def test_an_interrupt_keeps_the_frames_fitted_before_it(frames, interrupt_at, jobs):
+    interrupt_at(3)
+    result = hybridfit.fit(frames["proposals"], frames["confidences"], budget=300, jobs=jobs)
+    assert result.interrupted
+    assert not result.failed[:3].any() and result.failed[3:].all()
+    assert (result.evaluations[:3] == 300).all()
+
+
+def test_jobs_split_chunks_with_failed_frames_alike(frames, monkeypatch):
+    c = frames["confidences"].copy()
+    c[[2, 5]] = 0.0  # no proposals: these frames fail, the others are fitted
+    monkeypatch.setattr(fitting, "CHUNK", 3)
+    one = hybridfit.fit(frames["proposals"], c, budget=300, seed=1)
+    three = hybridfit.fit(frames["proposals"], c, budget=300, seed=1, jobs=3)
+    assert sorted(one.errors) == sorted(three.errors) == [2, 5]
+    assert np.array_equal(one.params, three.params, equal_nan=True)
+    assert np.array_equal(one.objective, three.objective, equal_nan=True)
+
+
+def test_a_bug_in_a_bound_loss_is_a_plugin_error_naming_the_plugins(frames):
+    from hybridfit.errors import PluginError
+    from hybridfit.objective import Objective
+
+    class Broken(Objective):
+        def bind(self, proposals, weights):
+            return lambda points, subset: np.zeros(len(points) + 1)  # one loss too many
+
+    with pytest.raises(PluginError, match="Broken.*shape"):
+        hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], objective=Broken(), budget=300)
+
+    class Raising(Objective):
+        def bind(self, proposals, weights):
+            def loss(points, subset):
+                raise ZeroDivisionError("oops")
+            return loss
+
+    with pytest.raises(PluginError, match="ZeroDivisionError.*objective Raising"):
+        hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], objective=Raising(), budget=300)
