@@ -50,11 +50,14 @@ class SetupCheck:
 
     @property
     def other_hand(self) -> bool:
-        """Whether the mirror image fits clearly better: the data is of the other hand."""
+        """Whether the mirror image fits clearly better and explains the data (its fit within
+        VERY_FAR_MM: wrong names or units, which neither hand can follow, are not blamed on
+        the hand): the data is of the other hand."""
         if self.mirrored_mm is None or not len(self.frames):
             return False
         closer = float(np.mean(self.mirrored_mm < self.distance_mm))
-        return bool(np.median(self.mirrored_mm) < MIRROR_RATIO * np.median(self.distance_mm)
+        mirrored = np.median(self.mirrored_mm)
+        return bool(mirrored < MIRROR_RATIO * np.median(self.distance_mm) and mirrored <= VERY_FAR_MM
                     and closer >= MIRROR_FRAMES)
 
     @property
