@@ -37,6 +37,7 @@ from ..objective import capability, compiled_kernel_of
 from ..optimizer import BatchSteps, StagePlan, Task, steps_of
 from ..plugin import defining_class
 from ..problem import Problem, prepare_frames
+from . import stops
 from .evaluator import KernelScorer, NumpyScorer
 from .streams import stage_keys
 
@@ -133,6 +134,7 @@ def run_schedule(optimizer, steps: BatchSteps, scorer, stages, indices, settings
             steps.tell(state, X, losses[:, :m])
             keep_best(X, losses, best_x, best_loss)
             left -= m
+            stops.check()  # a stop signal lands here, between generations (hybridfit.fitting.stops)
         owned_loss = best_loss
         if not same_points(subset, owned):  # a guided stage: its best over the points it owns
             again = np.empty((F, 1))

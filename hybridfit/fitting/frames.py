@@ -23,7 +23,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .. import registry
-from . import driver
+from . import driver, stops
 from ..errors import HybridfitError, PluginError
 from ..io import validate_proposals
 from ..metrics import inliers
@@ -244,33 +244,37 @@ def fit(
               if observations is None and driver.supports(model, objective, optimizer, problem, budget) else None)
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
-        if fitter is not None:
-            size = min(CHUNK, max(1, -(-F // jobs)))  # with jobs > 1, at least jobs chunks
-            chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // size)))]
-            for items in fitter.fit_chunks(chunks, proposals, confidences, jobs):
-                store(items)
-                bar.update(len(items))
-        elif jobs <= 1 or F <= 1:
-            for f in range(F):
-                store(_fit_chunk(spec, [f], proposals[f : f + 1], confidences[f : f + 1],
-                                 None if observations is None else observations[f : f + 1]))
-                bar.update(1)
-        else:
-            chunks = np.array_split(np.arange(F), min(F, jobs * 8))
-            ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
-            with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-                futures = [pool.submit(_fit_chunk, spec, list(c), proposals[c], confidences[c],
-                                       None if observations is None else [observations[i] for i in c])
-                           for c in chunks if len(c)]
-                try:
-                    for fut in as_completed(futures):
-                        items = fut.result()
-                        store(items)
-                        bar.update(len(items))
-                except KeyboardInterrupt:
-                    for fut in futures:
-                        fut.cancel()
-                    raise
+        with stops.deferred():  # a stop signal is raised between chunks or frames, never inside compiled code
+            if fitter is not None:
+                size = min(CHUNK, max(1, -(-F // jobs)))  # with jobs > 1, at least jobs chunks
+                chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // size)))]
+                for items in fitter.fit_chunks(chunks, proposals, confidences, jobs):
+                    store(items)
+                    bar.update(len(items))
+                    stops.check()
+            elif jobs <= 1 or F <= 1:
+                for f in range(F):
+                    store(_fit_chunk(spec, [f], proposals[f : f + 1], confidences[f : f + 1],
+                                     None if observations is None else observations[f : f + 1]))
+                    bar.update(1)
+                    stops.check()
+            else:
+                chunks = np.array_split(np.arange(F), min(F, jobs * 8))
+                ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
+                with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+                    futures = [pool.submit(_fit_chunk, spec, list(c), proposals[c], confidences[c],
+                                           None if observations is None else [observations[i] for i in c])
+                               for c in chunks if len(c)]
+                    try:
+                        for fut in as_completed(futures):
+                            items = fut.result()
+                            store(items)
+                            bar.update(len(items))
+                            stops.check()
+                    except KeyboardInterrupt:
+                        for fut in futures:
+                            fut.cancel()
+                        raise
     except KeyboardInterrupt:
         result.interrupted = True
         for f in np.flatnonzero(~done):

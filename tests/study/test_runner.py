@@ -208,12 +208,12 @@ def test_a_bug_stops_the_study_unless_asked_to_keep_going(tmp_path, monkeypatch)
 
     def buggy(settings, *rest):
         calls.append(settings["budget"])
-        if settings["budget"] == 2:
+        if settings["budget"] == 300:
             raise ZeroDivisionError("a plugin's bug")
         return real(settings, *rest)
 
     monkeypatch.setattr(runner, "run_trial", buggy)
-    text = TINY.split("[sweep.grid]")[0] + '[sweep.grid]\nbudget = [400, 2]\n'
+    text = TINY.split("[sweep.grid]")[0] + '[sweep.grid]\nbudget = [400, 300]\n'
     with pytest.raises(PluginError, match="ZeroDivisionError.*the study stops"):
         run(load_spec(write(tmp_path, text)), tmp_path / "stop", executor="serial")
     store = Store(tmp_path / "stop" / "study.db")
