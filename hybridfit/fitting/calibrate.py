@@ -4,8 +4,12 @@ Works for any model that declares its calibratable geometry (``HandModel.geometr
 ``with_geometry()``); handedness goes through ``mirror_setting``, dataset points through
 the model's joints and derived points. From ground-truth points (F, Q, 3) mm:
 
-1. **Hold out** the last ``holdout`` share of the frames (default 20 %, rounded down, at
-   least one frame when two or more are given); they only measure the held-out error.
+1. **Hold out** a ``holdout`` share of the frames (default 20 %, rounded down, at least
+   one frame when two or more are given), spread evenly over the sequence; they only
+   measure the held-out error. **Calibrate on frames that span the pose range**: up to
+   ``frames`` (default 80) of the others, away from the held-out ones, chosen by
+   farthest-point sampling on the distances between the points (:func:`spanning_frames`);
+   consecutive frames are a poor sample of what a hand does.
 2. **Start at the prior**: the model's anatomical prior geometry (hand26: the proportions of
    Buchholz, Armstrong & Goldstein, Ergonomics 1992, ratios of hand length), scaled to the
    data's size; fit every calibration frame with :func:`hybridfit.fit` (the truth as
@@ -20,8 +24,9 @@ the model's joints and derived points. From ground-truth points (F, Q, 3) mm:
    the size free) and ``(g - mean) / std`` for weights.
 5. **Refit** the poses with :func:`hybridfit.fit` on the new model and repeat (``rounds``).
 
-Reported errors are those of :func:`hybridfit.fit` itself (what a user gets): on the
-calibration frames before and after, and on the held-out frames after.
+Reported errors are those of :func:`hybridfit.fit` followed by the least-squares polish
+(:func:`hybridfit.fitting.refine.refine`), what a user gets: on the calibration frames
+before and after, and on the held-out frames after.
 """
 
 from __future__ import annotations
@@ -37,7 +42,12 @@ from tqdm.auto import tqdm
 from .. import registry
 from ..errors import HybridfitError
 from .frames import fit
+from .refine import refine
 from ..model.base import Geometry, HandModel
+
+
+#: frames either side of a held-out frame that calibration does not use
+HELDOUT_GAP = 10
 
 
 @dataclass
@@ -64,16 +74,48 @@ class CalibrationResult:
     at_prior: tuple[str, ...] = field(default_factory=tuple)
 
 
-def split_frames(n: int, holdout: float) -> tuple[np.ndarray, np.ndarray]:
-    """(calibration, held-out) frame indices: the last floor(holdout * n) frames are held out,
-    at least one when n >= 2 and holdout > 0, and at least one frame is always kept."""
+def split_frames(n: int, holdout: float, keep: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(calibration pool, held-out) frame indices: floor(holdout * n) frames spread evenly
+    over the sequence are held out (at least one when n >= 2 and holdout > 0, at least one
+    frame always kept), and the pool is the rest without the held-out frames' neighbours
+    (up to ``HELDOUT_GAP`` frames either side, fewer where the pool would keep fewer than
+    ``keep`` frames), so that no calibration frame is a near copy of a held-out one."""
     if not 0.0 <= holdout < 1.0:
         raise HybridfitError(f"holdout must be in [0, 1), got {holdout}")
     k = int(np.floor(holdout * n))
     if holdout > 0 and n >= 2:
         k = max(k, 1)
     k = min(k, n - 1)
-    return np.arange(n - k), np.arange(n - k, n)
+    if k == 0:
+        return np.arange(n), np.arange(0)
+    held = np.unique(np.round(np.linspace(0, n - 1, k + 2)[1:-1]).astype(np.int64))
+    rest = np.setdiff1d(np.arange(n), held)
+    for gap in range(HELDOUT_GAP, -1, -1):
+        near = np.abs(rest[:, None] - held[None]).min(1) <= gap
+        if (~near).sum() >= min(keep, len(rest)):
+            return rest[~near], held
+    return rest, held
+
+
+def pose_descriptors(truth: np.ndarray) -> np.ndarray:
+    """(F, Q (Q - 1) / 2) the distances between every two points of each frame (mm): a
+    descriptor of the hand's articulation, blind to where the hand is and how it is turned."""
+    i, j = np.triu_indices(truth.shape[1], 1)
+    return np.linalg.norm(truth[:, i] - truth[:, j], axis=-1)
+
+
+def spanning_frames(truth: np.ndarray, count: int) -> np.ndarray:
+    """``count`` frame indices of truth (F, Q, 3) mm that span its pose range: farthest-point
+    sampling on :func:`pose_descriptors`, from the frame nearest the mean pose; sorted."""
+    d = pose_descriptors(truth)
+    count = min(int(count), len(truth))
+    chosen = [int(np.linalg.norm(d - d.mean(0), axis=1).argmin())]
+    nearest = np.linalg.norm(d - d[chosen[0]], axis=1)
+    while len(chosen) < count:
+        nxt = int(nearest.argmax())
+        chosen.append(nxt)
+        nearest = np.minimum(nearest, np.linalg.norm(d - d[nxt], axis=1))
+    return np.sort(np.asarray(chosen, dtype=np.int64))
 
 
 def determined(model: HandModel, geometry: Geometry, names: Sequence[str]) -> np.ndarray:
@@ -120,10 +162,13 @@ def _configured(model: HandModel, values: np.ndarray) -> HandModel:
 
 
 def _fit_error(truth, names, model, budget, seed, jobs, progress):
-    r = fit(truth[:, :, None, :], np.ones(truth.shape[:2] + (1,)), model=model, joint_names=names,
-            budget=budget, seed=seed, jobs=jobs, progress=progress)
-    err = np.linalg.norm(r.joints - truth, axis=-1)
-    return float(np.nanmean(err)), r.params, err
+    """hybridfit.fit of the truth as k = 1 proposals, then the least-squares polish."""
+    proposals, confidences = truth[:, :, None, :], np.ones(truth.shape[:2] + (1,))
+    r = fit(proposals, confidences, model=model, joint_names=names, budget=budget, seed=seed, jobs=jobs,
+            progress=progress)
+    params = refine(model, r.params, proposals, confidences, names)
+    err = np.linalg.norm(model.points(params, names) - truth, axis=-1)
+    return float(np.nanmean(err)), params, err
 
 
 def _least_squares(truth, names, model, free, scale, g, params, noise_mm, max_nfev, progress):
@@ -205,6 +250,7 @@ def calibrate(
     model_config: Mapping[str, Any] | None = None,
     mirror: bool | None = None,
     holdout: float = 0.2,
+    frames: int = 80,
     rounds: int = 2,
     budget: int = 3400,
     seed: int = 0,
@@ -228,7 +274,8 @@ def calibrate(
     base = registry.create("model", model, model_config)
     base.point_matrix(names)  # unknown point names fail here, once
     geo = base.geometry()
-    cal, held = split_frames(len(truth), holdout)
+    pool, held = split_frames(len(truth), holdout, frames)
+    cal = pool[spanning_frames(truth[pool], frames)]
     fit_truth = truth[cal]
     prior_model = _configured(base, _prior(geo, 1.0))
     scale = initial_scale(fit_truth, names, prior_model)
