@@ -1,22 +1,23 @@
 """A final least-squares polish of fitted poses: the representable optimum near a fit.
 
 Stochastic search (PSO) gets close to the best pose, not onto it: its last millimetres are
-the budget's, not the model's. :func:`polish` finishes every frame with a bounded,
-robust Gauss-Newton step (``scipy.optimize.least_squares``, trust-region reflective):
+the budget's, not the model's. :func:`refine` finishes every frame with a few steps of a
+projected Levenberg-Marquardt on a robust least-squares loss:
 
-- each point is pulled towards one target: the proposal of that point nearest the start
-  pose's point (so the polish keeps the mode the search chose), weighted by that
-  proposal's normalised confidence; a point whose nearest proposal is further than
-  ``reach_mm`` (or whose confidences are all 0) is left out;
-- the residual is the distance in millimetres under a robust loss (``loss``, with
-  ``f_scale = scale_mm``: quadratic below it, growing slowly above), so an outlier the
-  search rightly ignored cannot drag the hand;
-- the joint angles stay within the model's limits (the bounds of the solver) and the
-  quaternion's length is held at 1 by a residual, so the result is as valid as the start.
+- every proposal within ``reach_mm`` of its point in the start pose pulls that point,
+  weighted by its normalised confidence (so the polish keeps the mode the search chose,
+  and several agreeing predictors pull towards their robust mean: a fusion);
+- the residual is the distance in millimetres under a robust loss (``loss``, scale
+  ``scale_mm``: quadratic below it, growing slowly or not at all above), so an outlier
+  the search rightly ignored cannot drag the hand;
+- the joint angles stay within the model's limits (steps are clipped to the bounds) and
+  the quaternion is renormalised, so the result is as valid as the start; the bone
+  lengths are the model's.
 
-A frame keeps its start pose unless the polish lowers the robust loss; frames that are
-NaN (failed fits) stay NaN. Every frame is solved jointly as one sparse problem (the
-Jacobian is block diagonal), so a thousand frames cost about as much as a few.
+A frame's step is taken only when it lowers that frame's loss, so no frame ends worse
+than it started on that loss; frames that are NaN (failed fits) stay NaN. All frames are
+solved together (batched Jacobians by forward differences), so a thousand frames cost
+about as much as a few.
 """
 
 from __future__ import annotations
@@ -31,22 +32,19 @@ SCALE_MM = 10.0
 REACH_MM = 40.0
 
 
-def targets(proposals: np.ndarray, confidences: np.ndarray, points: np.ndarray,
-            reach_mm: float = REACH_MM) -> tuple[np.ndarray, np.ndarray]:
-    """Each point's target and weight: proposals (F, Q, K, 3) mm, confidences (F, Q, K),
-    start points (F, Q, 3) mm -> targets (F, Q, 3) mm (the proposal with non-zero
-    confidence nearest the start point) and weights (F, Q) (its confidence normalised per
-    point, 0 beyond ``reach_mm`` or without proposals)."""
+def proposal_weights(proposals: np.ndarray, confidences: np.ndarray, points: np.ndarray,
+                     reach_mm: float = REACH_MM) -> np.ndarray:
+    """Each proposal's weight in the polish: proposals (F, Q, K, 3) mm, confidences
+    (F, Q, K), start points (F, Q, 3) mm -> (F, Q, K): the confidences normalised per point,
+    0 for a proposal further than ``reach_mm`` from the start point (another mode) unless
+    it is the point's nearest proposal with a confidence."""
     conf = np.asarray(confidences, dtype=np.float64)
     total = conf.sum(-1, keepdims=True)
     w = np.divide(conf, total, out=np.zeros_like(conf), where=total > 0)
-    d = np.linalg.norm(proposals - points[:, :, None], axis=-1)
+    d = np.nan_to_num(np.linalg.norm(proposals - points[:, :, None], axis=-1), nan=np.inf)
     d = np.where(w > 0, d, np.inf)
-    k = np.nan_to_num(d, nan=np.inf).argmin(-1)
-    pick = lambda a: np.take_along_axis(a, k[..., None], axis=2)[:, :, 0]  # noqa: E731
-    tgt = np.take_along_axis(proposals, k[..., None, None], axis=2)[:, :, 0]
-    weight = np.where(pick(d) <= reach_mm, pick(w), 0.0)
-    return tgt, weight
+    nearest = d == d.min(-1, keepdims=True)
+    return np.where((d <= reach_mm) | nearest, w, 0.0)
 
 
 def _rho(r2: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray]:
@@ -61,43 +59,44 @@ def _rho(r2: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray]:
     raise ValueError(f"unknown loss {loss!r} (linear, soft_l1, cauchy)")
 
 
-def polish(model, params: np.ndarray, target: np.ndarray, weight: np.ndarray, names: Sequence[str], *,
+def polish(model, params: np.ndarray, proposals: np.ndarray, weight: np.ndarray, names: Sequence[str], *,
            loss: str = LOSS, scale_mm: float = SCALE_MM, iterations: int = 20, step: float = 1e-6) -> np.ndarray:
     """params (F, P) start poses -> (F, P) polished poses of ``model``: a projected
-    Levenberg-Marquardt of sum_q weight (F, Q) * rho(|point_q - target_q (F, Q, 3)|^2 /
-    scale_mm^2) within the model's bounds (iteratively reweighted for the robust loss;
+    Levenberg-Marquardt of sum_qk weight_qk (F, Q, K) * rho(|point_q - proposal_qk (F, Q, K,
+    3)|^2 / scale_mm^2) within the model's bounds (iteratively reweighted for the robust loss;
     forward-difference Jacobians, all frames batched). A frame's step is taken only when it
     lowers that frame's loss, so no frame gets worse than its start."""
     params = np.asarray(params, dtype=np.float64)
     out = params.copy()
-    ok = np.isfinite(params).all(1) & np.isfinite(target).all((1, 2)) & (np.asarray(weight) > 0).any(1)
+    weight = np.where(np.isfinite(proposals).all(-1), weight, 0.0)
+    ok = np.isfinite(params).all(1) & (weight > 0).any((1, 2))
     if not ok.any():
         return out
     x = params[ok].copy()
-    tgt, w = np.asarray(target, float)[ok], np.asarray(weight, float)[ok]
+    tgt, w = np.nan_to_num(np.asarray(proposals, float)[ok]), np.asarray(weight, float)[ok]
     F, P = x.shape
     lower, upper = model.bounds()
     lam = np.full(F, 1e-2)
 
     def cost(p, rows):
-        d2 = ((model.points(p, names) - tgt[rows]) ** 2).sum(-1) / scale_mm**2
+        d2 = ((model.points(p, names)[:, :, None] - tgt[rows]) ** 2).sum(-1) / scale_mm**2
         rho, drho = _rho(d2, loss)
-        return (w[rows] * rho).sum(1), w[rows] * drho
+        return (w[rows] * rho).sum((1, 2)), w[rows] * drho  # (F,), (F, Q, K)
 
     current, irls = cost(x, slice(None))
     h = step * np.maximum(1.0, np.abs(x))
     for _ in range(iterations):
         base = model.points(x, names)  # (F, Q, 3)
-        r = (base - tgt).reshape(F, -1)
-        J = np.empty((F, r.shape[1], P))
+        J = np.empty((F, base.shape[1] * 3, P))
         for i in range(P):
             xi = x.copy()
             xi[:, i] += h[:, i]
             J[:, :, i] = (model.points(xi, names) - base).reshape(F, -1) / h[:, i, None]
-        W = np.repeat(irls, 3, axis=1)  # (F, 3Q)
+        W = np.repeat(irls.sum(2), 3, axis=1)  # (F, 3Q): a point's weights over its proposals
+        r = np.einsum("fqk,fqkc->fqc", irls, base[:, :, None] - tgt).reshape(F, -1)  # weighted residual sums
         JtW = J.transpose(0, 2, 1) * W[:, None, :]
         A = JtW @ J
-        g = (JtW @ r[:, :, None])[:, :, 0]
+        g = (J.transpose(0, 2, 1) @ r[:, :, None])[:, :, 0]
         diag = np.maximum(np.einsum("fii->fi", A), 1e-9)
         improved = np.zeros(F, bool)
         for _ in range(4):  # raise the damping of the frames whose step did not lower their loss
@@ -119,3 +118,18 @@ def polish(model, params: np.ndarray, target: np.ndarray, weight: np.ndarray, na
             break
     out[np.flatnonzero(ok)] = x
     return out
+
+
+def refine(model, params: np.ndarray, proposals: np.ndarray, confidences: np.ndarray, names: Sequence[str], *,
+           reach_mm: float = REACH_MM, loss: str = LOSS, scale_mm: float = SCALE_MM,
+           iterations: int = 20) -> np.ndarray:
+    """params (F, P) fitted poses of ``model`` -> (F, P) polished (see the module doc):
+    proposals (F, Q, K, 3) mm and confidences (F, Q, K) of the Q points ``names``."""
+    params = np.asarray(params, dtype=np.float64)
+    proposals = np.asarray(proposals, dtype=np.float64)
+    start = np.full(proposals.shape[:2] + (3,), np.nan)
+    ok = np.isfinite(params).all(1)
+    if ok.any():
+        start[ok] = model.points(params[ok], names)
+    weight = proposal_weights(proposals, confidences, start, reach_mm)
+    return polish(model, params, proposals, weight, names, loss=loss, scale_mm=scale_mm, iterations=iterations)
