@@ -13,6 +13,7 @@ from ..io import check_output, load_proposals, save_npz
 from ..datasets.folder import load_dataset
 from ..metrics import summary
 from ..objective import dataset_observations
+from ..fitting.refine import fit_and_refine
 from ..fitting.tracking import track
 from ._common import add_fit_options, add_plugin_options, plugin_kwargs
 
@@ -35,6 +36,8 @@ def register(sub) -> None:
     p.add_argument("--first-frame", choices=["proposals", "ground-truth"], default="proposals",
                    help="with --track, frame 0's initial guess: its proposals, or the --depth folder's model "
                    "parameters")
+    p.add_argument("--no-polish", action="store_true", help="skip the final least-squares polish of every fitted "
+                   "frame (hybridfit.fitting.refine; not with --track, which never polishes)")
     p.add_argument("--dataset", help="the proposals' skeleton when the npz has no joint_names (and its derived "
                    "points for its model): icvl, nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file "
                    "(default: the npz's dataset, which propose writes for real data)")
@@ -64,7 +67,8 @@ def run(args) -> int:
         extra["lost"] = result.lost
     else:
         try:
-            result = fit_frames(data["proposals"], data["confidences"], jobs=args.jobs, **common)
+            result = (fit_frames if args.no_polish else fit_and_refine)(data["proposals"], data["confidences"],
+                                                                          jobs=args.jobs, **common)
         except PluginError as err:  # a bug, not the user's: keep the finished frames, then let it propagate
             if err.result is not None and (~err.result.failed).any():
                 save_npz(args.out, **err.result.to_npz(), **extra)

@@ -92,7 +92,7 @@ def split_frames(n: int, holdout: float, keep: int = 0) -> tuple[np.ndarray, np.
     rest = np.setdiff1d(np.arange(n), held)
     for gap in range(HELDOUT_GAP, -1, -1):
         near = np.abs(rest[:, None] - held[None]).min(1) <= gap
-        if (~near).sum() >= min(keep, len(rest)):
+        if (~near).sum() >= min(max(keep, 1), len(rest)):
             return rest[~near], held
     return rest, held
 
@@ -123,11 +123,16 @@ def determined(model: HandModel, geometry: Geometry, names: Sequence[str]) -> np
 
     An entry with ends (a, b) along the kinematic tree needs an observed joint at b or
     below it (its child chain) and one at a or above it, or at another child of a (its
-    parent chain); a derived-point weight needs that derived point among the points."""
+    parent chain); a joint counts as observed when it is among the points or a given
+    derived point weighs it; a derived-point weight needs that derived point among the
+    points."""
     index = {n: i for i, n in enumerate(model.joint_names)}
     parents = np.asarray(model.parents)
     observed = np.zeros(len(parents), bool)
     observed[[index[n] for n in names if n in index]] = True
+    derived = model.derived_points
+    for n in names:  # a derived point observes the joints it weighs (across frames, they are separable)
+        observed[[index[j] for j, w in derived.get(n, {}).items() if w != 0 and j in index]] = True
     below = observed.copy()  # the joint or one of its descendants is observed
     for j in np.flatnonzero(observed):
         while parents[j] >= 0 and not below[parents[j]]:

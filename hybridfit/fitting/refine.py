@@ -22,9 +22,14 @@ about as much as a few.
 
 from __future__ import annotations
 
-from typing import Sequence
+import dataclasses
+from typing import Any, Sequence
 
 import numpy as np
+
+from .. import registry
+from ..problem import Problem
+from .frames import FitResult, fit
 
 #: default robust loss and its scale (mm), and how far a proposal may be from the start
 LOSS = "soft_l1"
@@ -133,3 +138,31 @@ def refine(model, params: np.ndarray, proposals: np.ndarray, confidences: np.nda
         start[ok] = model.points(params[ok], names)
     weight = proposal_weights(proposals, confidences, start, reach_mm)
     return polish(model, params, proposals, weight, names, loss=loss, scale_mm=scale_mm, iterations=iterations)
+
+
+def fit_and_refine(proposals: np.ndarray, confidences: np.ndarray, **fit_options: Any) -> FitResult:
+    """:func:`hybridfit.fit` followed by :func:`refine` of every fitted frame: the same
+    arguments and result, with params, joints and model_joints polished and objective the
+    fit objective's loss at the polished pose. With depth observations the fit's result is
+    returned as it is (the polish cannot see the depth)."""
+    result = fit(proposals, confidences, **fit_options)
+    if fit_options.get("observations") is not None:
+        return result
+    model = registry.create("model", fit_options.get("model", "hand26"), fit_options.get("model_config"))
+    objective = registry.create("objective", fit_options.get("objective", "clamped-confidence"),
+                                fit_options.get("objective_config"))
+    names = result.joint_names
+    done = np.flatnonzero(~result.failed)
+    if not len(done):
+        return result
+    polished = refine(model, result.params[done], np.asarray(proposals, float)[done],
+                      np.asarray(confidences, float)[done], names)
+    radius = float(fit_options.get("search_radius_mm", 60.0))
+    out = dataclasses.replace(result, params=result.params.copy(), joints=result.joints.copy(),
+                              model_joints=result.model_joints.copy(), objective=result.objective.copy())
+    for i, f in enumerate(done):
+        problem = Problem(model, objective, proposals[f], confidences[f], names, radius)
+        out.params[f], out.objective[f] = polished[i], float(problem.evaluate(polished[i][None])[0])
+    out.joints[done] = model.points(out.params[done], names)
+    out.model_joints[done] = model.forward(out.params[done])
+    return out

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 import hybridfit
-from hybridfit.fitting.refine import proposal_weights, refine
+from hybridfit.fitting.refine import fit_and_refine, proposal_weights, refine
 
 NAMES = None
 
@@ -64,3 +64,16 @@ def test_a_far_mode_does_not_pull_and_failed_frames_stay_nan(model):
     polished = refine(model, start, proposals, conf, names)
     assert np.isnan(polished[1]).all()
     np.testing.assert_allclose(model.forward(polished[[0, 2]]), near[[0, 2]], atol=1e-3)
+
+
+def test_fit_and_refine_is_fit_then_the_polish(model):
+    truth = model.forward(_poses(model, 3, seed=5))
+    proposals = truth[:, :, None] + np.random.default_rng(6).normal(0, 3.0, truth.shape)[:, :, None]
+    conf = np.ones(proposals.shape[:3])
+    plain = hybridfit.fit(proposals, conf, budget=600)
+    polished = fit_and_refine(proposals, conf, budget=600)
+    np.testing.assert_allclose(polished.params, refine(model, plain.params, proposals, conf, model.joint_names))
+    np.testing.assert_allclose(polished.joints, model.forward(polished.params))
+    err = lambda r: np.linalg.norm(r.joints - truth, axis=-1).mean()  # noqa: E731
+    assert err(polished) < err(plain)
+    assert (polished.objective < 0).all() and not np.allclose(polished.objective, plain.objective)
