@@ -88,7 +88,7 @@ def split_frames(n: int, holdout: float, keep: int = 0) -> tuple[np.ndarray, np.
     k = min(k, n - 1)
     if k == 0:
         return np.arange(n), np.arange(0)
-    held = np.unique(np.round(np.linspace(0, n - 1, k + 2)[1:-1]).astype(np.int64))
+    held = np.floor((np.arange(k) + 0.5) * n / k).astype(np.int64)  # k distinct frames, n / k apart
     rest = np.setdiff1d(np.arange(n), held)
     for gap in range(HELDOUT_GAP, -1, -1):
         near = np.abs(rest[:, None] - held[None]).min(1) <= gap
