@@ -52,7 +52,7 @@ def fit_error(truth, proposals, confidences, names, settings, jobs) -> tuple[flo
     """(fit, fit + polish) mean 3D error (mm) of fitting the proposals with the defaults."""
     r = hybridfit.fit(proposals, confidences, joint_names=names, model_config=settings, jobs=jobs)
     model = hybridfit.create("model", "hand26", settings)
-    polished = model.points(refine(model, r.params, proposals, confidences, names), names)
+    polished = refine(model, r.params, proposals, confidences, names).points(model, names)
     err = lambda joints: float(np.nanmean(np.linalg.norm(joints - truth, axis=-1)))  # noqa: E731
     return err(r.joints), err(polished)
 

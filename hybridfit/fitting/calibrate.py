@@ -179,7 +179,7 @@ def _fit_error(truth, names, model, budget, seed, jobs, progress, given=None):
     proposals, confidences = given[:, :, None, :], np.ones(given.shape[:2] + (1,))
     r = fit(proposals, confidences, model=model, joint_names=names, budget=budget, seed=seed, jobs=jobs,
             progress=progress)
-    params = refine(model, r.params, proposals, confidences, names)
+    params = refine(model, r.params, proposals, confidences, names).params
     err = np.linalg.norm(model.points(params, names) - truth, axis=-1)
     return float(np.nanmean(err)), params, err
 

@@ -64,50 +64,104 @@ def _rho(r2: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray]:
     raise ValueError(f"unknown loss {loss!r} (linear, soft_l1, cauchy)")
 
 
+@dataclasses.dataclass(frozen=True)
+class Polished:
+    """params (F, P) poses; bone_factors (F, J) each bone's length (joint to parent) as a
+    factor of the model's (1 for the root, and everywhere without bone freedom)."""
+
+    params: np.ndarray
+    bone_factors: np.ndarray
+
+    def joints(self, model) -> np.ndarray:
+        """(F, J, 3) mm: the model's joints with the bones stretched by ``bone_factors``."""
+        return stretch_bones(model.forward(self.params), np.asarray(model.parents), self.bone_factors)
+
+    def points(self, model, names: Sequence[str]) -> np.ndarray:
+        """(F, Q, 3) mm: the named points of :meth:`joints`."""
+        return np.einsum("qj,fjc->fqc", model.point_matrix(list(names)), self.joints(model))
+
+
+def stretch_bones(joints: np.ndarray, parents: np.ndarray, factors: np.ndarray) -> np.ndarray:
+    """joints (F, J, 3) mm with every bone (joint - parent) scaled by factors (F, J); the
+    children move with their parents, the root stays; the joint angles are unchanged."""
+    out = joints.copy()
+    for j, p in enumerate(parents):  # parents precede children
+        if p >= 0:
+            out[:, j] = out[:, p] + (joints[:, j] - joints[:, p]) * factors[:, j, None]
+    return out
+
+
 def polish(model, params: np.ndarray, proposals: np.ndarray, weight: np.ndarray, names: Sequence[str], *,
-           loss: str = LOSS, scale_mm: float = SCALE_MM, iterations: int = 20, step: float = 1e-6) -> np.ndarray:
-    """params (F, P) start poses -> (F, P) polished poses of ``model``: a projected
+           loss: str = LOSS, scale_mm: float = SCALE_MM, iterations: int = 20, step: float = 1e-6,
+           bone_tolerance: float = 0.0, bone_weight: float = 1.0) -> Polished:
+    """params (F, P) start poses -> the polished poses of ``model``: a projected
     Levenberg-Marquardt of sum_qk weight_qk (F, Q, K) * rho(|point_q - proposal_qk (F, Q, K,
     3)|^2 / scale_mm^2) within the model's bounds (iteratively reweighted for the robust loss;
-    forward-difference Jacobians, all frames batched). A frame's step is taken only when it
-    lowers that frame's loss, so no frame gets worse than its start."""
+    forward-difference Jacobians, all frames batched). With ``bone_tolerance`` > 0 every
+    frame's bones may also stretch by a factor within 1 +- bone_tolerance, at a cost of
+    ``bone_weight`` * (change in mm)^2 / scale_mm^2 per bone (a prior towards the model's
+    lengths). A frame's step is taken only when it lowers that frame's loss, so no frame
+    gets worse than its start."""
     params = np.asarray(params, dtype=np.float64)
+    parents = np.asarray(model.parents)
+    n_joints = len(parents)
+    factors_out = np.ones((len(params), n_joints))
     out = params.copy()
     weight = np.where(np.isfinite(proposals).all(-1), weight, 0.0)
     ok = np.isfinite(params).all(1) & (weight > 0).any((1, 2))
     if not ok.any():
-        return out
-    x = params[ok].copy()
+        return Polished(out, factors_out)
     tgt, w = np.nan_to_num(np.asarray(proposals, float)[ok]), np.asarray(weight, float)[ok]
-    F, P = x.shape
+    F, P = int(ok.sum()), params.shape[1]
+    bones = np.flatnonzero(parents >= 0) if bone_tolerance > 0 else np.zeros(0, np.int64)
+    rest = model.forward(model.default_params()[None])[0]
+    length = np.linalg.norm(rest[bones] - rest[parents[bones]], axis=-1)  # (B,) mm
+    x = np.concatenate([params[ok], np.zeros((F, len(bones)))], axis=1)  # poses, then relative bone changes
+    D = x.shape[1]
     lower, upper = model.bounds()
+    lower = np.concatenate([lower, np.full(len(bones), -bone_tolerance)])
+    upper = np.concatenate([upper, np.full(len(bones), bone_tolerance)])
+    M = model.point_matrix(list(names))
+    prior = bone_weight * length**2  # (B,) d(cost * scale^2) / d(delta^2)
     lam = np.full(F, 1e-2)
 
-    def cost(p, rows):
-        d2 = ((model.points(p, names)[:, :, None] - tgt[rows]) ** 2).sum(-1) / scale_mm**2
+    def points(z):
+        joints = model.forward(z[:, :P])
+        if len(bones):
+            factors = np.ones((len(z), n_joints))
+            factors[:, bones] = 1.0 + z[:, P:]
+            joints = stretch_bones(joints, parents, factors)
+        return np.einsum("qj,fjc->fqc", M, joints)
+
+    def cost(z, rows):
+        d2 = ((points(z)[:, :, None] - tgt[rows]) ** 2).sum(-1) / scale_mm**2
         rho, drho = _rho(d2, loss)
-        return (w[rows] * rho).sum((1, 2)), w[rows] * drho  # (F,), (F, Q, K)
+        bone = (prior * z[:, P:] ** 2).sum(1) / scale_mm**2
+        return (w[rows] * rho).sum((1, 2)) + bone, w[rows] * drho  # (F,), (F, Q, K)
 
     current, irls = cost(x, slice(None))
     h = step * np.maximum(1.0, np.abs(x))
     for _ in range(iterations):
-        base = model.points(x, names)  # (F, Q, 3)
-        J = np.empty((F, base.shape[1] * 3, P))
-        for i in range(P):
+        base = points(x)  # (F, Q, 3)
+        J = np.empty((F, base.shape[1] * 3, D))
+        for i in range(D):
             xi = x.copy()
             xi[:, i] += h[:, i]
-            J[:, :, i] = (model.points(xi, names) - base).reshape(F, -1) / h[:, i, None]
+            J[:, :, i] = (points(xi) - base).reshape(F, -1) / h[:, i, None]
         W = np.repeat(irls.sum(2), 3, axis=1)  # (F, 3Q): a point's weights over its proposals
         r = np.einsum("fqk,fqkc->fqc", irls, base[:, :, None] - tgt).reshape(F, -1)  # weighted residual sums
         JtW = J.transpose(0, 2, 1) * W[:, None, :]
         A = JtW @ J
         g = (J.transpose(0, 2, 1) @ r[:, :, None])[:, :, 0]
+        if len(bones):
+            A[:, np.arange(P, D), np.arange(P, D)] += prior
+            g[:, P:] += prior * x[:, P:]
         diag = np.maximum(np.einsum("fii->fi", A), 1e-9)
         improved = np.zeros(F, bool)
         for _ in range(4):  # raise the damping of the frames whose step did not lower their loss
             todo = ~improved
-            M = A[todo] + (lam[todo, None] * diag[todo])[:, :, None] * np.eye(P)
-            delta = -np.linalg.solve(M, g[todo][:, :, None])[:, :, 0]
+            Mk = A[todo] + (lam[todo, None] * diag[todo])[:, :, None] * np.eye(D)
+            delta = -np.linalg.solve(Mk, g[todo][:, :, None])[:, :, 0]
             trial = np.clip(x[todo] + delta, lower, upper)
             trial[:, 3:7] /= np.linalg.norm(trial[:, 3:7], axis=1, keepdims=True)
             c, wt = cost(trial, todo)
@@ -121,15 +175,18 @@ def polish(model, params: np.ndarray, proposals: np.ndarray, weight: np.ndarray,
                 break
         if not improved.any():
             break
-    out[np.flatnonzero(ok)] = x
-    return out
+    rows = np.flatnonzero(ok)
+    out[rows] = x[:, :P]
+    factors_out[np.ix_(rows, bones)] = 1.0 + x[:, P:]
+    return Polished(out, factors_out)
 
 
 def refine(model, params: np.ndarray, proposals: np.ndarray, confidences: np.ndarray, names: Sequence[str], *,
-           reach_mm: float = REACH_MM, loss: str = LOSS, scale_mm: float = SCALE_MM,
-           iterations: int = 20) -> np.ndarray:
-    """params (F, P) fitted poses of ``model`` -> (F, P) polished (see the module doc):
-    proposals (F, Q, K, 3) mm and confidences (F, Q, K) of the Q points ``names``."""
+           reach_mm: float = REACH_MM, loss: str = LOSS, scale_mm: float = SCALE_MM, iterations: int = 20,
+           bone_tolerance: float = 0.0, bone_weight: float = 1.0) -> Polished:
+    """params (F, P) fitted poses of ``model`` -> polished (see the module doc and
+    :func:`polish`): proposals (F, Q, K, 3) mm and confidences (F, Q, K) of the Q points
+    ``names``."""
     params = np.asarray(params, dtype=np.float64)
     proposals = np.asarray(proposals, dtype=np.float64)
     start = np.full(proposals.shape[:2] + (3,), np.nan)
@@ -137,7 +194,8 @@ def refine(model, params: np.ndarray, proposals: np.ndarray, confidences: np.nda
     if ok.any():
         start[ok] = model.points(params[ok], names)
     weight = proposal_weights(proposals, confidences, start, reach_mm)
-    return polish(model, params, proposals, weight, names, loss=loss, scale_mm=scale_mm, iterations=iterations)
+    return polish(model, params, proposals, weight, names, loss=loss, scale_mm=scale_mm, iterations=iterations,
+                  bone_tolerance=bone_tolerance, bone_weight=bone_weight)
 
 
 def fit_and_refine(proposals: np.ndarray, confidences: np.ndarray, **fit_options: Any) -> FitResult:
@@ -156,7 +214,7 @@ def fit_and_refine(proposals: np.ndarray, confidences: np.ndarray, **fit_options
     if not len(done):
         return result
     polished = refine(model, result.params[done], np.asarray(proposals, float)[done],
-                      np.asarray(confidences, float)[done], names)
+                      np.asarray(confidences, float)[done], names).params
     radius = float(fit_options.get("search_radius_mm", 60.0))
     out = dataclasses.replace(result, params=result.params.copy(), joints=result.joints.copy(),
                               model_joints=result.model_joints.copy(), objective=result.objective.copy())

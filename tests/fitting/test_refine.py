@@ -31,7 +31,7 @@ def test_the_polish_reaches_a_pose_the_model_can_represent(model):
     names = model.joint_names
     target = model.forward(truth)[:, :, None]
     before = np.linalg.norm(model.forward(start) - target[:, :, 0], axis=-1).mean()
-    polished = refine(model, start, target, np.ones(target.shape[:3]), names, iterations=40)
+    polished = refine(model, start, target, np.ones(target.shape[:3]), names, iterations=40).params
     after = np.linalg.norm(model.forward(polished) - target[:, :, 0], axis=-1).mean()
     assert before > 5.0 and after < 0.1 * before
 
@@ -40,7 +40,7 @@ def test_joint_limits_hold_and_no_frame_gets_worse(model):
     names = model.joint_names
     start = _poses(model, 6, seed=1)
     target = model.forward(start)[:, :, None] + np.random.default_rng(2).normal(0, 15.0, (6, 21, 1, 3))
-    polished = refine(model, start, target, np.ones(target.shape[:3]), names)
+    polished = refine(model, start, target, np.ones(target.shape[:3]), names).params
     lower, upper = model.bounds()
     assert (polished[:, 7:] >= lower[7:] - 1e-12).all() and (polished[:, 7:] <= upper[7:] + 1e-12).all()
     np.testing.assert_allclose(np.linalg.norm(polished[:, 3:7], axis=1), 1.0)
@@ -61,7 +61,7 @@ def test_a_far_mode_does_not_pull_and_failed_frames_stay_nan(model):
     w = proposal_weights(proposals, conf, near)
     assert (w[..., 0] == 0.5).all() and (w[..., 1] == 0).all()
     start[1] = np.nan
-    polished = refine(model, start, proposals, conf, names)
+    polished = refine(model, start, proposals, conf, names).params
     assert np.isnan(polished[1]).all()
     np.testing.assert_allclose(model.forward(polished[[0, 2]]), near[[0, 2]], atol=1e-3)
 
@@ -72,7 +72,7 @@ def test_fit_and_refine_is_fit_then_the_polish(model):
     conf = np.ones(proposals.shape[:3])
     plain = hybridfit.fit(proposals, conf, budget=600)
     polished = fit_and_refine(proposals, conf, budget=600)
-    np.testing.assert_allclose(polished.params, refine(model, plain.params, proposals, conf, model.joint_names))
+    np.testing.assert_allclose(polished.params, refine(model, plain.params, proposals, conf, model.joint_names).params)
     np.testing.assert_allclose(polished.joints, model.forward(polished.params))
     err = lambda r: np.linalg.norm(r.joints - truth, axis=-1).mean()  # noqa: E731
     assert err(polished) < err(plain)
