@@ -7,10 +7,12 @@ Per dataset (real: ICVL's test annotations, NYU actor 2's, from ../shared/data; 
 ``stress_proposals`` subject per skeleton, seed 3), ``hybridfit.fitting.calibrate`` with its
 defaults calibrates the model on the annotations of the frames ``--pool`` (80 frames spanning
 the pose range, 20 % held out, spread over the pool). On ``--frames`` frames outside the pool,
-spread evenly over the rest of the sequence, it then measures (mean 3D error, mm):
+spread evenly over the rest of the sequence (a pool of the whole sequence: over calibration's
+held-out frames), it then measures (mean 3D error, mm):
 
 - the floor: the annotations themselves fitted (``hybridfit.fit`` with the defaults, then
-  the least-squares polish ``fitting.refine.refine``; the fit alone in brackets);
+  the least-squares polish with its default per-frame bone freedom, as
+  ``fitting.refine.fit_and_refine`` and ``hybridfit fit`` do; the fit alone in brackets);
 - refining a strong predictor: three predictors at 4, 5 and 6 mm with errors correlated as
   real ones are (``synthetic.predictors``, seed 0); the best alone fitted (k = 1), and the
   three fused (k = 3, equal confidences) beside the best input and their per-point median.
@@ -30,7 +32,7 @@ import hybridfit
 from hybridfit.datasets.results import read_xyz
 from hybridfit.datasets.skeletons import dataset_model_config, skeleton
 from hybridfit.fitting.calibrate import calibrate
-from hybridfit.fitting.refine import refine
+from hybridfit.fitting.refine import BONE_TOLERANCE, BONE_WEIGHT, refine
 from hybridfit.synthetic.predictors import predictor_errors
 
 from _util import table
@@ -52,7 +54,8 @@ def fit_error(truth, proposals, confidences, names, settings, jobs) -> tuple[flo
     """(fit, fit + polish) mean 3D error (mm) of fitting the proposals with the defaults."""
     r = hybridfit.fit(proposals, confidences, joint_names=names, model_config=settings, jobs=jobs)
     model = hybridfit.create("model", "hand26", settings)
-    polished = refine(model, r.params, proposals, confidences, names).points(model, names)
+    polished = refine(model, r.params, proposals, confidences, names, bone_tolerance=BONE_TOLERANCE,
+                      bone_weight=BONE_WEIGHT).points(model, names)
     err = lambda joints: float(np.nanmean(np.linalg.norm(joints - truth, axis=-1)))  # noqa: E731
     return err(r.joints), err(polished)
 
@@ -66,6 +69,8 @@ def evaluate(kind: str, dataset: str, pool: slice, frames: int, jobs: int) -> li
     t = time.perf_counter()
     cal = calibrate(truth[inside], names, model_config=dataset_model_config("hand26", {}, dataset), jobs=jobs)
     t = time.perf_counter() - t
+    if not len(outside):  # the pool is the whole sequence: calibration's held-out frames
+        outside = inside[cal.heldout_frames]
     test = outside[np.unique(np.linspace(0, len(outside) - 1, frames).round().astype(int))]
     gt = truth[test]
     ones = np.ones(gt.shape[:2] + (1,))

@@ -35,6 +35,22 @@ from .frames import FitResult, fit
 LOSS = "soft_l1"
 SCALE_MM = 10.0
 REACH_MM = 40.0
+#: default per-frame bone freedom of fit_and_refine: relative tolerance and prior weight
+#: (chosen on ICVL frames 0-99 and NYU actor 2 with stress predictors: benchmarks/bench_floor.py)
+BONE_TOLERANCE = 0.15
+BONE_WEIGHT = 0.3
+
+
+@dataclasses.dataclass
+class RefinedFitResult(FitResult):
+    """A FitResult after the polish: ``bone_factors`` (F, J) each frame's bone lengths as
+    factors of the model's (within 1 +- the bone tolerance); ``model_joints`` are the
+    model's joints with those bones, ``joints`` their named points."""
+
+    bone_factors: np.ndarray | None = None
+
+    def to_npz(self) -> dict[str, np.ndarray]:
+        return {**super().to_npz(), "bone_factors": self.bone_factors}
 
 
 def proposal_weights(proposals: np.ndarray, confidences: np.ndarray, points: np.ndarray,
@@ -198,11 +214,13 @@ def refine(model, params: np.ndarray, proposals: np.ndarray, confidences: np.nda
                   bone_tolerance=bone_tolerance, bone_weight=bone_weight)
 
 
-def fit_and_refine(proposals: np.ndarray, confidences: np.ndarray, **fit_options: Any) -> FitResult:
-    """:func:`hybridfit.fit` followed by :func:`refine` of every fitted frame: the same
-    arguments and result, with params, joints and model_joints polished and objective the
-    fit objective's loss at the polished pose. With depth observations the fit's result is
-    returned as it is (the polish cannot see the depth)."""
+def fit_and_refine(proposals: np.ndarray, confidences: np.ndarray, *, bone_tolerance: float = BONE_TOLERANCE,
+                   bone_weight: float = BONE_WEIGHT, **fit_options: Any) -> FitResult:
+    """:func:`hybridfit.fit` followed by :func:`refine` of every fitted frame, with per-frame
+    bone freedom (``bone_tolerance``, ``bone_weight``; 0 tolerance: the model's bones): the
+    same arguments, a :class:`RefinedFitResult` with params, joints and model_joints
+    polished and objective the fit objective's loss at the polished points. With depth
+    observations the fit's result is returned as it is (the polish cannot see the depth)."""
     result = fit(proposals, confidences, **fit_options)
     if fit_options.get("observations") is not None:
         return result
@@ -211,16 +229,23 @@ def fit_and_refine(proposals: np.ndarray, confidences: np.ndarray, **fit_options
                                 fit_options.get("objective_config"))
     names = result.joint_names
     done = np.flatnonzero(~result.failed)
+    factors = np.ones((len(result.params), model.n_joints))
+    factors[result.failed] = np.nan
+    out = RefinedFitResult(**{f.name: getattr(result, f.name) for f in dataclasses.fields(FitResult)},
+                           bone_factors=factors)
     if not len(done):
-        return result
+        return out
     polished = refine(model, result.params[done], np.asarray(proposals, float)[done],
-                      np.asarray(confidences, float)[done], names).params
+                      np.asarray(confidences, float)[done], names, bone_tolerance=bone_tolerance,
+                      bone_weight=bone_weight)
+    out.params, out.joints, out.model_joints, out.objective = (result.params.copy(), result.joints.copy(),
+                                                                result.model_joints.copy(), result.objective.copy())
+    out.params[done], out.bone_factors[done] = polished.params, polished.bone_factors
+    out.model_joints[done] = polished.joints(model)
+    out.joints[done] = polished.points(model, names)
     radius = float(fit_options.get("search_radius_mm", 60.0))
-    out = dataclasses.replace(result, params=result.params.copy(), joints=result.joints.copy(),
-                              model_joints=result.model_joints.copy(), objective=result.objective.copy())
-    for i, f in enumerate(done):
+    matrix = model.point_matrix(list(names))
+    for i, f in enumerate(done):  # the fit objective at the polished points (through the problem's loss)
         problem = Problem(model, objective, proposals[f], confidences[f], names, radius)
-        out.params[f], out.objective[f] = polished[i], float(problem.evaluate(polished[i][None])[0])
-    out.joints[done] = model.points(out.params[done], names)
-    out.model_joints[done] = model.forward(out.params[done])
+        out.objective[f] = float(problem.loss(out.joints[f][None], np.arange(len(names)))[0])
     return out

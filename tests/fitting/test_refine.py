@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 import hybridfit
-from hybridfit.fitting.refine import fit_and_refine, proposal_weights, refine
+from hybridfit.fitting.refine import fit_and_refine, proposal_weights, refine, stretch_bones
 
 NAMES = None
 
@@ -71,9 +71,31 @@ def test_fit_and_refine_is_fit_then_the_polish(model):
     proposals = truth[:, :, None] + np.random.default_rng(6).normal(0, 3.0, truth.shape)[:, :, None]
     conf = np.ones(proposals.shape[:3])
     plain = hybridfit.fit(proposals, conf, budget=600)
-    polished = fit_and_refine(proposals, conf, budget=600)
-    np.testing.assert_allclose(polished.params, refine(model, plain.params, proposals, conf, model.joint_names).params)
-    np.testing.assert_allclose(polished.joints, model.forward(polished.params))
+    rigid = fit_and_refine(proposals, conf, budget=600, bone_tolerance=0.0)
+    np.testing.assert_allclose(rigid.params, refine(model, plain.params, proposals, conf, model.joint_names).params)
+    np.testing.assert_allclose(rigid.joints, model.forward(rigid.params))
+    assert (rigid.bone_factors == 1).all()
     err = lambda r: np.linalg.norm(r.joints - truth, axis=-1).mean()  # noqa: E731
-    assert err(polished) < err(plain)
-    assert (polished.objective < 0).all() and not np.allclose(polished.objective, plain.objective)
+    assert err(rigid) < err(plain)
+    assert (rigid.objective < 0).all() and not np.allclose(rigid.objective, plain.objective)
+    free = fit_and_refine(proposals, conf, budget=600)  # the default: bones free within 15 %
+    assert np.abs(free.bone_factors - 1).max() <= 0.15 + 1e-12 and np.abs(free.bone_factors - 1).max() > 0
+    lower, upper = model.bounds()
+    assert (free.params[:, 7:] >= lower[7:]).all() and (free.params[:, 7:] <= upper[7:]).all()
+    np.testing.assert_allclose(free.model_joints, stretch_bones(model.forward(free.params), model.parents,
+                                                                free.bone_factors))
+    assert "bone_factors" in free.to_npz()
+
+
+def test_bone_freedom_follows_a_hand_with_other_proportions(model):
+    """A hand 8 % longer in every bone: the rigid polish cannot follow it, bone freedom can."""
+    start = _poses(model, 4, seed=7)
+    factors = np.full((4, model.n_joints), 1.08)
+    target = stretch_bones(model.forward(start), model.parents, factors)[:, :, None]
+    names = model.joint_names
+    conf = np.ones(target.shape[:3])
+    rigid = refine(model, start, target, conf, names).points(model, names)
+    free = refine(model, start, target, conf, names, bone_tolerance=0.1, bone_weight=0.01, iterations=40)
+    err = lambda p: np.linalg.norm(p - target[:, :, 0], axis=-1).mean()  # noqa: E731
+    assert err(free.points(model, names)) < 0.2 * err(rigid)
+    np.testing.assert_allclose(free.bone_factors[:, 1:], 1.08, atol=0.01)
