@@ -99,3 +99,17 @@ def test_bone_freedom_follows_a_hand_with_other_proportions(model):
     err = lambda p: np.linalg.norm(p - target[:, :, 0], axis=-1).mean()  # noqa: E731
     assert err(free.points(model, names)) < 0.2 * err(rigid)
     np.testing.assert_allclose(free.bone_factors[:, 1:], 1.08, atol=0.01)
+
+
+@pytest.mark.parametrize("dataset", ["icvl", "nyu"])
+def test_the_polish_is_never_worse_than_the_fit_or_top1_on_stress_data(dataset):
+    from hybridfit.datasets.skeletons import dataset_model_config
+
+    z = hybridfit.stress_proposals(30, dataset=dataset, seed=101, scale_range=(1, 1), proportion_sd=0.0,
+                                   weight_sd=0.0, offset_mm=2.0)
+    names, truth = list(z["joint_names"]), z["ground_truth"]
+    options = dict(joint_names=names, budget=3400, seed=0, model_config=dataset_model_config("hand26", {}, dataset))
+    err = lambda j: np.nanmean(np.linalg.norm(j - truth, axis=-1))  # noqa: E731
+    fitted = err(hybridfit.fit(z["proposals"], z["confidences"], **options).joints)
+    polished = err(fit_and_refine(z["proposals"], z["confidences"], **options).joints)
+    assert polished <= fitted and polished <= err(z["proposals"][:, :, 0]), (polished, fitted)
