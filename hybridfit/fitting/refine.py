@@ -11,8 +11,13 @@ projected Levenberg-Marquardt on a robust least-squares loss:
   ``scale_mm``: quadratic below it, growing slowly or not at all above), so an outlier
   the search rightly ignored cannot drag the hand;
 - the joint angles stay within the model's limits (steps are clipped to the bounds) and
-  the quaternion is renormalised, so the result is as valid as the start; the bone
-  lengths are the model's.
+  the quaternion is renormalised, so the result is as valid as the start;
+- the bone lengths are the model's (the subject's, after calibration), or, with
+  ``bone_tolerance`` > 0, each frame's bones may stretch within 1 +- ``bone_tolerance``
+  of them at a quadratic cost (``bone_weight``): annotations and predictions are not one
+  rigid skeleton (ICVL's bones vary by 2-4 mm within a sequence), and a model that cannot
+  follow that keeps every fit millimetres away. :func:`fit_and_refine`, what ``hybridfit
+  fit`` runs, uses ``BONE_TOLERANCE`` and ``BONE_WEIGHT``.
 
 A frame's step is taken only when it lowers that frame's loss, so no frame ends worse
 than it started on that loss; frames that are NaN (failed fits) stay NaN. All frames are
