@@ -28,6 +28,7 @@ about as much as a few.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from typing import Any, Sequence
 
 import numpy as np
@@ -229,8 +230,9 @@ def fit_and_refine(proposals: np.ndarray, confidences: np.ndarray, *, bone_toler
     result = fit(proposals, confidences, **fit_options)
     if fit_options.get("observations") is not None:
         return result
-    model = registry.create("model", fit_options.get("model", "hand26"), fit_options.get("model_config"))
-    objective = registry.create("objective", fit_options.get("objective", "clamped-confidence"),
+    defaults = {k: v.default for k, v in inspect.signature(fit).parameters.items()}  # fit's own defaults
+    model = registry.create("model", fit_options.get("model", defaults["model"]), fit_options.get("model_config"))
+    objective = registry.create("objective", fit_options.get("objective", defaults["objective"]),
                                 fit_options.get("objective_config"))
     names = result.joint_names
     done = np.flatnonzero(~result.failed)
@@ -248,8 +250,7 @@ def fit_and_refine(proposals: np.ndarray, confidences: np.ndarray, *, bone_toler
     out.params[done], out.bone_factors[done] = polished.params, polished.bone_factors
     out.model_joints[done] = polished.joints(model)
     out.joints[done] = polished.points(model, names)
-    radius = float(fit_options.get("search_radius_mm", 60.0))
-    matrix = model.point_matrix(list(names))
+    radius = float(fit_options.get("search_radius_mm", defaults["search_radius_mm"]))
     for i, f in enumerate(done):  # the fit objective at the polished points (through the problem's loss)
         problem = Problem(model, objective, proposals[f], confidences[f], names, radius)
         out.objective[f] = float(problem.loss(out.joints[f][None], np.arange(len(names)))[0])
