@@ -9,6 +9,7 @@ optimisers (entry-point groups ``hybridfit.models``, ``hybridfit.objectives``,
 from .errors import HybridfitError
 from .fitting.estimator import HybridEstimator
 from .fitting.frames import FitResult, fit
+from .fitting.refine import fit_and_refine
 from .model.base import HandModel, Stage
 from .objective import Objective
 from .optimizer import OptimizeResult, Optimizer, Task
@@ -22,7 +23,7 @@ __version__ = "0.3.0"
 
 __all__ = [
     "FitResult", "HandModel", "HybridEstimator", "HybridfitError", "Objective", "OptimizeResult", "Optimizer",
-    "Plugin", "Problem", "Settings", "Stage", "Task", "available", "create", "fit", "stress_proposals",
+    "Plugin", "Problem", "Settings", "Stage", "Task", "available", "create", "fit", "fit_and_refine", "stress_proposals",
     "synthetic_proposals",
     "__version__",
 ]
