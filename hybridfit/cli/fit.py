@@ -13,7 +13,7 @@ from ..io import check_output, load_proposals, save_npz
 from ..datasets.folder import load_dataset
 from ..metrics import summary
 from ..objective import dataset_observations
-from ..fitting.refine import fit_and_refine
+from ..fitting.refine import refine_fit
 from ..fitting.tracking import track
 from ._common import add_fit_options, add_plugin_options, plugin_kwargs
 
@@ -67,14 +67,15 @@ def run(args) -> int:
         extra["lost"] = result.lost
     else:
         try:
-            result = (fit_frames if args.no_polish else fit_and_refine)(data["proposals"], data["confidences"],
-                                                                          jobs=args.jobs, **common)
+            result = fit_frames(data["proposals"], data["confidences"], jobs=args.jobs, **common)
         except PluginError as err:  # a bug, not the user's: keep the finished frames, then let it propagate
             if err.result is not None and (~err.result.failed).any():
                 save_npz(args.out, **err.result.to_npz(), **extra)
                 print(f"{int((~err.result.failed).sum())} frames fitted before the plugin error saved to {args.out}",
                       file=sys.stderr)
             raise
+        if not args.no_polish:
+            result = refine_fit(result, data["proposals"], data["confidences"], **common)
     save_npz(args.out, **result.to_npz(), **extra)
     F, done = len(result.failed), ~result.failed
     print(f"fitted {int(done.sum())}/{F} frames -> {args.out}")

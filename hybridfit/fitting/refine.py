@@ -222,12 +222,22 @@ def refine(model, params: np.ndarray, proposals: np.ndarray, confidences: np.nda
 
 def fit_and_refine(proposals: np.ndarray, confidences: np.ndarray, *, bone_tolerance: float = BONE_TOLERANCE,
                    bone_weight: float = BONE_WEIGHT, **fit_options: Any) -> FitResult:
-    """:func:`hybridfit.fit` followed by :func:`refine` of every fitted frame, with per-frame
-    bone freedom (``bone_tolerance``, ``bone_weight``; 0 tolerance: the model's bones): the
-    same arguments, a :class:`RefinedFitResult` with params, joints and model_joints
-    polished and objective the fit objective's loss at the polished points. With depth
-    observations the fit's result is returned as it is (the polish cannot see the depth)."""
+    """:func:`hybridfit.fit` followed by :func:`refine_fit`: the same arguments (and the
+    bone freedom's), a :class:`RefinedFitResult`."""
     result = fit(proposals, confidences, **fit_options)
+    return refine_fit(result, proposals, confidences, bone_tolerance=bone_tolerance, bone_weight=bone_weight,
+                      **fit_options)
+
+
+def refine_fit(result: FitResult, proposals: np.ndarray, confidences: np.ndarray, *,
+               bone_tolerance: float = BONE_TOLERANCE, bone_weight: float = BONE_WEIGHT,
+               **fit_options: Any) -> FitResult:
+    """A :func:`hybridfit.fit` result of these proposals and ``fit_options`` (the plugins,
+    ``joint_names``, ``search_radius_mm``; the others are ignored) with every fitted frame
+    polished by :func:`refine`, with per-frame bone freedom (``bone_tolerance``,
+    ``bone_weight``; 0 tolerance: the model's bones): a :class:`RefinedFitResult` whose
+    objective is the fit objective's loss at the polished points. With depth observations
+    the result is returned as it is (the polish cannot see the depth)."""
     if fit_options.get("observations") is not None:
         return result
     defaults = {k: v.default for k, v in inspect.signature(fit).parameters.items()}  # fit's own defaults
@@ -242,16 +252,16 @@ def fit_and_refine(proposals: np.ndarray, confidences: np.ndarray, *, bone_toler
                            bone_factors=factors)
     if not len(done):
         return out
-    polished = refine(model, result.params[done], np.asarray(proposals, float)[done],
-                      np.asarray(confidences, float)[done], names, bone_tolerance=bone_tolerance,
-                      bone_weight=bone_weight)
+    proposals, confidences = np.asarray(proposals, float), np.asarray(confidences, float)
+    polished = refine(model, result.params[done], proposals[done], confidences[done], names,
+                      bone_tolerance=bone_tolerance, bone_weight=bone_weight)
     out.params, out.joints, out.model_joints, out.objective = (result.params.copy(), result.joints.copy(),
                                                                 result.model_joints.copy(), result.objective.copy())
     out.params[done], out.bone_factors[done] = polished.params, polished.bone_factors
     out.model_joints[done] = polished.joints(model)
     out.joints[done] = polished.points(model, names)
     radius = float(fit_options.get("search_radius_mm", defaults["search_radius_mm"]))
-    for i, f in enumerate(done):  # the fit objective at the polished points (through the problem's loss)
+    for f in done:  # the fit objective at the polished points (through the problem's loss)
         problem = Problem(model, objective, proposals[f], confidences[f], names, radius)
-        out.objective[f] = float(problem.loss(out.joints[f][None], np.arange(len(names)))[0])
+        out.objective[f] = float(problem.loss(out.joints[f][None], problem.all_points)[0])
     return out
