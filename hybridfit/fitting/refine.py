@@ -100,7 +100,7 @@ class Polished:
 
     def points(self, model, names: Sequence[str]) -> np.ndarray:
         """(F, Q, 3) mm: the named points of :meth:`joints`."""
-        return np.einsum("qj,fjc->fqc", model.point_matrix(list(names)), self.joints(model))
+        return np.matmul(model.point_matrix(list(names)), self.joints(model))
 
 
 def stretch_bones(joints: np.ndarray, parents: np.ndarray, factors: np.ndarray) -> np.ndarray:
@@ -153,7 +153,7 @@ def polish(model, params: np.ndarray, proposals: np.ndarray, weight: np.ndarray,
             factors = np.ones((len(z), n_joints))
             factors[:, bones] = 1.0 + z[:, P:]
             joints = stretch_bones(joints, parents, factors)
-        return np.einsum("qj,fjc->fqc", M, joints)
+        return np.matmul(M, joints)  # (Q, J) @ (F, J, 3) -> (F, Q, 3)
 
     def cost(z, rows):
         d2 = ((points(z)[:, :, None] - tgt[rows]) ** 2).sum(-1) / scale_mm**2
