@@ -20,9 +20,10 @@ def register(sub) -> None:
     p.add_argument("--dataset", required=True, help="skeleton of the ground truth: icvl, nyu, nyu36, "
                    "msra, mediapipe, mano or a skeleton .toml file")
     p.add_argument("--ground-truth", required=True, metavar="LABELS", help="ground truth in the common results format")
-    p.add_argument("--frames", metavar="START:STOP", help="frames to use (default: all); the last --holdout of them are held out")
+    p.add_argument("--frames", metavar="START:STOP", help="frames to use (default: all): up to 80 of them spanning "
+                   "the pose range calibrate, --holdout of them, spread over them, are held out")
     p.add_argument("--holdout", type=fraction, default=0.2, metavar="FRACTION",
-                   help="share of the frames, the last ones, held out to measure the fit error of the calibrated "
+                   help="share of the frames, spread over them, held out to measure the fit error of the calibrated "
                         "model on frames it was not calibrated on (default 0.2; 0: none)")
     p.add_argument("--out", required=True, metavar="MODEL.toml", help="model config to write")
     p.add_argument("--model", default="hand26", help="hand model plugin (default: hand26)")
@@ -51,10 +52,11 @@ def run(args) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     cal, held = frames[result.calibration_frames], frames[result.heldout_frames]
-    where = f"frames {cal[0]}-{cal[-1]}" + (f", held out {held[0]}-{held[-1]}" if len(held) else "")
+    where = (f"{len(cal)} frames spanning the pose range of frames {frames[0]}-{frames[-1]}"
+             + (f", {len(held)} held out spread over them" if len(held) else ""))
     heldout = f"{result.error_heldout:.2f} mm held out ({len(held)} frames)" if len(held) else "no frames held out"
-    header = (f"# {args.model} calibrated by `hybridfit calibrate --dataset {sk.dataset}` on {len(cal)} frames of "
-              f"{args.ground_truth} ({where})\n"
+    header = (f"# {args.model} calibrated by `hybridfit calibrate --dataset {sk.dataset}` on {where} of "
+              f"{args.ground_truth}\n"
               f"# fit error {result.error_before:.2f} mm before, {result.error_after:.2f} mm after (in-sample), "
               f"{heldout}\n")
     with atomic_path(out) as tmp:  # an existing model file is replaced only by a complete one
@@ -62,6 +64,10 @@ def run(args) -> int:
     hand = _hand(result.settings, args.model)
     print(f"calibrated on {len(cal)} frames{hand}: mean fit error {result.error_before:.2f} mm before, "
           f"{result.error_after:.2f} mm after (in-sample); {heldout} -> {out}")
+    if len(held):
+        print(f"floor {result.error_heldout:.2f} mm (the held-out annotations fitted); a "
+              f"{result.predictor_heldout:.2f} mm predictor fitted: {result.refined_heldout:.2f} mm "
+              f"({result.refined_heldout - result.predictor_heldout:+.2f} mm)")
     print("per point after (mm): " + ", ".join(
         f"{n} {e:.1f}" for n, e in zip(sk.names, np.asarray(result.per_point_after))))
     if len(held):

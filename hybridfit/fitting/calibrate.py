@@ -4,8 +4,12 @@ Works for any model that declares its calibratable geometry (``HandModel.geometr
 ``with_geometry()``); handedness goes through ``mirror_setting``, dataset points through
 the model's joints and derived points. From ground-truth points (F, Q, 3) mm:
 
-1. **Hold out** the last ``holdout`` share of the frames (default 20 %, rounded down, at
-   least one frame when two or more are given); they only measure the held-out error.
+1. **Hold out** a ``holdout`` share of the frames (default 20 %, rounded down, at least
+   one frame when two or more are given), spread evenly over the sequence; they only
+   measure the held-out error. **Calibrate on frames that span the pose range**: up to
+   ``frames`` (default 80) of the others, away from the held-out ones, chosen by
+   farthest-point sampling on the distances between the points (:func:`spanning_frames`);
+   consecutive frames are a poor sample of what a hand does.
 2. **Start at the prior**: the model's anatomical prior geometry (hand26: the proportions of
    Buchholz, Armstrong & Goldstein, Ergonomics 1992, ratios of hand length), scaled to the
    data's size; fit every calibration frame with :func:`hybridfit.fit` (the truth as
@@ -20,8 +24,11 @@ the model's joints and derived points. From ground-truth points (F, Q, 3) mm:
    the size free) and ``(g - mean) / std`` for weights.
 5. **Refit** the poses with :func:`hybridfit.fit` on the new model and repeat (``rounds``).
 
-Reported errors are those of :func:`hybridfit.fit` itself (what a user gets): on the
-calibration frames before and after, and on the held-out frames after.
+Reported errors are those of :func:`hybridfit.fit` followed by the least-squares polish
+with its default per-frame bone freedom (:func:`hybridfit.fitting.refine.fit_and_refine`),
+what a user gets: on the calibration frames before and after, and on the held-out frames
+after (the floor), with the cost of refining a strong predictor there
+(:func:`refining_cost`).
 """
 
 from __future__ import annotations
@@ -37,7 +44,14 @@ from tqdm.auto import tqdm
 from .. import registry
 from ..errors import HybridfitError
 from .frames import fit
+from .refine import BONE_TOLERANCE, BONE_WEIGHT, refine
 from ..model.base import Geometry, HandModel
+
+
+#: frames either side of a held-out frame that calibration does not use
+HELDOUT_GAP = 10
+#: the mean error (mm) of the strong predictor whose refining cost calibration reports
+PREDICTOR_MM = 5.0
 
 
 @dataclass
@@ -48,7 +62,9 @@ class CalibrationResult:
     calibration_frames / heldout_frames: indices into the given frames; ls_error: of the
     final least-squares poses; params (F_cal, P); per_point_after / per_point_heldout (Q,)
     mm; scale: the whole-hand scale relative to the prior; at_prior: geometry entries the
-    points could not determine (kept at the prior)."""
+    points could not determine (kept at the prior); predictor_heldout / refined_heldout:
+    the mean error (mm) of a strong predictor on the held-out frames and of its fit
+    (:func:`refining_cost`; NaN if none held out)."""
 
     settings: dict[str, Any]
     error_before: float
@@ -62,18 +78,52 @@ class CalibrationResult:
     per_point_heldout: np.ndarray
     scale: float
     at_prior: tuple[str, ...] = field(default_factory=tuple)
+    predictor_heldout: float = np.nan
+    refined_heldout: float = np.nan
 
 
-def split_frames(n: int, holdout: float) -> tuple[np.ndarray, np.ndarray]:
-    """(calibration, held-out) frame indices: the last floor(holdout * n) frames are held out,
-    at least one when n >= 2 and holdout > 0, and at least one frame is always kept."""
+def split_frames(n: int, holdout: float, keep: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(calibration pool, held-out) frame indices: floor(holdout * n) frames spread evenly
+    over the sequence are held out (at least one when n >= 2 and holdout > 0, at least one
+    frame always kept), and the pool is the rest without the held-out frames' neighbours
+    (up to ``HELDOUT_GAP`` frames either side, fewer where the pool would keep fewer than
+    ``keep`` frames), so that no calibration frame is a near copy of a held-out one."""
     if not 0.0 <= holdout < 1.0:
         raise HybridfitError(f"holdout must be in [0, 1), got {holdout}")
     k = int(np.floor(holdout * n))
     if holdout > 0 and n >= 2:
         k = max(k, 1)
     k = min(k, n - 1)
-    return np.arange(n - k), np.arange(n - k, n)
+    if k == 0:
+        return np.arange(n), np.arange(0)
+    held = np.floor((np.arange(k) + 0.5) * n / k).astype(np.int64)  # k distinct frames, n / k apart
+    rest = np.setdiff1d(np.arange(n), held)
+    for gap in range(HELDOUT_GAP, -1, -1):
+        near = np.abs(rest[:, None] - held[None]).min(1) <= gap
+        if (~near).sum() >= min(max(keep, 1), len(rest)):
+            return rest[~near], held
+    return rest, held
+
+
+def pose_descriptors(truth: np.ndarray) -> np.ndarray:
+    """(F, Q (Q - 1) / 2) the distances between every two points of each frame (mm): a
+    descriptor of the hand's articulation, blind to where the hand is and how it is turned."""
+    i, j = np.triu_indices(truth.shape[1], 1)
+    return np.linalg.norm(truth[:, i] - truth[:, j], axis=-1)
+
+
+def spanning_frames(truth: np.ndarray, count: int) -> np.ndarray:
+    """``count`` frame indices of truth (F, Q, 3) mm that span its pose range: farthest-point
+    sampling on :func:`pose_descriptors`, from the frame nearest the mean pose; sorted."""
+    d = pose_descriptors(truth)
+    count = min(int(count), len(truth))
+    chosen = [int(np.linalg.norm(d - d.mean(0), axis=1).argmin())]
+    nearest = np.linalg.norm(d - d[chosen[0]], axis=1)
+    while len(chosen) < count:
+        nxt = int(nearest.argmax())
+        chosen.append(nxt)
+        nearest = np.minimum(nearest, np.linalg.norm(d - d[nxt], axis=1))
+    return np.sort(np.asarray(chosen, dtype=np.int64))
 
 
 def determined(model: HandModel, geometry: Geometry, names: Sequence[str]) -> np.ndarray:
@@ -81,11 +131,16 @@ def determined(model: HandModel, geometry: Geometry, names: Sequence[str]) -> np
 
     An entry with ends (a, b) along the kinematic tree needs an observed joint at b or
     below it (its child chain) and one at a or above it, or at another child of a (its
-    parent chain); a derived-point weight needs that derived point among the points."""
+    parent chain); a joint counts as observed when it is among the points or a given
+    derived point weighs it; a derived-point weight needs that derived point among the
+    points."""
     index = {n: i for i, n in enumerate(model.joint_names)}
     parents = np.asarray(model.parents)
     observed = np.zeros(len(parents), bool)
     observed[[index[n] for n in names if n in index]] = True
+    derived = model.derived_points
+    for n in names:  # a derived point observes the joints it weighs (across frames, they are separable)
+        observed[[index[j] for j, w in derived.get(n, {}).items() if w != 0 and j in index]] = True
     below = observed.copy()  # the joint or one of its descendants is observed
     for j in np.flatnonzero(observed):
         while parents[j] >= 0 and not below[parents[j]]:
@@ -119,11 +174,30 @@ def _configured(model: HandModel, values: np.ndarray) -> HandModel:
     return type(model)(**model.with_geometry(values))
 
 
-def _fit_error(truth, names, model, budget, seed, jobs, progress):
-    r = fit(truth[:, :, None, :], np.ones(truth.shape[:2] + (1,)), model=model, joint_names=names,
-            budget=budget, seed=seed, jobs=jobs, progress=progress)
-    err = np.linalg.norm(r.joints - truth, axis=-1)
-    return float(np.nanmean(err)), r.params, err
+def _fit_error(truth, names, model, budget, seed, jobs, progress, given=None):
+    """hybridfit.fit of ``given`` (default: the truth) as k = 1 proposals, then the
+    least-squares polish; errors against the truth."""
+    given = truth if given is None else given
+    proposals, confidences = given[:, :, None, :], np.ones(given.shape[:2] + (1,))
+    r = fit(proposals, confidences, model=model, joint_names=names, budget=budget, seed=seed, jobs=jobs,
+            progress=progress)
+    polished = refine(model, r.params, proposals, confidences, names, bone_tolerance=BONE_TOLERANCE,
+                      bone_weight=BONE_WEIGHT)
+    err = np.linalg.norm(polished.points(model, names) - truth, axis=-1)
+    return float(np.nanmean(err)), polished.params, err
+
+
+def refining_cost(truth, names, model, *, error_mm: float = PREDICTOR_MM, seed: int = 0, budget: int = 3400,
+                  jobs: int = 1) -> tuple[float, float]:
+    """(input, refined) mean error (mm) of a strong predictor on truth (F, Q, 3) mm: the
+    truth plus errors of mean ``error_mm`` as a real predictor's (``synthetic.predictors``),
+    fitted and polished with ``model`` (a configured instance) as k = 1 proposals."""
+    from ..synthetic.predictors import predictor_errors
+
+    given = truth + predictor_errors(model, names, len(truth), np.random.default_rng(seed), predictors=1,
+                                     error_mm=(error_mm, error_mm))[0]
+    refined = _fit_error(truth, names, model, budget, seed, jobs, False, given)[0]
+    return float(np.linalg.norm(given - truth, axis=-1).mean()), refined
 
 
 def _least_squares(truth, names, model, free, scale, g, params, noise_mm, max_nfev, progress):
@@ -205,6 +279,7 @@ def calibrate(
     model_config: Mapping[str, Any] | None = None,
     mirror: bool | None = None,
     holdout: float = 0.2,
+    frames: int = 80,
     rounds: int = 2,
     budget: int = 3400,
     seed: int = 0,
@@ -228,7 +303,8 @@ def calibrate(
     base = registry.create("model", model, model_config)
     base.point_matrix(names)  # unknown point names fail here, once
     geo = base.geometry()
-    cal, held = split_frames(len(truth), holdout)
+    pool, held = split_frames(len(truth), holdout, frames)
+    cal = pool[spanning_frames(truth[pool], frames)]
     fit_truth = truth[cal]
     prior_model = _configured(base, _prior(geo, 1.0))
     scale = initial_scale(fit_truth, names, prior_model)
@@ -263,10 +339,12 @@ def calibrate(
         heldout, _, per_held = _fit_error(truth[held], names, current, budget, seed, jobs, progress)
         per_held = np.nanmean(per_held, axis=0)
         say(f"held-out fit error {heldout:.2f} mm on {len(held)} frames")
+        cost = refining_cost(truth[held], names, current, seed=seed, budget=budget, jobs=jobs)
+        say(f"a {cost[0]:.2f} mm predictor on the held-out frames, fitted: {cost[1]:.2f} mm")
     else:
-        heldout, per_held = np.nan, np.full(len(names), np.nan)
+        heldout, per_held, cost = np.nan, np.full(len(names), np.nan), (np.nan, np.nan)
     return CalibrationResult(current.get_params(), before, after, heldout, cal, held, ls_err, params,
-                             np.nanmean(per, axis=0), per_held, scale, at_prior)
+                             np.nanmean(per, axis=0), per_held, scale, at_prior, *cost)
 
 
 def to_toml(settings: Mapping[str, Any]) -> str:

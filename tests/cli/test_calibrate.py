@@ -13,9 +13,10 @@ def test_calibrate_writes_a_usable_model_config(tmp_path, capsys):
     assert main(["calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--frames", "0:4", "--out", str(model),
                  "--rounds", "1", "--budget", "600", "--hand", "right"]) == 0
     out = capsys.readouterr().out
+    assert "floor " in out and "mm predictor fitted: " in out
     assert "mm before" in out and "calibrated on 3 frames (right hand)" in out and "mm held out (1 frames)" in out
     text = model.read_text()
-    assert "(frames 0-2, held out 3-3)" in text and "mm held out (1 frames)" in text.splitlines()[1]
+    assert "on 3 frames spanning the pose range of frames 0-3, 1 held out spread over them" in text and "mm held out (1 frames)" in text.splitlines()[1]
     settings = tomllib.loads(text)
     assert "icvl_palm" in settings["derived_points"] and len(settings["bone_lengths"]) == 15
     p = tmp_path / "p.npz"
@@ -36,7 +37,7 @@ def test_holdout_zero_uses_every_frame(tmp_path, capsys):
     assert main(["calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--frames", "1:", "--holdout", "0",
                  "--out", str(model), "--rounds", "0", "--budget", "600", "--hand", "left"]) == 0
     assert "calibrated on 3 frames (left hand)" in capsys.readouterr().out
-    assert "(frames 1-3)" in model.read_text()
+    assert "on 3 frames spanning the pose range of frames 1-3 of" in model.read_text()
 
 
 def test_bad_holdout_option(tmp_path, capsys):

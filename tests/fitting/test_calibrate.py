@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from pydantic import Field
 
 import hybridfit
-from hybridfit.fitting.calibrate import calibrate, determined, split_frames, to_toml
+from hybridfit.fitting.calibrate import HELDOUT_GAP, calibrate, determined, spanning_frames, split_frames, to_toml
 from hybridfit.datasets.skeletons import skeleton, with_derived_points
 from hybridfit.model.rotations import quaternion_matrix
 from hybridfit.model.base import Geometry, HandModel, Stage
@@ -51,9 +51,9 @@ def test_calibration_chooses_the_hand_and_reduces_the_error(result):
     assert result.ls_error < 3.0
 
 
-def test_held_out_frames_are_the_last_fifth_and_reported(result):
-    np.testing.assert_array_equal(result.calibration_frames, np.arange(8))
-    np.testing.assert_array_equal(result.heldout_frames, [8, 9])
+def test_held_out_frames_are_spread_over_the_sequence_and_reported(result):
+    np.testing.assert_array_equal(result.heldout_frames, [2, 7])
+    np.testing.assert_array_equal(result.calibration_frames, [0, 1, 3, 4, 5, 6, 8, 9])
     assert np.isfinite(result.error_heldout) and result.per_point_heldout.shape == (len(NAMES),)
     assert result.error_heldout < 1.5 * result.error_after + 1.0
 
@@ -90,12 +90,30 @@ def test_bad_input_is_an_error():
         calibrate(bad, NAMES, model_config=START)
 
 
-@given(st.integers(1, 300), st.floats(0.0, 0.95))
-def test_split_holds_out_the_last_frames(n, holdout):
-    cal, held = split_frames(n, holdout)
-    np.testing.assert_array_equal(np.concatenate([cal, held]), np.arange(n))
-    assert len(cal) >= 1
+@given(st.integers(1, 300), st.floats(0.0, 0.95), st.integers(0, 300))
+def test_split_holds_out_frames_spread_over_the_sequence(n, holdout, keep):
+    cal, held = split_frames(n, holdout, keep)
+    assert not set(cal) & set(held) and set(cal) | set(held) <= set(range(n))
+    assert len(cal) >= min(keep, n - len(held)) and len(cal) >= 1
     assert len(held) == (min(max(int(np.floor(holdout * n)), 1), n - 1) if holdout > 0 and n >= 2 else 0)
+    if len(held) >= 2:  # spread: no gap between held-out frames is more than twice another
+        gaps = np.diff(np.concatenate([[-1], held, [n]]))
+        assert gaps.max() <= 2 * gaps.min() + 1
+
+
+def test_split_keeps_calibration_frames_away_from_held_out_ones():
+    cal, held = split_frames(1000, 0.02, keep=80)
+    assert np.abs(cal[:, None] - held[None]).min() > HELDOUT_GAP
+
+
+def test_spanning_frames_cover_the_pose_range():
+    """Farthest-point sampling picks the extremes a run of consecutive frames misses."""
+    truth = np.zeros((100, 3, 3))
+    truth[:, 1, 0] = np.linspace(10.0, 50.0, 100)  # one distance grows through the sequence
+    truth[:, 2, 1] = 30.0
+    chosen = spanning_frames(truth, 3)
+    assert 0 in chosen and 99 in chosen
+    assert len(spanning_frames(truth, 500)) == 100
 
 
 def test_split_refuses_a_bad_share():
@@ -103,17 +121,25 @@ def test_split_refuses_a_bad_share():
         split_frames(10, 1.0)
 
 
-@pytest.mark.parametrize("dataset, at_prior", [
-    ("msra", set()),
-    ("icvl", {"thumb_metacarpal"}),  # ICVL's thumb root is the MCP: the CMC is never seen
-    # no MCP among NYU's 14 points: the palm's shape and the proximal phalanges stay at the prior
-    ("nyu", {"thumb_metacarpal", *(f"{f}_proximal" for f in ("index", "middle", "ring", "little")),
-             *(f"{f}_base_{c}" for f in ("thumb", "index", "middle", "ring", "little") for c in "xyz")}),
+@pytest.mark.parametrize("dataset, drop, at_prior", [
+    ("msra", (), set()),
+    ("icvl", (), set()),  # ICVL's palm point weighs the wrist: the thumb's CMC chain is anchored
+    # without it the thumb root is the MCP: the CMC is never seen (nor is the palm point's weights)
+    ("icvl", ("icvl_palm",), {"thumb_metacarpal", *(f"icvl_palm.{j}" for j in ("wrist", "thumb_cmc", "index_mcp",
+                                                                              "middle_mcp", "ring_mcp", "little_mcp"))}),
+    ("nyu", (), set()),  # NYU's palm points weigh the wrist and the MCPs: the palm is seen through them
+    # without its palm points, nothing anchors the palm: its shape and the proximal phalanges stay at the prior
+    ("nyu", ("nyu_wrist_1", "nyu_wrist_2", "nyu_palm"),
+     {"thumb_metacarpal", *(f"{f}_proximal" for f in ("index", "middle", "ring", "little")),
+      *(f"{f}_base_{c}" for f in ("thumb", "index", "middle", "ring", "little") for c in "xyz"),
+      *(f"{p}.{j}" for p in ("nyu_wrist_1", "nyu_wrist_2", "nyu_palm")
+        for j in ("wrist", "thumb_cmc", "index_mcp", "middle_mcp", "ring_mcp", "little_mcp")
+        if not (p != "nyu_palm" and j == "wrist"))}),  # the wrist anchors the two offset points
 ])
-def test_geometry_the_points_cannot_determine(dataset, at_prior):
+def test_geometry_the_points_cannot_determine(dataset, drop, at_prior):
     model = hybridfit.create("model", "hand26", with_derived_points({}, dataset))
     geo = model.geometry()
-    free = determined(model, geo, skeleton(dataset).model_names)
+    free = determined(model, geo, [n for n in skeleton(dataset).model_names if n not in drop])
     assert {n for n, f in zip(geo.names, free) if not f} == at_prior
 
 

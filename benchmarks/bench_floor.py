@@ -1,0 +1,115 @@
+"""Know the floor: how close the calibrated model can follow annotations, and what refining costs.
+
+    python benchmarks/bench_floor.py [--real icvl nyu] [--stress icvl nyu nyu36 msra mediapipe mano]
+                                     [--pool 0:100] [--frames 200] [--jobs 1] [--model hand26]
+
+Per dataset (real: ICVL's test annotations, NYU actor 2's, from ../shared/data; stress: a
+``stress_proposals`` subject per skeleton, seed 3), ``hybridfit.fitting.calibrate`` with its
+defaults calibrates the model on the annotations of the frames ``--pool`` (80 frames spanning
+the pose range, 20 % held out, spread over the pool). On ``--frames`` frames outside the pool,
+spread evenly over the rest of the sequence (a pool of the whole sequence: over calibration's
+held-out frames), it then measures (mean 3D error, mm):
+
+- the floor: the annotations themselves fitted (``hybridfit.fit`` with the defaults, then
+  the least-squares polish with its default per-frame bone freedom, as
+  ``fitting.refine.fit_and_refine`` and ``hybridfit fit`` do; the fit alone in brackets);
+- refining a strong predictor: three predictors at 4, 5 and 6 mm with errors correlated as
+  real ones are (``synthetic.predictors``, seed 0); the best alone fitted (k = 1), and the
+  three fused (k = 3, equal confidences) beside the best input and their per-point median.
+
+Calibration's in-sample and held-out errors are printed beside them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+import hybridfit
+from hybridfit.datasets.results import read_xyz
+from hybridfit.datasets.skeletons import dataset_model_config, skeleton
+from hybridfit.fitting.calibrate import calibrate
+from hybridfit.fitting.refine import BONE_TOLERANCE, BONE_WEIGHT, refine
+from hybridfit.synthetic.predictors import predictor_errors
+
+from _util import table
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+REAL = {"icvl": DATA / "icvl" / "icvl_test_groundtruth_label.txt",
+        "nyu": DATA / "nyu" / "nyu_actor2_groundtruth_label.txt"}
+STRESS_FRAMES = 1000
+
+
+def annotations(kind: str, dataset: str) -> np.ndarray:
+    """(F, Q, 3) mm: a real dataset's test annotations or a stress subject's."""
+    if kind == "real":
+        return read_xyz(REAL[dataset], dataset)
+    return hybridfit.stress_proposals(STRESS_FRAMES, dataset=dataset, k=1, seed=3)["ground_truth"]
+
+
+def fit_error(truth, proposals, confidences, names, model_name, settings, jobs) -> tuple[float, float]:
+    """(fit, fit + polish) mean 3D error (mm) of fitting the proposals with the defaults."""
+    r = hybridfit.fit(proposals, confidences, joint_names=names, model=model_name, model_config=settings, jobs=jobs)
+    model = hybridfit.create("model", model_name, settings)
+    polished = refine(model, r.params, proposals, confidences, names, bone_tolerance=BONE_TOLERANCE,
+                      bone_weight=BONE_WEIGHT).points(model, names)
+    err = lambda joints: float(np.nanmean(np.linalg.norm(joints - truth, axis=-1)))  # noqa: E731
+    return err(r.joints), err(polished)
+
+
+def evaluate(kind: str, dataset: str, pool: slice, frames: int, jobs: int, model_name: str) -> list:
+    sk = skeleton(dataset)
+    names = sk.model_names
+    truth = annotations(kind, dataset)
+    inside = np.arange(len(truth))[pool]
+    outside = np.setdiff1d(np.arange(len(truth)), inside)
+    t = time.perf_counter()
+    cal = calibrate(truth[inside], names, model=model_name, model_config=dataset_model_config(model_name, {}, dataset),
+                    jobs=jobs)
+    t = time.perf_counter() - t
+    if not len(outside):  # the pool is the whole sequence: calibration's held-out frames
+        outside = inside[cal.heldout_frames]
+    test = outside[np.unique(np.linspace(0, len(outside) - 1, frames).round().astype(int))]
+    gt = truth[test]
+    ones = np.ones(gt.shape[:2] + (1,))
+    floor = fit_error(gt, gt[:, :, None], ones, names, model_name, cal.settings, jobs)
+    model = hybridfit.create("model", model_name, cal.settings)
+    preds = gt[None] + predictor_errors(model, names, len(test), np.random.default_rng(0))
+    single = fit_error(gt, preds[0][:, :, None], ones, names, model_name, cal.settings, jobs)
+    fused = fit_error(gt, preds.transpose(1, 2, 0, 3), np.ones(gt.shape[:2] + (3,)), names, model_name, cal.settings,
+                      jobs)
+    err = lambda joints: float(np.linalg.norm(joints - gt, axis=-1).mean())  # noqa: E731
+    inputs = [err(p) for p in preds]
+    median = err(np.median(preds, axis=0))
+    return [kind, dataset, f"{pool.start}:{pool.stop}", len(test), f"{cal.error_after:.2f}",
+            f"{cal.error_heldout:.2f} ({len(cal.heldout_frames)})", f"{cal.error_heldout / cal.error_after:.2f}",
+            f"{floor[1]:.2f} ({floor[0]:.2f})", f"{inputs[0]:.2f}", f"{single[1]:.2f} ({single[0]:.2f})",
+            f"{single[1] - inputs[0]:+.2f}", f"{fused[1]:.2f} ({fused[0]:.2f})", f"{min(inputs):.2f}", f"{median:.2f}",
+            f"{t:.0f}"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--real", nargs="*", default=["icvl", "nyu"], choices=sorted(REAL))
+    ap.add_argument("--stress", nargs="*", default=["icvl", "nyu", "nyu36", "msra", "mediapipe", "mano"])
+    ap.add_argument("--pool", default="0:100", help="calibration frames START:STOP (default 0:100)")
+    ap.add_argument("--frames", type=int, default=200, help="evaluation frames outside the pool")
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--model", default="hand26", help="hand model plugin (default: hand26)")
+    a = ap.parse_args()
+    start, stop = (int(v) for v in a.pool.split(":"))
+    rows = []
+    for kind, datasets in (("real", a.real), ("stress", a.stress)):
+        for dataset in datasets:
+            rows.append(evaluate(kind, dataset, slice(start, stop), a.frames, a.jobs, a.model))
+            print(" | ".join(map(str, rows[-1])), flush=True)
+    print(table(["data", "skeleton", "pool", "frames", "calibration in-sample", "held out (frames)", "ratio",
+                 "floor (fit only)", "predictor", "refined (fit only)", "cost", "fused (fit only)", "best input",
+                 "median", "calibration time (s)"], rows))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,115 @@
+import numpy as np
+import pytest
+
+import hybridfit
+from hybridfit.fitting.refine import fit_and_refine, proposal_weights, refine, stretch_bones
+
+NAMES = None
+
+
+@pytest.fixture(scope="module")
+def model():
+    return hybridfit.create("model", "hand26")
+
+
+def _poses(model, frames, seed=0):
+    rng = np.random.default_rng(seed)
+    lower, upper = model.bounds()
+    x = np.tile(model.default_params(), (frames, 1))
+    x[:, 2] = 400.0
+    x[:, 3:7] = rng.normal(size=(frames, 4))
+    x[:, 3:7] /= np.linalg.norm(x[:, 3:7], axis=1, keepdims=True)
+    x[:, 7:] = rng.uniform(lower[7:], upper[7:])
+    return x
+
+
+def test_the_polish_reaches_a_pose_the_model_can_represent(model):
+    truth = _poses(model, 8)
+    start = truth.copy()
+    start[:, 7:] = np.clip(start[:, 7:] + np.radians(8.0), *[b[7:] for b in model.bounds()])
+    start[:, :3] += 4.0
+    names = model.joint_names
+    target = model.forward(truth)[:, :, None]
+    before = np.linalg.norm(model.forward(start) - target[:, :, 0], axis=-1).mean()
+    polished = refine(model, start, target, np.ones(target.shape[:3]), names, iterations=40).params
+    after = np.linalg.norm(model.forward(polished) - target[:, :, 0], axis=-1).mean()
+    assert before > 5.0 and after < 0.1 * before
+
+
+def test_joint_limits_hold_and_no_frame_gets_worse(model):
+    names = model.joint_names
+    start = _poses(model, 6, seed=1)
+    target = model.forward(start)[:, :, None] + np.random.default_rng(2).normal(0, 15.0, (6, 21, 1, 3))
+    polished = refine(model, start, target, np.ones(target.shape[:3]), names).params
+    lower, upper = model.bounds()
+    assert (polished[:, 7:] >= lower[7:] - 1e-12).all() and (polished[:, 7:] <= upper[7:] + 1e-12).all()
+    np.testing.assert_allclose(np.linalg.norm(polished[:, 3:7], axis=1), 1.0)
+
+    def loss(p):  # soft_l1 at 10 mm, the default
+        d2 = ((model.forward(p)[:, :, None] - target) ** 2).sum(-1) / 100.0
+        return (2 * (np.sqrt(1 + d2) - 1)).sum((1, 2))
+
+    assert (loss(polished) <= loss(start) + 1e-9).all() and (loss(polished) < loss(start)).any()
+
+
+def test_a_far_mode_does_not_pull_and_failed_frames_stay_nan(model):
+    names = model.joint_names
+    start = _poses(model, 3, seed=4)
+    near = model.forward(start)
+    proposals = np.stack([near, near + 200.0], axis=2)  # a second mode 350 mm away
+    conf = np.ones(proposals.shape[:3])
+    w = proposal_weights(proposals, conf, near)
+    assert (w[..., 0] == 0.5).all() and (w[..., 1] == 0).all()
+    start[1] = np.nan
+    polished = refine(model, start, proposals, conf, names).params
+    assert np.isnan(polished[1]).all()
+    np.testing.assert_allclose(model.forward(polished[[0, 2]]), near[[0, 2]], atol=1e-3)
+
+
+def test_fit_and_refine_is_fit_then_the_polish(model):
+    truth = model.forward(_poses(model, 3, seed=5))
+    proposals = truth[:, :, None] + np.random.default_rng(6).normal(0, 3.0, truth.shape)[:, :, None]
+    conf = np.ones(proposals.shape[:3])
+    plain = hybridfit.fit(proposals, conf, budget=600)
+    rigid = fit_and_refine(proposals, conf, budget=600, bone_tolerance=0.0)
+    np.testing.assert_allclose(rigid.params, refine(model, plain.params, proposals, conf, model.joint_names).params)
+    np.testing.assert_allclose(rigid.joints, model.forward(rigid.params))
+    assert (rigid.bone_factors == 1).all()
+    err = lambda r: np.linalg.norm(r.joints - truth, axis=-1).mean()  # noqa: E731
+    assert err(rigid) < err(plain)
+    assert (rigid.objective < 0).all() and not np.allclose(rigid.objective, plain.objective)
+    free = fit_and_refine(proposals, conf, budget=600)  # the default: bones free within 15 %
+    assert np.abs(free.bone_factors - 1).max() <= 0.15 + 1e-12 and np.abs(free.bone_factors - 1).max() > 0
+    lower, upper = model.bounds()
+    assert (free.params[:, 7:] >= lower[7:]).all() and (free.params[:, 7:] <= upper[7:]).all()
+    np.testing.assert_allclose(free.model_joints, stretch_bones(model.forward(free.params), model.parents,
+                                                                free.bone_factors))
+    assert "bone_factors" in free.to_npz()
+
+
+def test_bone_freedom_follows_a_hand_with_other_proportions(model):
+    """A hand 8 % longer in every bone: the rigid polish cannot follow it, bone freedom can."""
+    start = _poses(model, 4, seed=7)
+    factors = np.full((4, model.n_joints), 1.08)
+    target = stretch_bones(model.forward(start), model.parents, factors)[:, :, None]
+    names = model.joint_names
+    conf = np.ones(target.shape[:3])
+    rigid = refine(model, start, target, conf, names).points(model, names)
+    free = refine(model, start, target, conf, names, bone_tolerance=0.1, bone_weight=0.01, iterations=40)
+    err = lambda p: np.linalg.norm(p - target[:, :, 0], axis=-1).mean()  # noqa: E731
+    assert err(free.points(model, names)) < 0.2 * err(rigid)
+    np.testing.assert_allclose(free.bone_factors[:, 1:], 1.08, atol=0.01)
+
+
+@pytest.mark.parametrize("dataset", ["icvl", "nyu"])
+def test_the_polish_is_never_worse_than_the_fit_or_top1_on_stress_data(dataset):
+    from hybridfit.datasets.skeletons import dataset_model_config
+
+    z = hybridfit.stress_proposals(30, dataset=dataset, seed=101, scale_range=(1, 1), proportion_sd=0.0,
+                                   weight_sd=0.0, offset_mm=2.0)
+    names, truth = list(z["joint_names"]), z["ground_truth"]
+    options = dict(joint_names=names, budget=3400, seed=0, model_config=dataset_model_config("hand26", {}, dataset))
+    err = lambda j: np.nanmean(np.linalg.norm(j - truth, axis=-1))  # noqa: E731
+    fitted = err(hybridfit.fit(z["proposals"], z["confidences"], **options).joints)
+    polished = err(fit_and_refine(z["proposals"], z["confidences"], **options).joints)
+    assert polished <= fitted and polished <= err(z["proposals"][:, :, 0]), (polished, fitted)
