@@ -12,8 +12,8 @@ number, as a shell reports it; each stops the run the same way, the finished fra
 written and the rest marked; 141 the output pipe was closed (``| head``).
 
 This module imports only the standard library at start-up: everything else is imported
-inside :func:`main`, under its interrupt handler, so that a Ctrl-C at any moment exits 130
-without a traceback.
+inside :func:`main`, with the stop signals held back until the imports are done, so that a
+Ctrl-C at any moment exits 130 without a traceback.
 """
 
 from __future__ import annotations
@@ -65,13 +65,31 @@ def _stop(signum, frame):
 def main(argv: list[str] | None = None) -> int:
     try:  # first statement: a Ctrl-C from here on is handled
         Terminated.received = None
+        parser = _start_up()
         previous = _install(STOP_SIGNALS, _stop)
         try:
-            return _main(argv)
+            return _main(parser, argv)
         finally:
             _install(STOP_SIGNALS, previous)
-    except KeyboardInterrupt as stop:  # during start-up, or while reporting another error
+    except KeyboardInterrupt as stop:  # right after start-up, or while reporting another error
         return _interrupted(stop)
+
+
+def _start_up() -> argparse.ArgumentParser:
+    """Import the commands (numpy, pydantic, ...) with SIGINT, SIGTERM and SIGHUP held back:
+    an interrupt inside a native module's import can turn into its own error (a panic, say)
+    instead of a KeyboardInterrupt. A signal that came meanwhile stops the run right after."""
+    held: list[int] = []
+    previous = _install((signal.SIGINT, *STOP_SIGNALS), lambda signum, frame: held.append(signum))
+    try:
+        import pydantic  # noqa: F401  (imported here, under the held signals)
+
+        parser = build_parser()
+    finally:
+        _install((signal.SIGINT, *STOP_SIGNALS), previous)
+    if held:
+        raise KeyboardInterrupt if held[0] == signal.SIGINT else Terminated(held[0])
+    return parser
 
 
 def _install(signals, handler) -> dict:
@@ -92,13 +110,12 @@ def _interrupted(stop: KeyboardInterrupt) -> int:
     return stop.exit_code if isinstance(stop, Terminated) else EXIT_INTERRUPTED
 
 
-def _main(argv: list[str] | None) -> int:
+def _main(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
     from pydantic import ValidationError
 
     from ..plugin import format_validation_error
 
     warnings.formatwarning = lambda msg, cat, *a, **k: f"hybridfit: warning: {msg}\n"
-    parser = build_parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit as exit:  # --help, or an option error already printed as one line

@@ -94,6 +94,18 @@ def test_ctrl_c_during_start_up_exits_130_without_a_traceback(tmp_path):
     assert said == ["hybridfit: interrupted"] and not (tmp_path / "o.npz").exists()
 
 
+@pytest.mark.parametrize("delay_s", [0.2, 0.6, 1.5])
+def test_ctrl_c_at_any_moment_exits_130_without_a_traceback(tmp_path, delay_s):
+    """Some moment in start-up (the imports) or in the run: the same exit, never a traceback."""
+    np.savez(tmp_path / "p.npz", **hybridfit.synthetic_proposals(300, seed=1))
+    run = Running([sys.executable, "-X", "importtime", "-m", "hybridfit", "fit", "p.npz", "--out", "o.npz",
+                   "--budget", "30000"], tmp_path)
+    run.wait_for(r"\| hybridfit\.cli\n")
+    time.sleep(delay_s)
+    assert run.stop(signal.SIGINT) == 130, run.err.decode()[-2000:]
+    assert "Traceback" not in run.err.decode() and "interrupted" in run.err.decode()
+
+
 def test_a_stopped_synth_leaves_no_hidden_folder(tmp_path):
     run = Running([sys.executable, "-X", "importtime", "-m", "hybridfit", "synth", "test", "--out", "set",
                    "--frames", "3000"], tmp_path)

@@ -63,15 +63,27 @@ def test_results_report_and_skip_on_rerun(tiny_file, tmp_path):
     assert frame_rows(tmp_path / "out") == before
 
 
-def test_failing_trial_is_recorded_and_study_goes_on(tmp_path):
-    text = TINY.split("[sweep.grid]")[0] + '[sweep.grid]\nbudget = [400, 2]\n'
-    s = run(load_spec(write(tmp_path, text)), tmp_path / "out")
+def test_failing_trial_is_recorded_and_study_goes_on(tmp_path, monkeypatch):
+    """A trial that fails while it runs (here: its fits raise for budget 399) is recorded; the others go on.
+    (A budget below the optimiser's minimum is refused before any trial runs: test_limits.py.)"""
+    from hybridfit.study import runner
+
+    real = runner.fit
+
+    def fails_at_399(*args, **kwargs):
+        if kwargs["budget"] == 399:
+            raise HybridfitError("the input of this trial cannot be fitted")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(runner, "fit", fails_at_399)
+    text = TINY.split("[sweep.grid]")[0] + '[sweep.grid]\nbudget = [400, 399]\n'
+    s = run(load_spec(write(tmp_path, text)), tmp_path / "out", executor="serial")  # the patch lives in this process
     assert (s.ran, s.failed) == (4, 2)
     store = Store(tmp_path / "out" / "study.db")
     failed = store.trials("failed")
     store.close()
-    assert len(failed) == 2 and all("too small" in t["error"] for t in failed)
-    assert "too small" in (tmp_path / "out" / "report.md").read_text()
+    assert len(failed) == 2 and all("cannot be fitted" in t["error"] for t in failed)
+    assert "cannot be fitted" in (tmp_path / "out" / "report.md").read_text()
 
 
 def test_shared_steps_are_cached(tmp_path, monkeypatch):
