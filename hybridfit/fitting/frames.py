@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import multiprocessing
 import warnings
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
@@ -35,6 +35,9 @@ from ..problem import Problem
 #: frames per chunk of the driver (progress and Ctrl-C granularity; with jobs > 1, jobs
 #: chunks run at once while the next is prepared)
 CHUNK = 256
+
+#: seconds between checks for a stop signal while worker processes fit (the process-pool path)
+STOP_POLL_S = 0.25
 
 #: the inlier distance of objectives without a ``d_max_mm`` setting
 INLIER_DISTANCE_MM = 40.0
@@ -261,19 +264,23 @@ def fit(
             else:
                 chunks = np.array_split(np.arange(F), min(F, jobs * 8))
                 ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
-                with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+                with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=stops.ignored) as pool:
                     futures = [pool.submit(_fit_chunk, spec, list(c), proposals[c], confidences[c],
                                            None if observations is None else [observations[i] for i in c])
                                for c in chunks if len(c)]
                     try:
-                        for fut in as_completed(futures):
-                            items = fut.result()
-                            store(items)
-                            bar.update(len(items))
+                        pending = set(futures)
+                        while pending:  # wakes every STOP_POLL_S: a stop signal is acted on at once
+                            finished, pending = wait(pending, timeout=STOP_POLL_S, return_when=FIRST_COMPLETED)
+                            for fut in finished:
+                                items = fut.result()
+                                store(items)
+                                bar.update(len(items))
                             stops.check()
-                    except KeyboardInterrupt:
-                        for fut in futures:
-                            fut.cancel()
+                    except KeyboardInterrupt:  # the chunks still running are lost: stop their workers now
+                        pool.shutdown(wait=False, cancel_futures=True)
+                        for worker in list((getattr(pool, "_processes", None) or {}).values()):
+                            worker.terminate()
                         raise
     except KeyboardInterrupt:
         result.interrupted = True

@@ -33,6 +33,13 @@ def check() -> None:
         handler(signum, frame)
 
 
+def ignored() -> None:
+    """Ignore the stop signals (in a worker process: the main process decides when to stop,
+    and stops its workers itself)."""
+    for s in _SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
+
+
 @contextmanager
 def deferred():
     """Within: stop signals are recorded, and raised by :func:`check` (and on leaving, when

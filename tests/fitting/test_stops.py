@@ -45,3 +45,30 @@ def test_a_signal_during_the_driver_interrupts_the_fit_cleanly(monkeypatch):
     assert sent == ["the scoring went on"] and result.interrupted and result.failed.all()
     assert set(result.errors.values()) == {"interrupted"}
     assert np.isnan(result.params).all()
+
+
+def test_a_stop_does_not_wait_for_the_worker_processes(monkeypatch):
+    """On the process-pool path (an optimiser without batch steps, jobs > 1) a stop returns at
+    once, its workers stopped, instead of waiting for the chunks they are fitting (here: 60 s)."""
+    import threading
+    import time
+
+    from hybridfit.fitting import frames
+
+    monkeypatch.setattr(frames, "_fit_chunk", _slow_chunk)
+    d = hybridfit.synthetic_proposals(4, k=2, seed=1)
+    threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+    start = time.monotonic()
+    result = hybridfit.fit(d["proposals"], d["confidences"], optimizer="cmaes", budget=200, jobs=2, seed=0)
+    assert result.interrupted and result.failed.all()
+    assert time.monotonic() - start < 20
+
+
+def _slow_chunk(*args):
+    """The process-pool path's chunk, 60 s late (module level: the pool pickles it by name)."""
+    import time
+
+    from hybridfit.fitting.frames import _fit_chunk
+
+    time.sleep(60)
+    return _fit_chunk(*args)
