@@ -33,8 +33,13 @@ GLOBAL_PARAMS = 7
 
 
 #: header of a stage's integer array: counts of listed joints, fixed joints read, stage angle
-#: rows, fixed parameter rows read; batch n, frames F, parameters P, joints J, points Q
-_HEADER = 9
+#: rows, fixed parameter rows read; batch n, frames F, parameters P, joints J, points Q, frames
+#: per block G
+_HEADER = 10
+
+#: hypotheses (of several frames) per block of the kinematics: the loops over a block are long
+#: enough to vectorise well and its buffers stay in cache
+COLUMNS = 256
 
 
 @nb.njit(cache=True, nogil=True)
@@ -43,8 +48,8 @@ def stage_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
     """What a stage's scoring reuses, as (ints, floats): the joints to recompute per hypothesis
     (those that the stage's points or owned points need and its parameters move, parents first;
     :func:`~hybridfit.model.kinematics.mark_needed`), the joints and parameters read but fixed,
-    every frame's joints at ``base`` (F, P), and block buffers for batches of up to n
-    hypotheses (see :func:`_views`)."""
+    every frame's joints at ``base`` (F, P), and block buffers for G frames' batches of up to n
+    hypotheses side by side (G = COLUMNS // n, at least 1; see :func:`_views`)."""
     F, P = base.shape
     J = parents.shape[0]
     Q = pm_ptr.shape[0] - 1
@@ -120,8 +125,10 @@ def stage_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
             frows[n_frows] = k
             n_frows += 1
     ints[0], ints[1], ints[2], ints[3] = count, n_fixed, n_rows, n_frows
-    ints[4], ints[5], ints[6], ints[7], ints[8] = n, F, P, J, Q
-    floats = np.zeros(3 * F * P + 12 * F * J + 3 * P * n + 12 * J * n + 9 * n + 3 * Q * n)
+    G = max(1, min(F, COLUMNS // n))
+    ints[4], ints[5], ints[6], ints[7], ints[8], ints[9] = n, F, P, J, Q, G
+    C = G * n
+    floats = np.zeros(3 * F * P + 12 * F * J + 3 * P * C + 12 * J * C + 9 * C + 3 * Q * n)
     (b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = _views(ints, floats)
     b[:] = base
     every = np.arange(J)
@@ -146,9 +153,11 @@ def stage_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
 @nb.njit(cache=True, nogil=True, inline="always")
 def _views(ints, floats):
     """The arrays of a stage's floats: base, bsin, bcos (F, P); W0 (F, J, 3, 3), Wp0 (F, J, 3)
-    the frames' joints at base; block buffers pB, sinB, cosB (P, n), WB (J, 3, 3, n), WpB
-    (J, 3, n), GB (3, 3, n), pts (Q, 3, n)."""
+    the frames' joints at base; block buffers pB, sinB, cosB (P, C), WB (J, 3, 3, C), WpB
+    (J, 3, C), GB (3, 3, C) with C = G n columns (frame g's hypothesis i in column g n + i),
+    and one frame's points pts (Q, 3, n)."""
     n, F, P, J, Q = ints[4], ints[5], ints[6], ints[7], ints[8]
+    C = ints[9] * n
     a = 0
     b = floats[a:a + F * P].reshape((F, P))
     a += F * P
@@ -160,27 +169,26 @@ def _views(ints, floats):
     a += F * J * 9
     Wp0 = floats[a:a + F * J * 3].reshape((F, J, 3))
     a += F * J * 3
-    pB = floats[a:a + P * n].reshape((P, n))
-    a += P * n
-    sinB = floats[a:a + P * n].reshape((P, n))
-    a += P * n
-    cosB = floats[a:a + P * n].reshape((P, n))
-    a += P * n
-    WB = floats[a:a + J * 9 * n].reshape((J, 3, 3, n))
-    a += J * 9 * n
-    WpB = floats[a:a + J * 3 * n].reshape((J, 3, n))
-    a += J * 3 * n
-    GB = floats[a:a + 9 * n].reshape((3, 3, n))
-    a += 9 * n
+    pB = floats[a:a + P * C].reshape((P, C))
+    a += P * C
+    sinB = floats[a:a + P * C].reshape((P, C))
+    a += P * C
+    cosB = floats[a:a + P * C].reshape((P, C))
+    a += P * C
+    WB = floats[a:a + J * 9 * C].reshape((J, 3, 3, C))
+    a += J * 9 * C
+    WpB = floats[a:a + J * 3 * C].reshape((J, 3, C))
+    a += J * 3 * C
+    GB = floats[a:a + 9 * C].reshape((3, 3, C))
+    a += 9 * C
     pts = floats[a:a + Q * 3 * n].reshape((Q, 3, n))
     return b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts
 
 
 @nb.njit(cache=True, nogil=True, fastmath=True)
-def stage_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
-                 ints, floats, f, X, subset):
-    """Frame f's hypotheses X[f] (m, d): the points ``subset`` into the stage's block ``pts``
-    (Q, 3, n) mm, the hypothesis innermost (returned)."""
+def block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X):
+    """The joints of frames f0 <= f < f1 (at most G) with hypotheses X[f] (m, d) into the
+    stage's block buffers WpB, WB: frame f's hypothesis i in column (f - f0) m + i."""
     (base, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = _views(ints, floats)
     J, P = ints[7], ints[6]
     order = ints[_HEADER:_HEADER + J]
@@ -191,46 +199,51 @@ def stage_points(parents, offsets, rest, rest_identity, axes, axis_params, mirro
     stage_pos = ints[_HEADER + 3 * J + 2 * P:]
     m = X.shape[1]
     count, n_fixed, n_rows, n_frows = ints[0], ints[1], ints[2], ints[3]
-    for k in range(P):
-        t = stage_pos[k]
-        if t >= 0:
-            for i in range(m):
-                pB[k, i] = X[f, i, t]
+    for f in range(f0, f1):
+        at = (f - f0) * m
+        for k in range(P):
+            t = stage_pos[k]
+            if t >= 0:
+                for i in range(m):
+                    pB[k, at + i] = X[f, i, t]
+        for r in range(n_frows):
+            k = frows[r]
+            v, s, c = base[f, k], bsin[f, k], bcos[f, k]
+            for i in range(at, at + m):
+                pB[k, i] = v
+                sinB[k, i] = s
+                cosB[k, i] = c
+        for t in range(n_fixed):
+            j = fixed[t]
+            for r in range(3):
+                w = Wp0[f, j, r]
+                for i in range(at, at + m):
+                    WpB[j, r, i] = w
+                for c in range(3):
+                    w = W0[f, j, r, c]
+                    for i in range(at, at + m):
+                        WB[j, r, c, i] = w
+    columns = (f1 - f0) * m
     for r in range(n_rows):
         k = rows[r]
-        for i in range(m):
+        for i in range(columns):
             sinB[k, i], cosB[k, i] = sincos1(pB[k, i])
-    for r in range(n_frows):
-        k = frows[r]
-        v, s, c = base[f, k], bsin[f, k], bcos[f, k]
-        for i in range(m):
-            pB[k, i] = v
-            sinB[k, i] = s
-            cosB[k, i] = c
-    for t in range(n_fixed):
-        j = fixed[t]
-        for r in range(3):
-            w = Wp0[f, j, r]
-            for i in range(m):
-                WpB[j, r, i] = w
-            for c in range(3):
-                w = W0[f, j, r, c]
-                for i in range(m):
-                    WB[j, r, c, i] = w
-    block_frames(m, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
+    block_frames(columns, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
                  axis_params, mirror, WB, WpB, GB)
-    block_points(m, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], pts)
-    return pts
 
 
 def _kernel_frames(kernel, consts, proposals, weights, parents, offsets, rest, rest_identity, axes, axis_params,
                    mirror, pm_ptr, pm_joint, pm_weight, ints, floats, X, subset, losses):
     """losses[f, :m] = the kernel's loss over ``subset`` of frame f's hypotheses X[f] (m, d)."""
-    m = X.shape[1]
-    for f in range(X.shape[0]):
-        pts = stage_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint,
-                           pm_weight, ints, floats, f, X, subset)
-        kernel(pts, subset, proposals[f], weights[f], consts, losses[f, :m])
+    F, m = X.shape[0], X.shape[1]
+    G = ints[9]
+    WpB, pts = _views(ints, floats)[9], _views(ints, floats)[11]
+    for f0 in range(0, F, G):
+        f1 = min(F, f0 + G)
+        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X)
+        for f in range(f0, f1):
+            block_points(m, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], pts, (f - f0) * m)
+            kernel(pts, subset, proposals[f], weights[f], consts, losses[f, :m])
 
 
 _KERNEL_FRAMES = T.void(
@@ -251,15 +264,19 @@ def frame_points(parents, offsets, rest, rest_identity, axes, axis_params, mirro
                  ints, floats, X, subset, out):
     """out (F, m, Q, 3) mm: the points ``subset`` of every frame's hypotheses X (F, m, d) (the
     other points are left as they are)."""
-    m = X.shape[1]
-    for f in range(X.shape[0]):
-        pts = stage_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint,
-                           pm_weight, ints, floats, f, X, subset)
-        for t in range(subset.shape[0]):
-            q = subset[t]
-            for c in range(3):
-                for i in range(m):
-                    out[f, i, q, c] = pts[q, c, i]
+    F, m = X.shape[0], X.shape[1]
+    G = ints[9]
+    WpB, pts = _views(ints, floats)[9], _views(ints, floats)[11]
+    for f0 in range(0, F, G):
+        f1 = min(F, f0 + G)
+        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X)
+        for f in range(f0, f1):
+            block_points(m, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], pts, (f - f0) * m)
+            for t in range(subset.shape[0]):
+                q = subset[t]
+                for c in range(3):
+                    for i in range(m):
+                        out[f, i, q, c] = pts[q, c, i]
 
 
 @functools.cache

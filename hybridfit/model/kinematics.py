@@ -179,9 +179,9 @@ def block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, r
 
 
 @nb.njit(cache=True, fastmath=True)
-def block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
-    """Points indices[lo:hi] of the first m hypotheses: out[q, :, i] = sum_j point_map[q, j]
-    WpB[j, :, i] (out (Q, 3, n) mm)."""
+def block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out, first=0):
+    """Points indices[lo:hi] of the m hypotheses in columns first, first + 1, ... of WpB:
+    out[q, :, i] = sum_j point_map[q, j] WpB[j, :, first + i] (out (Q, 3, n) mm)."""
     for t in range(lo, hi):
         q = indices[t]
         e0 = pm_ptr[q]
@@ -189,13 +189,13 @@ def block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out):
         w0 = pm_weight[e0]
         for c in range(3):
             for i in range(m):
-                out[q, c, i] = w0 * WpB[j0, c, i]
+                out[q, c, i] = w0 * WpB[j0, c, first + i]
         for e in range(e0 + 1, pm_ptr[q + 1]):
             j = pm_joint[e]
             w = pm_weight[e]
             for c in range(3):
                 for i in range(m):
-                    out[q, c, i] += w * WpB[j, c, i]
+                    out[q, c, i] += w * WpB[j, c, first + i]
 
 
 @nb.njit(cache=True)

@@ -81,15 +81,16 @@ def pso_init(start, lower, upper, keys, budget, settings):
     pbest_f = np.full((F, n), np.inf)
     best = np.zeros(F, dtype=np.int64)
     counters = np.array([n * d, 1])  # the next uniform number; 1 while the first swarm is unscored
+    draws = np.empty(2 * n * d)  # one frame's r1, r2 of a generation
     return x, v, pbest_x, pbest_f, best, lower.copy(), upper.copy(), settings[VMAX] * span, keys.copy(), \
-        settings.copy(), counters
+        settings.copy(), counters, draws
 
 
 @nb.njit(cache=True, nogil=True, fastmath=True)
 def pso_ask(state, m):
     """The first m particles of every frame after one constricted update (the first call: the
     initial swarm) -> (F, m, d)."""
-    x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters = state
+    x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters, draws = state
     if counters[1]:
         return x[:, :m]
     F, n, d = x.shape
@@ -98,10 +99,12 @@ def pso_ask(state, m):
     for f in range(F):
         key = keys[f]
         g = best[f]
+        for e in range(2 * m * d):  # one flat loop: it vectorises
+            draws[e] = uniform(key, at + e)
         for i in range(m):
             for k in range(d):
-                r1 = uniform(key, at + i * d + k)
-                r2 = uniform(key, at + (m + i) * d + k)
+                r1 = draws[i * d + k]
+                r2 = draws[(m + i) * d + k]
                 vk = chi * (v[f, i, k] + c1 * r1 * (pbest_x[f, i, k] - x[f, i, k])
                             + c2 * r2 * (pbest_x[f, g, k] - x[f, i, k]))
                 vk = min(max(vk, -vmax[f, k]), vmax[f, k])
@@ -116,7 +119,7 @@ def pso_ask(state, m):
 @nb.njit(cache=True, nogil=True)
 def pso_tell(state, X, losses):
     """Personal and swarm bests of every frame after scoring the batch (losses (F, m))."""
-    x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters = state
+    x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters, draws = state
     F, m = losses.shape
     d = x.shape[2]
     counters[1] = 0
