@@ -278,9 +278,9 @@ def fit(
                                 bar.update(len(items))
                             stops.check()
                     except KeyboardInterrupt:  # the chunks still running are lost: stop their workers now
-                        pool.shutdown(wait=False, cancel_futures=True)
                         for worker in list((getattr(pool, "_processes", None) or {}).values()):
-                            worker.terminate()
+                            worker.kill()  # they ignore stop signals; before shutdown, which forgets them
+                        pool.shutdown(wait=False, cancel_futures=True)
                         raise
     except KeyboardInterrupt:
         result.interrupted = True
