@@ -5,12 +5,14 @@ The keys: stage s of frame f of a fit with seed ``seed`` draws from the stream
 finaliser of ``z + golden`` (Steele, Lea & Flood, *Fast splittable pseudorandom number
 generators*, OOPSLA 2014), all arithmetic modulo 2^64. So a frame's numbers depend on
 nothing but (seed, frame, stage): not on the frames fitted beside it, the chunking or
-``--jobs``. Number c of stream k is ``mix(k + c * golden)``; optimisers compute them inside
-their (compiled or numpy) steps, in any order and without a buffer.
+``--jobs``. Numbers come in pairs: numbers 2p and 2p + 1 of stream k are the two 32-bit
+halves of ``mix(k + p * golden)`` (one hash serves two numbers); optimisers compute them
+inside their (compiled or numpy) steps, in any order and without a buffer.
 
-Uniform numbers are exact multiples of 2^-53 in [0, 1) computed with integer operations
-only, so they are identical wherever the function is inlined. Standard normal numbers use
-Box-Muller on two uniforms of a second stream of the same key.
+Uniform numbers are exact multiples of 2^-32 in [0, 1) computed with integer operations
+only, so they are identical wherever the function is inlined. Standard normal numbers 2p and
+2p + 1 are the Box-Muller pair (cosine, sine) of the two halves of pair p of a second
+stream of the same key.
 """
 
 from __future__ import annotations
@@ -18,11 +20,13 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ..model.kinematics import sincos1
+
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
 _NORMAL_SALT = np.uint64(0xD1B54A32D192ED03)
-_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+_S30, _S27, _S31 = np.uint64(30), np.uint64(27), np.uint64(31)
 _TWO_PI = 6.283185307179586
 
 
@@ -34,33 +38,72 @@ def _mix(key, counter):
     return z ^ (z >> _S31)
 
 
+_S32 = np.uint64(32)
+_LOW = np.uint64(0xFFFFFFFF)
+_TWO_M32 = 2.3283064365386963e-10  # 2^-32
+
+
+@nb.njit(cache=True, inline="always")
+def uniform_pair(key, pair):
+    """Uniform numbers 2 pair and 2 pair + 1 (pair >= 0) of stream ``key`` (uint64): floats in [0, 1)."""
+    h = _mix(key, pair)
+    return np.float64(h >> _S32) * _TWO_M32, np.float64(h & _LOW) * _TWO_M32
+
+
 @nb.njit(cache=True, inline="always")
 def uniform(key, counter):
     """Number ``counter`` (>= 0) of the uniform stream ``key`` (uint64): a float in [0, 1)."""
-    return np.float64(_mix(key, counter) >> _S11) * 1.1102230246251565e-16
+    h = _mix(key, counter >> 1)
+    return np.float64((h & _LOW) if counter & 1 else (h >> _S32)) * _TWO_M32
+
+
+@nb.njit(cache=True, inline="always")
+def normal_pair(key, pair):
+    """Standard normal numbers 2 pair and 2 pair + 1 (pair >= 0) of stream ``key`` (uint64)."""
+    h = _mix(key ^ _NORMAL_SALT, pair)
+    u1 = 1.0 - np.float64(h >> _S32) * _TWO_M32  # (0, 1]
+    u2 = np.float64(h & _LOW) * _TWO_M32
+    r = np.sqrt(-2.0 * np.log(u1))
+    s, c = sincos1(_TWO_PI * u2)
+    return r * c, r * s
 
 
 @nb.njit(cache=True)
 def normal(key, counter):
     """Number ``counter`` (>= 0) of the standard normal stream ``key`` (uint64)."""
-    k = key ^ _NORMAL_SALT
-    u1 = 1.0 - np.float64(_mix(k, 2 * counter) >> _S11) * 1.1102230246251565e-16  # (0, 1]
-    u2 = np.float64(_mix(k, 2 * counter + 1) >> _S11) * 1.1102230246251565e-16
-    return np.sqrt(-2.0 * np.log(u1)) * np.cos(_TWO_PI * u2)
+    a, b = normal_pair(key, counter >> 1)
+    return b if counter & 1 else a
 
 
 @nb.njit(cache=True)
 def fill_uniform(key, start, out):
-    """out (n,) = uniform numbers start, start + 1, ... of stream ``key``."""
-    for i in range(out.shape[0]):
-        out[i] = uniform(key, start + i)
+    """out (n,) = uniform numbers start, start + 1, ... of stream ``key`` (one hash per pair)."""
+    n = out.shape[0]
+    first = start & 1
+    if n and first:
+        out[0] = uniform(key, start)
+    pairs = (n - first) // 2
+    p0 = (start + first) >> 1
+    for p in range(pairs):  # one flat loop: it vectorises
+        out[first + 2 * p], out[first + 2 * p + 1] = uniform_pair(key, p0 + p)
+    if first + 2 * pairs < n:
+        out[n - 1] = uniform(key, start + n - 1)
 
 
 @nb.njit(cache=True)
 def fill_normal(key, start, out):
-    """out (n,) = standard normal numbers start, start + 1, ... of stream ``key``."""
-    for i in range(out.shape[0]):
-        out[i] = normal(key, start + i)
+    """out (n,) = standard normal numbers start, start + 1, ... of stream ``key`` (one
+    Box-Muller pair per two numbers)."""
+    n = out.shape[0]
+    first = start & 1
+    if n and first:
+        out[0] = normal(key, start)
+    pairs = (n - first) // 2
+    p0 = (start + first) >> 1
+    for p in range(pairs):
+        out[first + 2 * p], out[first + 2 * p + 1] = normal_pair(key, p0 + p)
+    if first + 2 * pairs < n:
+        out[n - 1] = normal(key, start + n - 1)
 
 
 @nb.njit(cache=True)
@@ -92,19 +135,15 @@ def stage_keys(seed: int, frames, stages: int) -> np.ndarray:
 @nb.njit(cache=True)
 def _uniforms(keys, start, out):
     F = keys.shape[0]
-    n = out.shape[1]
     for f in range(F):
-        for i in range(n):
-            out[f, i] = uniform(keys[f], start + i)
+        fill_uniform(keys[f], start, out[f])
 
 
 @nb.njit(cache=True)
 def _normals(keys, start, out):
     F = keys.shape[0]
-    n = out.shape[1]
     for f in range(F):
-        for i in range(n):
-            out[f, i] = normal(keys[f], start + i)
+        fill_normal(keys[f], start, out[f])
 
 
 def uniforms(keys: np.ndarray, start: int, shape) -> np.ndarray:

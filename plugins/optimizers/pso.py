@@ -13,9 +13,10 @@ is used exactly.
 
 Written as :class:`~hybridfit.optimizer.BatchSteps` (numba-compiled, a frame axis first):
 the core's driver runs it for many frames in lockstep, compiled together with a compiled
-objective. Frame f's random numbers: uniform number c of its stage key (``keys[f]``,
-:mod:`hybridfit.fitting.streams`) for the initial swarm (c = i * d + k) and then r1, r2 of
-each generation in order; the Gaussian spread from the key's normal stream (i * d + k).
+objective. Frame f's random numbers: particle i's coordinate k of the initial swarm is
+number c = i * d + k of its stage key (``keys[f]``, :mod:`hybridfit.fitting.streams`): of
+the key's normal stream for the particles near the start, of its uniform stream for the
+others; then the uniform numbers r1, r2 of each generation follow in order.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import numba as nb
 import numpy as np
 from pydantic import Field
 
-from hybridfit.fitting.streams import normal, uniform
+from hybridfit.fitting.streams import fill_normal, fill_uniform
 from hybridfit.optimizer import BatchSteps, Optimizer, Task
 from hybridfit.plugin import Settings
 
@@ -62,14 +63,17 @@ def pso_init(start, lower, upper, keys, budget, settings):
     near = min(int(settings[NEAR]), n)
     x = np.empty((F, n, d))
     span = upper - lower
+    z = np.empty(n * d)  # one frame's numbers i * d + k: normal for the near particles, then uniform
     for f in range(F):
         key = keys[f]
-        for i in range(n):
-            for k in range(d):
-                x[f, i, k] = lower[f, k] + span[f, k] * uniform(key, i * d + k)
+        fill_normal(key, 0, z[:near * d])
+        fill_uniform(key, near * d, z[near * d:])
         for i in range(near):
             for k in range(d):
-                x[f, i, k] = start[f, k] + (settings[SIGMA] * normal(key, i * d + k)) * span[f, k]
+                x[f, i, k] = start[f, k] + (settings[SIGMA] * z[i * d + k]) * span[f, k]
+        for i in range(near, n):
+            for k in range(d):
+                x[f, i, k] = lower[f, k] + span[f, k] * z[i * d + k]
         if near:
             for k in range(d):
                 x[f, 0, k] = start[f, k]
@@ -99,8 +103,7 @@ def pso_ask(state, m):
     for f in range(F):
         key = keys[f]
         g = best[f]
-        for e in range(2 * m * d):  # one flat loop: it vectorises
-            draws[e] = uniform(key, at + e)
+        fill_uniform(key, at, draws[:2 * m * d])
         for i in range(m):
             for k in range(d):
                 r1 = draws[i * d + k]
