@@ -118,7 +118,7 @@ def stage_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
     n_rows = 0
     n_frows = 0
     for k in range(P):
-        if stage_pos[k] >= 0 and is_angle[k]:
+        if stage_pos[k] >= 0 and is_angle[k] and reads_param[k]:  # sines only of angles a listed joint reads
             rows[n_rows] = k
             n_rows += 1
         elif stage_pos[k] < 0 and reads_param[k]:
