@@ -187,15 +187,17 @@ def block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out, firs
         e0 = pm_ptr[q]
         j0 = pm_joint[e0]
         w0 = pm_weight[e0]
-        for c in range(3):
-            for i in range(m):
-                out[q, c, i] = w0 * WpB[j0, c, first + i]
+        for i in range(m):  # one loop per point and joint, not per coordinate: a swarm is short
+            out[q, 0, i] = w0 * WpB[j0, 0, first + i]
+            out[q, 1, i] = w0 * WpB[j0, 1, first + i]
+            out[q, 2, i] = w0 * WpB[j0, 2, first + i]
         for e in range(e0 + 1, pm_ptr[q + 1]):
             j = pm_joint[e]
             w = pm_weight[e]
-            for c in range(3):
-                for i in range(m):
-                    out[q, c, i] += w * WpB[j, c, first + i]
+            for i in range(m):
+                out[q, 0, i] += w * WpB[j, 0, first + i]
+                out[q, 1, i] += w * WpB[j, 1, first + i]
+                out[q, 2, i] += w * WpB[j, 2, first + i]
 
 
 @nb.njit(cache=True)

@@ -37,9 +37,29 @@ def clamped_confidence_kernel(points, subset, proposals, weights, consts, out):
     N = out.shape[0]
     K = proposals.shape[1]
     inv_d_max_sq = consts[0]
-    best = np.empty(N)
     for n in range(N):
         out[n] = 0.0
+    if K <= 3:  # up to three proposals per point: one loop per point (a short swarm pays per loop)
+        for jj in range(subset.shape[0]):
+            j = subset[jj]
+            x, y, z = points[j, 0], points[j, 1], points[j, 2]
+            # a missing proposal weighs 0 and so gives 0, as a weight of 0 does
+            w0 = weights[j, 0] if K > 0 else 0.0
+            w1 = weights[j, 1] if K > 1 else 0.0
+            w2 = weights[j, 2] if K > 2 else 0.0
+            r0, r1, r2 = 0, min(1, K - 1), min(2, K - 1)
+            ax, ay, az = proposals[j, r0, 0], proposals[j, r0, 1], proposals[j, r0, 2]
+            bx, by, bz = proposals[j, r1, 0], proposals[j, r1, 1], proposals[j, r1, 2]
+            cx, cy, cz = proposals[j, r2, 0], proposals[j, r2, 1], proposals[j, r2, 2]
+            for n in range(N):
+                xn, yn, zn = x[n], y[n], z[n]
+                da = ((ax - xn) ** 2 + (ay - yn) ** 2 + (az - zn) ** 2) * inv_d_max_sq
+                db = ((bx - xn) ** 2 + (by - yn) ** 2 + (bz - zn) ** 2) * inv_d_max_sq
+                dc = ((cx - xn) ** 2 + (cy - yn) ** 2 + (cz - zn) ** 2) * inv_d_max_sq
+                best = max(w0 * max(1.0 - da, 0.0), w1 * max(1.0 - db, 0.0))
+                out[n] -= max(best, w2 * max(1.0 - dc, 0.0))
+        return
+    best = np.empty(N)
     for jj in range(subset.shape[0]):  # hypotheses innermost and contiguous: the loops vectorise
         j = subset[jj]
         x, y, z = points[j, 0], points[j, 1], points[j, 2]

@@ -94,3 +94,22 @@ def test_a_subclass_that_overrides_bind_moves_the_fit():
     shifted = hybridfit.fit(data["proposals"], data["confidences"], objective=ShiftedX(), budget=600, seed=1)
     move = (shifted.model_joints - plain.model_joints).mean(axis=(0, 1))
     assert 20.0 < move[0] < 40.0 and abs(move[1]) < 10.0 and abs(move[2]) < 10.0
+
+
+def _paper_formula(p, w, x, d_max=40.0):
+    """-E of points x (N, Q, 3) by Eq. 1 in plain numpy: proposals p (Q, K, 3), weights w (Q, K)."""
+    d = np.minimum(1.0, np.linalg.norm(p[None] - x[:, :, None], axis=-1) / d_max)
+    return -(w[None] * (1.0 - d**2)).max(axis=-1).sum(axis=-1)
+
+
+@settings(max_examples=60, deadline=None)
+@given(k=st.integers(1, 5), seed=st.integers(0, 2**31 - 1))
+def test_every_proposal_count_follows_the_paper_formula(k, seed):
+    """The kernel's path for up to three proposals per point and its general path agree with
+    Eq. 1 (and so with each other), zero weights and clamped distances included."""
+    rng = np.random.default_rng(seed)
+    p = rng.normal(0.0, 40.0, (J, k, 3))
+    c = rng.random((J, k)) * (rng.random((J, k)) > 0.3)
+    x = rng.normal(0.0, 40.0, (7, J, 3))
+    w = normalise_confidences(c)
+    np.testing.assert_allclose(OBJ.bind(p, w)(x, np.arange(J)), _paper_formula(p, w, x), rtol=0, atol=1e-12)
