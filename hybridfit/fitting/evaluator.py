@@ -213,16 +213,17 @@ def block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, m
                 pB[k, i] = v
                 sinB[k, i] = s
                 cosB[k, i] = c
-        for t in range(n_fixed):
+        for t in range(n_fixed):  # one loop per fixed joint, not per entry: a swarm is short
             j = fixed[t]
-            for r in range(3):
-                w = Wp0[f, j, r]
-                for i in range(at, at + m):
-                    WpB[j, r, i] = w
-                for c in range(3):
-                    w = W0[f, j, r, c]
-                    for i in range(at, at + m):
-                        WB[j, r, c, i] = w
+            p0, p1, p2 = Wp0[f, j, 0], Wp0[f, j, 1], Wp0[f, j, 2]
+            a00, a01, a02 = W0[f, j, 0, 0], W0[f, j, 0, 1], W0[f, j, 0, 2]
+            a10, a11, a12 = W0[f, j, 1, 0], W0[f, j, 1, 1], W0[f, j, 1, 2]
+            a20, a21, a22 = W0[f, j, 2, 0], W0[f, j, 2, 1], W0[f, j, 2, 2]
+            for i in range(at, at + m):
+                WpB[j, 0, i], WpB[j, 1, i], WpB[j, 2, i] = p0, p1, p2
+                WB[j, 0, 0, i], WB[j, 0, 1, i], WB[j, 0, 2, i] = a00, a01, a02
+                WB[j, 1, 0, i], WB[j, 1, 1, i], WB[j, 1, 2, i] = a10, a11, a12
+                WB[j, 2, 0, i], WB[j, 2, 1, i], WB[j, 2, 2, i] = a20, a21, a22
     columns = (f1 - f0) * m
     for r in range(n_rows):
         k = rows[r]
