@@ -14,7 +14,7 @@ import numpy as np
 from .alignment import INLIER_MM, _aligned_guesses, alignment_points, initial_guess, robust_alignment  # noqa: F401
 from .errors import HybridfitError
 from .model.base import ORIENTATION, POSITION, HandModel
-from .model.kinematics import scratch_size, tree_points
+from .model.kinematics import COLUMNS, block_setup, tree_points
 from .objective import Objective, Observation, compiled_kernel_of, normalise_confidences
 from .stages import (MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, _Structure, guide_points, point_depths,  # noqa: F401
                      rotation_lever_mm, structure_of)
@@ -109,26 +109,28 @@ class Problem:
 
     def _evaluate_compiled(self, params: np.ndarray, subset: np.ndarray) -> np.ndarray:
         """:meth:`evaluate` by :func:`tree_points` and the objective's compiled kernel (in
-        this problem's working buffer: one thread at a time per problem)."""
-        kernel, consts, tree, points_of = self._compiled()
+        this problem's working buffers, one per subset: one thread at a time per problem)."""
+        kernel, consts, tree = self._compiled()
         if subset is not self.all_points:
             subset = np.ascontiguousarray(subset, dtype=np.int64)
         key = subset.tobytes()
-        joints = points_of.get(key)
-        if joints is None:
-            joints = points_of[key] = tree.joints_for(subset)
+        setup = self._setups.get(key)
+        n = max(1, min(len(params), COLUMNS))
+        if setup is None or setup[0][4] < n:  # all parameters moving, columns for n hypotheses
+            P = self.model.n_params
+            setup = self._setups[key] = block_setup(*tree.arrays, *tree.point_map, np.zeros((0, P)),
+                                                    np.arange(P), subset, subset, n)
         points = np.empty((len(self.point_names), 3, len(params)))
         out = np.empty(len(params))
-        tree_points(*tree.arrays, *tree.point_map, *joints, np.ascontiguousarray(params, dtype=np.float64), subset,
-                    points, self._scratch)
+        tree_points(*tree.arrays, *tree.point_map, *setup, np.ascontiguousarray(params, dtype=np.float64), subset,
+                    points)
         kernel(points, subset, self.proposals, self.weights, consts, out)
         return out
 
     def _compiled(self):
         if self._compiled_parts is None:
-            tree = self._structure().tree()
-            self._compiled_parts = (*self._kernel, tree, tree._joints)
-            self._scratch = np.empty(scratch_size(self.model.n_params, len(tree.parents), len(self.point_names)))
+            self._compiled_parts = (*self._kernel, self._structure().tree())
+            self._setups: dict[bytes, tuple] = {}
         return self._compiled_parts
 
     def _from_joints(self, joints: np.ndarray) -> np.ndarray:

@@ -2,8 +2,8 @@
 
 Computed once per model and point names (:func:`structure_of`): the stages (parameters and
 the points each scores), the points' depths in the kinematic tree and positions in the neutral
-pose, and the tree's arrays for compiled scoring with the joints each set of points needs
-(:func:`~hybridfit.model.kinematics.mark_needed`, the one walker). When a root stage's own
+pose, and the tree's arrays for compiled scoring (the joints a set of points needs are found
+by :func:`~hybridfit.model.kinematics.block_setup`, with the one walker). When a root stage's own
 observed points cannot determine the global rotation (too few, or nearly collinear), it is
 also scored on each later stage's observed points nearest to the root (:func:`guide_points`).
 """
@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 
 from .model.base import HandModel
-from .model.kinematics import mark_needed
 
 
 
@@ -65,8 +64,8 @@ class _Structure:
 
 
 class _Tree:
-    """A kinematic tree's arrays, a point map (Q, J) in CSR form and, per subset of points,
-    the joints to compute (cached)."""
+    """A kinematic tree's arrays and a point map (Q, J) in CSR form, as the block kinematics
+    (:mod:`hybridfit.model.kinematics`) read them."""
 
     def __init__(self, tree, point_matrix: np.ndarray | None, n_joints: int) -> None:
         req = lambda a, dtype: np.require(a, dtype=dtype, requirements=["C", "W"])  # noqa: E731
@@ -78,25 +77,6 @@ class _Tree:
         rows, cols = np.nonzero(M)
         self.point_map = (req(np.searchsorted(rows, np.arange(len(M) + 1)), np.int64), req(cols, np.int64),
                           req(M[rows, cols], np.float64))
-        self._joints: dict[bytes, tuple] = {}
-
-    def joints_for(self, subset: np.ndarray) -> tuple:
-        """(order (J,), count, oriented (J,), angle rows (P,), angle count): the joints the
-        points ``subset`` need, parents first, those whose rotation a needed child reads, and
-        the parameters that are their angles."""
-        key = np.asarray(subset, dtype=np.int64).tobytes()
-        found = self._joints.get(key)
-        if found is None:
-            needed = np.zeros(len(self.parents), dtype=np.bool_)
-            mark_needed(self.parents, self.point_map[0], self.point_map[1], np.asarray(subset, dtype=np.int64), needed)
-            order = np.flatnonzero(needed).astype(np.int64)
-            oriented = np.zeros(len(self.parents), dtype=np.bool_)
-            oriented[self.parents[order][self.parents[order] >= 0]] = True
-            rows = np.unique(self.axis_params[order][self.axes[order] >= 0]).astype(np.int64)
-            order_full = np.zeros(len(self.parents), dtype=np.int64)
-            order_full[:len(order)] = order
-            found = self._joints[key] = (order_full, len(order), oriented, rows, len(rows))
-        return found
 
 
 _STRUCTURES: dict[tuple, _Structure] = {}

@@ -1,5 +1,6 @@
 """Scoring a stage's hypotheses for many frames at once: forward kinematics of the joints the
-stage moves (:mod:`hybridfit.model.kinematics`' block kernel and walker), then the objective.
+stage moves (:mod:`hybridfit.model.kinematics`' block entry: :func:`block_setup` per stage,
+:func:`block_kinematics` per block of frames), then the objective.
 
 A *scorer* has two methods the driver (:mod:`.driver`) calls: ``prepare(base (F, P),
 parameters (d,), points (m,), owned (o,), batch) -> stage`` once per stage, and ``score(stage,
@@ -26,211 +27,7 @@ import numpy as np
 
 from ..errors import PluginError
 from ..objective import KERNEL_SIGNATURE
-from ..model.kinematics import block_frames, block_points, mark_needed, sincos1
-
-#: the tree's first parameters: position x, y, z (mm) and the quaternion w, x, y, z
-GLOBAL_PARAMS = 7
-
-
-#: header of a stage's integer array: counts of listed joints, fixed joints read, stage angle
-#: rows, fixed parameter rows read; batch n, frames F, parameters P, joints J, points Q, frames
-#: per block G
-_HEADER = 10
-
-#: hypotheses (of several frames) per block of the kinematics: the loops over a block are long
-#: enough to vectorise well and its buffers stay in cache
-COLUMNS = 256
-
-
-@nb.njit(cache=True, nogil=True)
-def stage_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
-                base, pidx, subset, owned, n):
-    """What a stage's scoring reuses, as (ints, floats): the joints to recompute per hypothesis
-    (those that the stage's points or owned points need and its parameters move, parents first;
-    :func:`~hybridfit.model.kinematics.mark_needed`), the joints and parameters read but fixed,
-    every frame's joints at ``base`` (F, P), and block buffers for G frames' batches of up to n
-    hypotheses side by side (G = COLUMNS // n, at least 1; see :func:`_views`)."""
-    F, P = base.shape
-    J = parents.shape[0]
-    Q = pm_ptr.shape[0] - 1
-    A = axes.shape[1]
-    n = max(n, 1)
-    needed = np.zeros(J, dtype=np.bool_)
-    mark_needed(parents, pm_ptr, pm_joint, subset, needed)
-    mark_needed(parents, pm_ptr, pm_joint, owned, needed)
-    ints = np.zeros(_HEADER + 3 * J + 3 * P, dtype=np.int64)
-    order = ints[_HEADER:_HEADER + J]
-    oriented = ints[_HEADER + J:_HEADER + 2 * J]
-    fixed = ints[_HEADER + 2 * J:_HEADER + 3 * J]
-    rows = ints[_HEADER + 3 * J:_HEADER + 3 * J + P]
-    frows = ints[_HEADER + 3 * J + P:_HEADER + 3 * J + 2 * P]
-    stage_pos = ints[_HEADER + 3 * J + 2 * P:]
-    stage_pos[:] = -1
-    is_global = False
-    for t in range(pidx.shape[0]):
-        stage_pos[pidx[t]] = t
-        if pidx[t] < GLOBAL_PARAMS:
-            is_global = True
-    is_angle = np.zeros(P, dtype=np.bool_)
-    for j in range(J):
-        for a in range(A):
-            if axes[j, a] >= 0:
-                is_angle[axis_params[j, a]] = True
-    for j in range(J):
-        if needed[j] and parents[j] >= 0:
-            oriented[parents[j]] = 1
-    listed = np.zeros(J, dtype=np.bool_)
-    variable = np.zeros(J, dtype=np.bool_)
-    count = 0
-    for j in range(J):
-        v = is_global or (parents[j] >= 0 and variable[parents[j]])
-        for a in range(A):
-            if axes[j, a] >= 0 and stage_pos[axis_params[j, a]] >= 0:
-                v = True
-        variable[j] = v
-        if v and needed[j]:
-            order[count] = j
-            listed[j] = True
-            count += 1
-    read = np.zeros(J, dtype=np.bool_)  # fixed joints that a listed joint or a point reads
-    for c in range(count):
-        if parents[order[c]] >= 0:
-            read[parents[order[c]]] = True
-    for t in range(subset.shape[0]):
-        for e in range(pm_ptr[subset[t]], pm_ptr[subset[t] + 1]):
-            read[pm_joint[e]] = True
-    for t in range(owned.shape[0]):
-        for e in range(pm_ptr[owned[t]], pm_ptr[owned[t] + 1]):
-            read[pm_joint[e]] = True
-    n_fixed = 0
-    for j in range(J):
-        if read[j] and not listed[j]:
-            fixed[n_fixed] = j
-            n_fixed += 1
-    reads_param = np.zeros(P, dtype=np.bool_)  # parameters the listed joints read
-    if count and parents[order[0]] < 0:
-        for k in range(GLOBAL_PARAMS):
-            reads_param[k] = True
-    for c in range(count):
-        for a in range(A):
-            if axes[order[c], a] >= 0:
-                reads_param[axis_params[order[c], a]] = True
-    n_rows = 0
-    n_frows = 0
-    for k in range(P):
-        if stage_pos[k] >= 0 and is_angle[k] and reads_param[k]:  # sines only of angles a listed joint reads
-            rows[n_rows] = k
-            n_rows += 1
-        elif stage_pos[k] < 0 and reads_param[k]:
-            frows[n_frows] = k
-            n_frows += 1
-    ints[0], ints[1], ints[2], ints[3] = count, n_fixed, n_rows, n_frows
-    G = max(1, min(F, COLUMNS // n))
-    ints[4], ints[5], ints[6], ints[7], ints[8], ints[9] = n, F, P, J, Q, G
-    C = G * n
-    floats = np.zeros(3 * F * P + 12 * F * J + 3 * P * C + 12 * J * C + 9 * C + 3 * Q * n)
-    (b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = _views(ints, floats)
-    b[:] = base
-    every = np.arange(J)
-    all_oriented = np.ones(J, dtype=np.int64)
-    for f in range(F):  # every frame's joints at base, by the same code as the hypotheses'
-        for k in range(P):
-            pB[k, 0] = base[f, k]
-            bcos[f, k] = 1.0
-            if is_angle[k]:
-                bsin[f, k], bcos[f, k] = sincos1(base[f, k])
-            sinB[k, 0], cosB[k, 0] = bsin[f, k], bcos[f, k]
-        block_frames(1, pB, sinB, cosB, every, J, all_oriented, parents, offsets, rest, rest_identity, axes,
-                     axis_params, mirror, WB, WpB, GB)
-        for j in range(J):
-            for r in range(3):
-                Wp0[f, j, r] = WpB[j, r, 0]
-                for c in range(3):
-                    W0[f, j, r, c] = WB[j, r, c, 0]
-    return ints, floats
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _views(ints, floats):
-    """The arrays of a stage's floats: base, bsin, bcos (F, P); W0 (F, J, 3, 3), Wp0 (F, J, 3)
-    the frames' joints at base; block buffers pB, sinB, cosB (P, C), WB (J, 3, 3, C), WpB
-    (J, 3, C), GB (3, 3, C) with C = G n columns (frame g's hypothesis i in column g n + i),
-    and one frame's points pts (Q, 3, n)."""
-    n, F, P, J, Q = ints[4], ints[5], ints[6], ints[7], ints[8]
-    C = ints[9] * n
-    a = 0
-    b = floats[a:a + F * P].reshape((F, P))
-    a += F * P
-    bsin = floats[a:a + F * P].reshape((F, P))
-    a += F * P
-    bcos = floats[a:a + F * P].reshape((F, P))
-    a += F * P
-    W0 = floats[a:a + F * J * 9].reshape((F, J, 3, 3))
-    a += F * J * 9
-    Wp0 = floats[a:a + F * J * 3].reshape((F, J, 3))
-    a += F * J * 3
-    pB = floats[a:a + P * C].reshape((P, C))
-    a += P * C
-    sinB = floats[a:a + P * C].reshape((P, C))
-    a += P * C
-    cosB = floats[a:a + P * C].reshape((P, C))
-    a += P * C
-    WB = floats[a:a + J * 9 * C].reshape((J, 3, 3, C))
-    a += J * 9 * C
-    WpB = floats[a:a + J * 3 * C].reshape((J, 3, C))
-    a += J * 3 * C
-    GB = floats[a:a + 9 * C].reshape((3, 3, C))
-    a += 9 * C
-    pts = floats[a:a + Q * 3 * n].reshape((Q, 3, n))
-    return b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts
-
-
-@nb.njit(cache=True, nogil=True, fastmath=True)
-def block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X):
-    """The joints of frames f0 <= f < f1 (at most G) with hypotheses X[f] (m, d) into the
-    stage's block buffers WpB, WB: frame f's hypothesis i in column (f - f0) m + i."""
-    (base, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = _views(ints, floats)
-    J, P = ints[7], ints[6]
-    order = ints[_HEADER:_HEADER + J]
-    oriented = ints[_HEADER + J:_HEADER + 2 * J]
-    fixed = ints[_HEADER + 2 * J:_HEADER + 3 * J]
-    rows = ints[_HEADER + 3 * J:_HEADER + 3 * J + P]
-    frows = ints[_HEADER + 3 * J + P:_HEADER + 3 * J + 2 * P]
-    stage_pos = ints[_HEADER + 3 * J + 2 * P:]
-    m = X.shape[1]
-    count, n_fixed, n_rows, n_frows = ints[0], ints[1], ints[2], ints[3]
-    for f in range(f0, f1):
-        at = (f - f0) * m
-        for k in range(P):
-            t = stage_pos[k]
-            if t >= 0:
-                for i in range(m):
-                    pB[k, at + i] = X[f, i, t]
-        for r in range(n_frows):
-            k = frows[r]
-            v, s, c = base[f, k], bsin[f, k], bcos[f, k]
-            for i in range(at, at + m):
-                pB[k, i] = v
-                sinB[k, i] = s
-                cosB[k, i] = c
-        for t in range(n_fixed):  # one loop per fixed joint, not per entry: a swarm is short
-            j = fixed[t]
-            p0, p1, p2 = Wp0[f, j, 0], Wp0[f, j, 1], Wp0[f, j, 2]
-            a00, a01, a02 = W0[f, j, 0, 0], W0[f, j, 0, 1], W0[f, j, 0, 2]
-            a10, a11, a12 = W0[f, j, 1, 0], W0[f, j, 1, 1], W0[f, j, 1, 2]
-            a20, a21, a22 = W0[f, j, 2, 0], W0[f, j, 2, 1], W0[f, j, 2, 2]
-            for i in range(at, at + m):
-                WpB[j, 0, i], WpB[j, 1, i], WpB[j, 2, i] = p0, p1, p2
-                WB[j, 0, 0, i], WB[j, 0, 1, i], WB[j, 0, 2, i] = a00, a01, a02
-                WB[j, 1, 0, i], WB[j, 1, 1, i], WB[j, 1, 2, i] = a10, a11, a12
-                WB[j, 2, 0, i], WB[j, 2, 1, i], WB[j, 2, 2, i] = a20, a21, a22
-    columns = (f1 - f0) * m
-    for r in range(n_rows):
-        k = rows[r]
-        for i in range(columns):
-            sinB[k, i], cosB[k, i] = sincos1(pB[k, i])
-    block_frames(columns, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
-                 axis_params, mirror, WB, WpB, GB)
+from ..model.kinematics import block_kinematics, block_points, block_setup, block_views
 
 
 def _kernel_frames(kernel, consts, proposals, weights, parents, offsets, rest, rest_identity, axes, axis_params,
@@ -238,7 +35,7 @@ def _kernel_frames(kernel, consts, proposals, weights, parents, offsets, rest, r
     """losses[f, :m] = the kernel's loss over ``subset`` of frame f's hypotheses X[f] (m, d)."""
     F, m = X.shape[0], X.shape[1]
     G = ints[9]
-    WpB, pts = _views(ints, floats)[9], _views(ints, floats)[11]
+    WpB, pts = block_views(ints, floats)[9], block_views(ints, floats)[11]
     for f0 in range(0, F, G):
         f1 = min(F, f0 + G)
         block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X)
@@ -267,7 +64,7 @@ def frame_points(parents, offsets, rest, rest_identity, axes, axis_params, mirro
     other points are left as they are)."""
     F, m = X.shape[0], X.shape[1]
     G = ints[9]
-    WpB, pts = _views(ints, floats)[9], _views(ints, floats)[11]
+    WpB, pts = block_views(ints, floats)[9], block_views(ints, floats)[11]
     for f0 in range(0, F, G):
         f1 = min(F, f0 + G)
         block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X)
@@ -305,7 +102,7 @@ class KernelScorer:
         self._run = kernel_frames()
 
     def prepare(self, base, pidx, subset, owned, n):
-        return stage_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n)
+        return block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n)
 
     def score(self, stage, X, subset, losses):
         self._run(self.kernel[0], self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map, *stage,
@@ -329,7 +126,7 @@ class NumpyScorer:
 
     def prepare(self, base, pidx, subset, owned, n):
         if self.tree is not None:
-            stage = stage_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n)
+            stage = block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n)
         else:
             stage = (base.copy(), pidx)
         return stage, np.zeros((len(base), max(n, 1), self.Q, 3))

@@ -5,6 +5,16 @@ evaluates it for N parameter vectors at once, and other consumers (the CasADi in
 kinematics, calibration) build on the same description, so there is never a second
 hand-written copy of a model's kinematics.
 
+One kernel, one walker, one block entry, shared by the model, the Problem and the driver:
+:func:`block_frames` computes the listed joints of a block of hypotheses (the hypothesis the
+innermost axis); :func:`mark_needed` finds the joints a set of points needs;
+:func:`block_setup` lays out a block computation (which joints and angles move, which are
+fixed at a base, the buffers) and :func:`block_kinematics` runs it for one or several frames'
+hypotheses. :func:`tree_forward` (``model.forward``, laid out once per thread, tree and joint
+set by :func:`forward_setup`) and :func:`tree_points` (``Problem.evaluate``, laid out once per
+problem and point set) are that entry with all parameters moving; the driver's scorers
+(:mod:`hybridfit.fitting.evaluator`) use it with a stage's parameters moving.
+
 Frames: joint j's frame is ``R_j = R_parent @ rest_j @ Rot(axis_1, theta_1) @ ...``; its
 position ``p_j = p_parent + R_parent @ offset_j``; the root's parent is the hand frame.
 Hand-frame points are mirrored (x negated) for a left hand, then rotated by the global
@@ -13,6 +23,8 @@ quaternion (parameters 3..6) and translated by parameters 0..2.
 
 from __future__ import annotations
 
+import threading
+import weakref
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -86,19 +98,6 @@ def sincos(x, s, c):
     cf = c.reshape(-1)
     for i in range(xf.size):
         sf[i], cf[i] = sincos1(xf[i])
-
-
-@nb.njit(cache=True, fastmath=_NO_REASSOC)
-def sincos_rows(rows, count, x, s, c, m):
-    """s[k, :m], c[k, :m] = sin, cos of x[k, :m] for k in rows[:count] (x, s, c (P, n))."""
-    for t in range(count):
-        k = rows[t]
-        for i in range(m):
-            s[k, i], c[k, i] = sincos1(x[k, i])
-
-
-#: hypotheses per block of :func:`tree_forward` (its loops over a block vectorise)
-BLOCK = 64
 
 
 @nb.njit(cache=True, fastmath=True)
@@ -179,25 +178,25 @@ def block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, r
 
 
 @nb.njit(cache=True, fastmath=True)
-def block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out, first=0):
+def block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out, first=0, at=0):
     """Points indices[lo:hi] of the m hypotheses in columns first, first + 1, ... of WpB:
-    out[q, :, i] = sum_j point_map[q, j] WpB[j, :, first + i] (out (Q, 3, n) mm)."""
+    out[q, :, at + i] = sum_j point_map[q, j] WpB[j, :, first + i] (out (Q, 3, n) mm)."""
     for t in range(lo, hi):
         q = indices[t]
         e0 = pm_ptr[q]
         j0 = pm_joint[e0]
         w0 = pm_weight[e0]
         for i in range(m):  # one loop per point and joint, not per coordinate: a swarm is short
-            out[q, 0, i] = w0 * WpB[j0, 0, first + i]
-            out[q, 1, i] = w0 * WpB[j0, 1, first + i]
-            out[q, 2, i] = w0 * WpB[j0, 2, first + i]
+            out[q, 0, at + i] = w0 * WpB[j0, 0, first + i]
+            out[q, 1, at + i] = w0 * WpB[j0, 1, first + i]
+            out[q, 2, at + i] = w0 * WpB[j0, 2, first + i]
         for e in range(e0 + 1, pm_ptr[q + 1]):
             j = pm_joint[e]
             w = pm_weight[e]
             for i in range(m):
-                out[q, 0, i] += w * WpB[j, 0, first + i]
-                out[q, 1, i] += w * WpB[j, 1, first + i]
-                out[q, 2, i] += w * WpB[j, 2, first + i]
+                out[q, 0, at + i] += w * WpB[j, 0, first + i]
+                out[q, 1, at + i] += w * WpB[j, 1, first + i]
+                out[q, 2, at + i] += w * WpB[j, 2, first + i]
 
 
 @nb.njit(cache=True)
@@ -214,53 +213,274 @@ def mark_needed(parents, pm_ptr, pm_joint, points, needed):
                 j = parents[j]
 
 
-@nb.njit(cache=True)
-def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, active, out):
-    """params (N, P) -> out (N, J, 3) mm: forward kinematics of a KinematicTree.
+#: the tree's first parameters: position x, y, z (mm) and the quaternion w, x, y, z
+GLOBAL_PARAMS = 7
 
-    Only joints with ``active[j]`` are computed (the others are NaN); the active set must
-    contain the parents of its joints. Works on blocks of hypotheses with the hypothesis as
-    the innermost, contiguous axis (:func:`block_frames`)."""
-    N, P = params.shape
+
+#: header of a stage's integer array: counts of listed joints, fixed joints read, stage angle
+#: rows, fixed parameter rows read; batch n, frames F, parameters P, joints J, points Q, frames
+#: per block G
+_HEADER = 10
+
+#: hypotheses (of several frames) per block of the kinematics: the loops over a block are long
+#: enough to vectorise well and its buffers stay in cache
+COLUMNS = 256
+
+
+@nb.njit(cache=True, nogil=True)
+def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
+                base, pidx, subset, owned, n):
+    """A block computation of F frames whose parameters ``pidx`` (d,) move from ``base`` (F, P),
+    for the points ``subset`` and ``owned`` (the point map (Q, J) in CSR form: pm_ptr,
+    pm_joint, pm_weight), as (ints, floats): the joints to recompute per hypothesis (those the
+    points need, :func:`mark_needed`, and the parameters move, parents first), the joints and
+    parameters read but fixed, the angles to take sines of, every frame's joints at ``base``,
+    and block buffers for G frames' batches of up to n hypotheses side by side (G = COLUMNS //
+    n, at least 1; see :func:`block_views`)."""
+    F, P = base.shape
     J = parents.shape[0]
+    Q = pm_ptr.shape[0] - 1
     A = axes.shape[1]
-    pB = np.empty((P, BLOCK))
-    sinB = np.empty((P, BLOCK))
-    cosB = np.empty((P, BLOCK))
-    WB = np.empty((J, 3, 3, BLOCK))
-    WpB = np.empty((J, 3, BLOCK))
-    GB = np.empty((3, 3, BLOCK))
-    order = np.empty(J, dtype=np.int64)
-    count = 0
-    for j in range(J):
-        if active[j]:
-            order[count] = j
-            count += 1
-    oriented = np.ones(J, dtype=np.bool_)
-    rows = np.empty(P, dtype=np.int64)  # the parameters that are angles of active joints
-    angle = np.zeros(P, dtype=np.bool_)
+    n = max(n, 1)
+    needed = np.zeros(J, dtype=np.bool_)
+    mark_needed(parents, pm_ptr, pm_joint, subset, needed)
+    mark_needed(parents, pm_ptr, pm_joint, owned, needed)
+    ints = np.zeros(_HEADER + 3 * J + 3 * P, dtype=np.int64)
+    order = ints[_HEADER:_HEADER + J]
+    oriented = ints[_HEADER + J:_HEADER + 2 * J]
+    fixed = ints[_HEADER + 2 * J:_HEADER + 3 * J]
+    rows = ints[_HEADER + 3 * J:_HEADER + 3 * J + P]
+    frows = ints[_HEADER + 3 * J + P:_HEADER + 3 * J + 2 * P]
+    stage_pos = ints[_HEADER + 3 * J + 2 * P:]
+    stage_pos[:] = -1
+    is_global = False
+    for t in range(pidx.shape[0]):
+        stage_pos[pidx[t]] = t
+        if pidx[t] < GLOBAL_PARAMS:
+            is_global = True
+    is_angle = np.zeros(P, dtype=np.bool_)
     for j in range(J):
         for a in range(A):
-            if active[j] and axes[j, a] >= 0:
-                angle[axis_params[j, a]] = True
+            if axes[j, a] >= 0:
+                is_angle[axis_params[j, a]] = True
+    for j in range(J):
+        if needed[j] and parents[j] >= 0:
+            oriented[parents[j]] = 1
+    listed = np.zeros(J, dtype=np.bool_)
+    variable = np.zeros(J, dtype=np.bool_)
+    count = 0
+    for j in range(J):
+        v = is_global or (parents[j] >= 0 and variable[parents[j]])
+        for a in range(A):
+            if axes[j, a] >= 0 and stage_pos[axis_params[j, a]] >= 0:
+                v = True
+        variable[j] = v
+        if v and needed[j]:
+            order[count] = j
+            listed[j] = True
+            count += 1
+    read = np.zeros(J, dtype=np.bool_)  # fixed joints that a listed joint or a point reads
+    for c in range(count):
+        if parents[order[c]] >= 0:
+            read[parents[order[c]]] = True
+    for t in range(subset.shape[0]):
+        for e in range(pm_ptr[subset[t]], pm_ptr[subset[t] + 1]):
+            read[pm_joint[e]] = True
+    for t in range(owned.shape[0]):
+        for e in range(pm_ptr[owned[t]], pm_ptr[owned[t] + 1]):
+            read[pm_joint[e]] = True
+    n_fixed = 0
+    for j in range(J):
+        if read[j] and not listed[j]:
+            fixed[n_fixed] = j
+            n_fixed += 1
+    reads_param = np.zeros(P, dtype=np.bool_)  # parameters the listed joints read
+    if count and parents[order[0]] < 0:
+        for k in range(GLOBAL_PARAMS):
+            reads_param[k] = True
+    for c in range(count):
+        for a in range(A):
+            if axes[order[c], a] >= 0:
+                reads_param[axis_params[order[c], a]] = True
     n_rows = 0
+    n_frows = 0
     for k in range(P):
-        if angle[k]:
+        if stage_pos[k] >= 0 and is_angle[k] and reads_param[k]:
             rows[n_rows] = k
             n_rows += 1
-    for n0 in range(0, N, BLOCK):
-        B = min(BLOCK, N - n0)
-        for i in range(B):
-            for k in range(P):
-                pB[k, i] = params[n0 + i, k]
-        sincos_rows(rows, n_rows, pB, sinB, cosB, B)
-        block_frames(B, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_is_identity, axes,
+        elif stage_pos[k] < 0 and reads_param[k]:
+            frows[n_frows] = k
+            n_frows += 1
+    ints[0], ints[1], ints[2], ints[3] = count, n_fixed, n_rows, n_frows
+    G = max(1, min(F, COLUMNS // n))
+    ints[4], ints[5], ints[6], ints[7], ints[8], ints[9] = n, F, P, J, Q, G
+    C = G * n
+    floats = np.empty(3 * F * P + 12 * F * J + 3 * P * C + 12 * J * C + 9 * C + 3 * Q * n)
+    (b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = block_views(ints, floats)
+    b[:] = base
+    every = np.arange(J)
+    all_oriented = np.ones(J, dtype=np.int64)
+    for f in range(F):  # every frame's joints at base, by the same code as the hypotheses'
+        for k in range(P):
+            pB[k, 0] = base[f, k]
+            bcos[f, k] = 1.0
+            if is_angle[k]:
+                bsin[f, k], bcos[f, k] = sincos1(base[f, k])
+            sinB[k, 0], cosB[k, 0] = bsin[f, k], bcos[f, k]
+        block_frames(1, pB, sinB, cosB, every, J, all_oriented, parents, offsets, rest, rest_identity, axes,
                      axis_params, mirror, WB, WpB, GB)
+        for j in range(J):
+            for r in range(3):
+                Wp0[f, j, r] = WpB[j, r, 0]
+                for c in range(3):
+                    W0[f, j, r, c] = WB[j, r, c, 0]
+    return ints, floats
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def block_views(ints, floats):
+    """The arrays of a stage's floats: base, bsin, bcos (F, P); W0 (F, J, 3, 3), Wp0 (F, J, 3)
+    the frames' joints at base; block buffers pB, sinB, cosB (P, C), WB (J, 3, 3, C), WpB
+    (J, 3, C), GB (3, 3, C) with C = G n columns (frame g's hypothesis i in column g n + i),
+    and one frame's points pts (Q, 3, n)."""
+    n, F, P, J, Q = ints[4], ints[5], ints[6], ints[7], ints[8]
+    C = ints[9] * n
+    a = 0
+    b = floats[a:a + F * P].reshape((F, P))
+    a += F * P
+    bsin = floats[a:a + F * P].reshape((F, P))
+    a += F * P
+    bcos = floats[a:a + F * P].reshape((F, P))
+    a += F * P
+    W0 = floats[a:a + F * J * 9].reshape((F, J, 3, 3))
+    a += F * J * 9
+    Wp0 = floats[a:a + F * J * 3].reshape((F, J, 3))
+    a += F * J * 3
+    pB = floats[a:a + P * C].reshape((P, C))
+    a += P * C
+    sinB = floats[a:a + P * C].reshape((P, C))
+    a += P * C
+    cosB = floats[a:a + P * C].reshape((P, C))
+    a += P * C
+    WB = floats[a:a + J * 9 * C].reshape((J, 3, 3, C))
+    a += J * 9 * C
+    WpB = floats[a:a + J * 3 * C].reshape((J, 3, C))
+    a += J * 3 * C
+    GB = floats[a:a + 9 * C].reshape((3, 3, C))
+    a += 9 * C
+    pts = floats[a:a + Q * 3 * n].reshape((Q, 3, n))
+    return b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts
+
+
+@nb.njit(cache=True, nogil=True, fastmath=True)
+def block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X,
+                     first=0, m=-1):
+    """The joints of frames f0 <= f < f1 (at most G) with hypotheses X[f, first:first + m]
+    (X (F, >= first + m, d); m < 0: the rest of X) into the block buffers WpB, WB: frame f's
+    hypothesis first + i in column (f - f0) m + i."""
+    (base, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = block_views(ints, floats)
+    J, P = ints[7], ints[6]
+    order = ints[_HEADER:_HEADER + J]
+    oriented = ints[_HEADER + J:_HEADER + 2 * J]
+    fixed = ints[_HEADER + 2 * J:_HEADER + 3 * J]
+    rows = ints[_HEADER + 3 * J:_HEADER + 3 * J + P]
+    frows = ints[_HEADER + 3 * J + P:_HEADER + 3 * J + 2 * P]
+    stage_pos = ints[_HEADER + 3 * J + 2 * P:]
+    if m < 0:
+        m = X.shape[1] - first
+    count, n_fixed, n_rows, n_frows = ints[0], ints[1], ints[2], ints[3]
+    for f in range(f0, f1):
+        at = (f - f0) * m
+        for k in range(P):
+            t = stage_pos[k]
+            if t >= 0:
+                for i in range(m):
+                    pB[k, at + i] = X[f, first + i, t]
+        for r in range(n_frows):
+            k = frows[r]
+            v, s, c = base[f, k], bsin[f, k], bcos[f, k]
+            for i in range(at, at + m):
+                pB[k, i] = v
+                sinB[k, i] = s
+                cosB[k, i] = c
+        for t in range(n_fixed):  # one loop per fixed joint, not per entry: a swarm is short
+            j = fixed[t]
+            p0, p1, p2 = Wp0[f, j, 0], Wp0[f, j, 1], Wp0[f, j, 2]
+            a00, a01, a02 = W0[f, j, 0, 0], W0[f, j, 0, 1], W0[f, j, 0, 2]
+            a10, a11, a12 = W0[f, j, 1, 0], W0[f, j, 1, 1], W0[f, j, 1, 2]
+            a20, a21, a22 = W0[f, j, 2, 0], W0[f, j, 2, 1], W0[f, j, 2, 2]
+            for i in range(at, at + m):
+                WpB[j, 0, i], WpB[j, 1, i], WpB[j, 2, i] = p0, p1, p2
+                WB[j, 0, 0, i], WB[j, 0, 1, i], WB[j, 0, 2, i] = a00, a01, a02
+                WB[j, 1, 0, i], WB[j, 1, 1, i], WB[j, 1, 2, i] = a10, a11, a12
+                WB[j, 2, 0, i], WB[j, 2, 1, i], WB[j, 2, 2, i] = a20, a21, a22
+    columns = (f1 - f0) * m
+    for r in range(n_rows):
+        k = rows[r]
+        for i in range(columns):
+            sinB[k, i], cosB[k, i] = sincos1(pB[k, i])
+    block_frames(columns, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
+                 axis_params, mirror, WB, WpB, GB)
+
+
+#: hypotheses per block of :func:`tree_forward`: a block's joints and its rows of the output
+#: (hypothesis-major, so copied across) stay in the first-level cache
+FORWARD_COLUMNS = 64
+
+
+def forward_setup(parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, active, P: int):
+    """:func:`block_setup` of all P parameters moving, for the joints ``active`` (J,) bool,
+    over :data:`FORWARD_COLUMNS` columns: :func:`tree_forward`'s layout and buffers."""
+    J = len(parents)
+    identity = np.arange(J + 1, dtype=np.int64)  # each joint is its own point
+    joints = np.flatnonzero(active).astype(np.int64)
+    return block_setup(parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, identity, identity[:J],
+                       np.ones(J), np.zeros((0, P)), np.arange(P, dtype=np.int64), joints, joints, FORWARD_COLUMNS)
+
+
+@nb.njit(cache=True, nogil=True)
+def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, ints, floats, active,
+                 out):
+    """params (N, P) C-contiguous -> out (N, J, 3) mm: forward kinematics of a KinematicTree,
+    by the block kinematics of :func:`forward_setup` (``ints``, ``floats``).
+
+    Only joints with ``active[j]`` are computed (the others are NaN); the active set must
+    contain the parents of its joints."""
+    N, P = params.shape
+    J = parents.shape[0]
+    n = ints[4]
+    WpB = block_views(ints, floats)[9]
+    X = params.reshape((1, N, P))
+    for n0 in range(0, N, n):
+        B = min(n, N - n0)
+        block_kinematics(parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, ints, floats, 0, 1, X,
+                         n0, B)
         for i in range(B):
             for j in range(J):
                 for c in range(3):
                     out[n0 + i, j, c] = WpB[j, c, i] if active[j] else np.nan
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def tree_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
+                ints, floats, params, subset, out):
+    """out (Q, 3, N) mm = the points ``subset`` of params (N, P), the hypothesis innermost (a
+    compiled kernel's input), by the block kinematics of a :func:`block_setup` of all
+    parameters moving, for ``subset``, over up to n columns (``ints``, ``floats``)."""
+    N, P = params.shape
+    n = ints[4]
+    WpB = block_views(ints, floats)[9]
+    X = params.reshape((1, N, P))
+    for n0 in range(0, N, n):
+        B = min(n, N - n0)
+        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, 0, 1, X, n0, B)
+        block_points(B, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out, 0, n0)
+
+
+#: per thread (the setups hold working buffers), per kinematic tree and set of active joints:
+#: :func:`forward_setup`
+_FORWARD_SETUPS = threading.local()
 
 
 class TreeHandModel(HandModel):
@@ -302,52 +522,20 @@ class TreeHandModel(HandModel):
     def _forward(self, params: np.ndarray, joints=None) -> np.ndarray:
         t = self._tree
         active = self._all_active if joints is None else self.active_joints(joints)
+        trees = getattr(_FORWARD_SETUPS, "trees", None)
+        if trees is None:
+            trees = _FORWARD_SETUPS.trees = weakref.WeakKeyDictionary()
+        setups = trees.get(t)
+        if setups is None:
+            setups = trees[t] = {}
+        key = None if joints is None else active.tobytes()
+        setup = setups.get(key)
+        if setup is None:
+            setup = setups[key] = forward_setup(
+                np.ascontiguousarray(t.parents, dtype=np.int64), np.ascontiguousarray(t.offsets, dtype=np.float64),
+                np.ascontiguousarray(t.rest, dtype=np.float64), np.ascontiguousarray(t.rest_is_identity),
+                np.ascontiguousarray(t.axes, dtype=np.int64), np.ascontiguousarray(t.axis_params, dtype=np.int64),
+                float(t.mirror), active, self.n_params)
         out = np.empty((params.shape[0], len(t.parents), 3))
-        return tree_forward(params, t.parents, t.offsets, t.rest, t.rest_is_identity, t.axes, t.axis_params,
-                            float(t.mirror), active, out)
-def scratch_size(P: int, J: int, Q: int) -> int:
-    """Floats of :func:`tree_points`' working space for P parameters, J joints and Q points."""
-    return BLOCK * (3 * P + 12 * J + 9 + 3 * Q)
-
-
-@nb.njit(cache=True, nogil=True)
-def tree_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
-                order, count, oriented, rows, n_rows, params, subset, out, scratch):
-    """out (Q, 3, N) mm = the points ``subset`` of params (N, P), the hypothesis innermost (a
-    compiled kernel's input): forward kinematics of the joints ``order[:count]`` (their
-    rotations where ``oriented``, angles ``rows[:n_rows]``), in blocks of ``BLOCK``; scratch:
-    working space of :func:`scratch_size` (P, J, Q) floats."""
-    N, P = params.shape
-    J = parents.shape[0]
-    Q = out.shape[0]
-    at = 0
-    pB = scratch[at:at + P * BLOCK].reshape((P, BLOCK))
-    at += P * BLOCK
-    sinB = scratch[at:at + P * BLOCK].reshape((P, BLOCK))
-    at += P * BLOCK
-    cosB = scratch[at:at + P * BLOCK].reshape((P, BLOCK))
-    at += P * BLOCK
-    WB = scratch[at:at + J * 9 * BLOCK].reshape((J, 3, 3, BLOCK))
-    at += J * 9 * BLOCK
-    WpB = scratch[at:at + J * 3 * BLOCK].reshape((J, 3, BLOCK))
-    at += J * 3 * BLOCK
-    GB = scratch[at:at + 9 * BLOCK].reshape((3, 3, BLOCK))
-    at += 9 * BLOCK
-    pts = scratch[at:at + Q * 3 * BLOCK].reshape((Q, 3, BLOCK))
-    for n0 in range(0, N, BLOCK):
-        B = min(BLOCK, N - n0)
-        for i in range(B):
-            for k in range(P):
-                pB[k, i] = params[n0 + i, k]
-        sincos_rows(rows, n_rows, pB, sinB, cosB, B)
-        block_frames(B, pB, sinB, cosB, order, count, oriented, parents, offsets, rest, rest_identity, axes,
-                     axis_params, mirror, WB, WpB, GB)
-        if N <= BLOCK:  # one block: straight into out
-            block_points(B, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out)
-            return
-        block_points(B, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], pts)
-        for t in range(subset.shape[0]):
-            q = subset[t]
-            for c in range(3):
-                for i in range(B):
-                    out[q, c, n0 + i] = pts[q, c, i]
+        return tree_forward(np.ascontiguousarray(params, dtype=np.float64), t.parents, t.offsets, t.rest,
+                            t.rest_is_identity, t.axes, t.axis_params, float(t.mirror), *setup, active, out)

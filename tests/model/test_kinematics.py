@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from hybridfit.model.kinematics import BLOCK, sincos
+from hybridfit.model.kinematics import COLUMNS, sincos
 
 from ..conftest import random_params
 
@@ -31,7 +31,7 @@ def test_sincos_of_quadrant_boundaries():
 
 def test_blocks_do_not_change_a_hypothesis(hand26):
     """Hypotheses in different blocks, or alone, give the same joints (to rounding)."""
-    params = random_params(hand26, 2 * BLOCK + 7, np.random.default_rng(3))
+    params = random_params(hand26, 2 * COLUMNS + 7, np.random.default_rng(3))
     together = hand26.forward(params)
     alone = np.stack([hand26.forward(p[None])[0] for p in params])
     np.testing.assert_allclose(together, alone, rtol=0, atol=1e-9)
