@@ -320,20 +320,24 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
     b[:] = base
     every = np.arange(J)
     all_oriented = np.ones(J, dtype=np.int64)
-    for f in range(F):  # every frame's joints at base, by the same code as the hypotheses'
+    for f0 in range(0, F, C):  # every frame's joints at base, C frames at once, by the same code as the hypotheses'
+        B = min(C, F - f0)
         for k in range(P):
-            pB[k, 0] = base[f, k]
-            bcos[f, k] = 1.0
-            if is_angle[k]:
-                bsin[f, k], bcos[f, k] = sincos1(base[f, k])
-            sinB[k, 0], cosB[k, 0] = bsin[f, k], bcos[f, k]
-        block_frames(1, pB, sinB, cosB, every, J, all_oriented, parents, offsets, rest, rest_identity, axes,
+            for i in range(B):
+                v = base[f0 + i, k]
+                sv, cv = 0.0, 1.0
+                if is_angle[k]:
+                    sv, cv = sincos1(v)
+                pB[k, i], sinB[k, i], cosB[k, i] = v, sv, cv
+                bsin[f0 + i, k], bcos[f0 + i, k] = sv, cv
+        block_frames(B, pB, sinB, cosB, every, J, all_oriented, parents, offsets, rest, rest_identity, axes,
                      axis_params, mirror, WB, WpB, GB)
-        for j in range(J):
-            for r in range(3):
-                Wp0[f, j, r] = WpB[j, r, 0]
-                for c in range(3):
-                    W0[f, j, r, c] = WB[j, r, c, 0]
+        for i in range(B):
+            for j in range(J):
+                for r in range(3):
+                    Wp0[f0 + i, j, r] = WpB[j, r, i]
+                    for c in range(3):
+                        W0[f0 + i, j, r, c] = WB[j, r, c, i]
     return ints, floats
 
 
