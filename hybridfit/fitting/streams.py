@@ -79,8 +79,10 @@ def normal(key, counter):
 def fill_uniform(key, start, out):
     """out (n,) = uniform numbers start, start + 1, ... of stream ``key`` (one hash per pair)."""
     n = out.shape[0]
+    if n == 0:
+        return
     first = start & 1
-    if n and first:
+    if first:
         out[0] = uniform(key, start)
     pairs = (n - first) // 2
     p0 = (start + first) >> 1
@@ -95,8 +97,10 @@ def fill_normal(key, start, out):
     """out (n,) = standard normal numbers start, start + 1, ... of stream ``key`` (one
     Box-Muller pair per two numbers)."""
     n = out.shape[0]
+    if n == 0:
+        return
     first = start & 1
-    if n and first:
+    if first:
         out[0] = normal(key, start)
     pairs = (n - first) // 2
     p0 = (start + first) >> 1

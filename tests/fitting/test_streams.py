@@ -59,3 +59,18 @@ def test_uniform_and_normal_numbers_have_their_distributions():
     assert abs(u.mean() - 0.5) < 0.005 and abs(u.var() - 1 / 12) < 0.002
     assert abs(np.corrcoef(u[:-1], u[1:])[0, 1]) < 0.01
     assert abs(z.mean()) < 0.01 and abs(z.std() - 1.0) < 0.01 and abs((np.abs(z) > 2).mean() - 0.0455) < 0.003
+
+
+def test_fills_write_exactly_their_numbers_at_any_start_and_length():
+    """A fill of n numbers from an odd or even start writes its n numbers, one by one the same as
+    the single-number functions, and nothing outside its slice (an empty fill writes nothing)."""
+    from hybridfit.fitting.streams import normal, uniform
+
+    key = np.uint64(77)
+    for fill, one in ((fill_uniform, uniform), (fill_normal, normal)):
+        for start in range(4):
+            for n in range(6):
+                buffer = np.full(n + 2, -7.0)
+                fill(key, start, buffer[1:n + 1])
+                assert buffer[0] == -7.0 and buffer[-1] == -7.0, (fill.__name__, start, n)
+                assert np.array_equal(buffer[1:n + 1], [one(key, start + i) for i in range(n)])
