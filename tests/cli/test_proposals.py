@@ -63,3 +63,15 @@ def test_proposals_from_results_refuses_mismatched_predictions():
         proposals_from_results([np.zeros((2, 16, 3)), np.zeros((3, 16, 3))])
     with pytest.raises(HybridfitError, match="confidences"):
         proposals_from_results([np.zeros((2, 16, 3))], [-1.0])
+
+
+def test_three_files_get_confidences_from_their_agreement(tmp_path):
+    files = [write_results(tmp_path, frames=30, noise=n, seed=s, name=f"{s}.txt")[0]
+             for s, n in enumerate((1.0, 4.0, 8.0))]
+    out = tmp_path / "p.npz"
+    assert main(["proposals", "from-results", "--dataset", "icvl", *map(str, files), "--out", str(out)]) == 0
+    conf = np.load(out)["confidences"]
+    assert conf.shape == (30, 16, 3)
+    assert (conf[:, :, 0] == 1.0).all() and (conf[:, :, 0] > conf[:, :, 1]).all() and (conf[:, :, 1] > conf[:, :, 2]).all()
+    assert main(["proposals", "from-results", "--dataset", "icvl", *map(str, files[:2]), "--out", str(out)]) == 0
+    np.testing.assert_array_equal(np.load(out)["confidences"], 1.0)
