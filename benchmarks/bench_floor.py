@@ -16,7 +16,7 @@ held-out frames), it then measures (mean 3D error, mm):
 - refining a strong predictor: three predictors at 4, 5 and 6 mm with errors correlated as
   real ones are (``synthetic.predictors``, seed 0); the best alone fitted (k = 1), and the
   three fused (k = 3, the confidences ``proposals from-results`` gives them: from their
-  agreement, ``fitting.agreement``) beside the best input and their per-point median;
+  agreement, ``hybridfit.agreement``) beside the best input and their per-point median;
 - the model's part of the cost: the same errors added to the floor's fitted points (a
   truth the model can represent) and refined; what the fit costs there is the fit's part,
   the rest of the cost is the model's (it cannot follow the annotations closer than the
@@ -36,7 +36,7 @@ import numpy as np
 import hybridfit
 from hybridfit.datasets.results import read_xyz
 from hybridfit.datasets.skeletons import dataset_model_config, skeleton
-from hybridfit.fitting.agreement import agreement_confidences
+from hybridfit.agreement import agreement_confidences
 from hybridfit.fitting.calibrate import calibrate
 from hybridfit.fitting.refine import BONE_TOLERANCE, BONE_WEIGHT, refine
 from hybridfit.synthetic.predictors import predictor_errors

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import HybridfitError
-from ..fitting.agreement import agreement_confidences
+from ..agreement import agreement_confidences
 from ..io import require_file
 from ..plausible import check_uvd
 from .conventions import CONVENTIONS
@@ -103,7 +103,7 @@ def proposals_from_results(predictions, confidences=None) -> dict[str, np.ndarra
     """Other methods' predictions as proposals: a list of n arrays (F, J, 3) mm -> a dict with
     ``proposals`` (F, J, n, 3), ``confidences`` (F, J, n) (one non-negative value per
     method; by default, per point from the methods' agreement over the frames,
-    ``fitting.agreement``, which is equal for one or two methods) and ``objective``, the
+    ``hybridfit.agreement``, which is equal for one or two methods) and ``objective``, the
     objective to fit them with by default (``ESTIMATES_OBJECTIVE``)."""
     arrays = [np.asarray(p, dtype=np.float64) for p in predictions]
     if not arrays or any(a.ndim != 3 or a.shape != arrays[0].shape or a.shape[2] != 3 for a in arrays):

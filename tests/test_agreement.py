@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hybridfit.fitting.agreement import agreement_confidences, own_variances
+from hybridfit.agreement import agreement_confidences, own_variances
 
 
 def _predictors(sd, shared=2.0, frames=4000, points=3, seed=0):
