@@ -15,7 +15,12 @@ held-out frames), it then measures (mean 3D error, mm):
   ``fitting.refine.fit_and_refine`` and ``hybridfit fit`` do; the fit alone in brackets);
 - refining a strong predictor: three predictors at 4, 5 and 6 mm with errors correlated as
   real ones are (``synthetic.predictors``, seed 0); the best alone fitted (k = 1), and the
-  three fused (k = 3, equal confidences) beside the best input and their per-point median.
+  three fused (k = 3, the confidences ``proposals from-results`` gives them: from their
+  agreement, ``hybridfit.agreement``) beside the best input and their per-point median;
+- the model's part of the cost: the same errors added to the floor's fitted points (a
+  truth the model can represent) and refined; what the fit costs there is the fit's part,
+  the rest of the cost is the model's (it cannot follow the annotations closer than the
+  floor).
 
 Calibration's in-sample and held-out errors are printed beside them.
 """
@@ -31,6 +36,7 @@ import numpy as np
 import hybridfit
 from hybridfit.datasets.results import read_xyz
 from hybridfit.datasets.skeletons import dataset_model_config, skeleton
+from hybridfit.agreement import agreement_confidences
 from hybridfit.fitting.calibrate import calibrate
 from hybridfit.fitting.refine import BONE_TOLERANCE, BONE_WEIGHT, refine
 from hybridfit.synthetic.predictors import predictor_errors
@@ -50,14 +56,15 @@ def annotations(kind: str, dataset: str) -> np.ndarray:
     return hybridfit.stress_proposals(STRESS_FRAMES, dataset=dataset, k=1, seed=3)["ground_truth"]
 
 
-def fit_error(truth, proposals, confidences, names, model_name, settings, jobs) -> tuple[float, float]:
-    """(fit, fit + polish) mean 3D error (mm) of fitting the proposals with the defaults."""
+def fit_error(truth, proposals, confidences, names, model_name, settings, jobs) -> tuple[float, float, np.ndarray]:
+    """(fit, fit + polish) mean 3D error (mm) of fitting the proposals with the defaults, and
+    the polished points (F, Q, 3) mm."""
     r = hybridfit.fit(proposals, confidences, joint_names=names, model=model_name, model_config=settings, jobs=jobs)
     model = hybridfit.create("model", model_name, settings)
     polished = refine(model, r.params, proposals, confidences, names, bone_tolerance=BONE_TOLERANCE,
                       bone_weight=BONE_WEIGHT).points(model, names)
     err = lambda joints: float(np.nanmean(np.linalg.norm(joints - truth, axis=-1)))  # noqa: E731
-    return err(r.joints), err(polished)
+    return err(r.joints), err(polished), polished
 
 
 def evaluate(kind: str, dataset: str, pool: slice, frames: int, jobs: int, model_name: str) -> list:
@@ -77,18 +84,22 @@ def evaluate(kind: str, dataset: str, pool: slice, frames: int, jobs: int, model
     ones = np.ones(gt.shape[:2] + (1,))
     floor = fit_error(gt, gt[:, :, None], ones, names, model_name, cal.settings, jobs)
     model = hybridfit.create("model", model_name, cal.settings)
-    preds = gt[None] + predictor_errors(model, names, len(test), np.random.default_rng(0))
+    errors = predictor_errors(model, names, len(test), np.random.default_rng(0))
+    preds = gt[None] + errors
     single = fit_error(gt, preds[0][:, :, None], ones, names, model_name, cal.settings, jobs)
-    fused = fit_error(gt, preds.transpose(1, 2, 0, 3), np.ones(gt.shape[:2] + (3,)), names, model_name, cal.settings,
-                      jobs)
+    fused_in = preds.transpose(1, 2, 0, 3)
+    fused = fit_error(gt, fused_in, agreement_confidences(fused_in), names, model_name, cal.settings, jobs)
+    representable = floor[2]
+    fit_part = fit_error(representable, (representable + errors[0])[:, :, None], ones, names, model_name,
+                         cal.settings, jobs)[1] - float(np.linalg.norm(errors[0], axis=-1).mean())
     err = lambda joints: float(np.linalg.norm(joints - gt, axis=-1).mean())  # noqa: E731
     inputs = [err(p) for p in preds]
     median = err(np.median(preds, axis=0))
     return [kind, dataset, f"{pool.start}:{pool.stop}", len(test), f"{cal.error_after:.2f}",
             f"{cal.error_heldout:.2f} ({len(cal.heldout_frames)})", f"{cal.error_heldout / cal.error_after:.2f}",
             f"{floor[1]:.2f} ({floor[0]:.2f})", f"{inputs[0]:.2f}", f"{single[1]:.2f} ({single[0]:.2f})",
-            f"{single[1] - inputs[0]:+.2f}", f"{fused[1]:.2f} ({fused[0]:.2f})", f"{min(inputs):.2f}", f"{median:.2f}",
-            f"{t:.0f}"]
+            f"{single[1] - inputs[0]:+.2f}", f"{fit_part:+.2f} / {single[1] - inputs[0] - fit_part:+.2f}",
+            f"{fused[1]:.2f} ({fused[0]:.2f})", f"{min(inputs):.2f}", f"{median:.2f}", f"{t:.0f}"]
 
 
 def main() -> None:
@@ -107,7 +118,8 @@ def main() -> None:
             rows.append(evaluate(kind, dataset, slice(start, stop), a.frames, a.jobs, a.model))
             print(" | ".join(map(str, rows[-1])), flush=True)
     print(table(["data", "skeleton", "pool", "frames", "calibration in-sample", "held out (frames)", "ratio",
-                 "floor (fit only)", "predictor", "refined (fit only)", "cost", "fused (fit only)", "best input",
+                 "floor (fit only)", "predictor", "refined (fit only)", "cost", "cost: fit / model",
+                 "fused (fit only)", "best input",
                  "median", "calibration time (s)"], rows))
 
 

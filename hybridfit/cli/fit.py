@@ -45,7 +45,7 @@ def register(sub) -> None:
                    "model as configured, or its mirror image where that fits a check on a few frames clearly "
                    "better (said on stderr)")
     p.add_argument("--no-polish", action="store_true", help="skip the final least-squares polish of every fitted "
-                   "frame (hybridfit.fitting.refine; not with --track, which never polishes)")
+                   "frame (hybridfit.fitting.refine), with --track too")
     p.add_argument("--dataset", help="the proposals' skeleton when the npz has no joint_names (and its derived "
                    "points for its model): icvl, nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file "
                    "(default: the npz's dataset, which propose writes for real data)")
@@ -85,12 +85,12 @@ def run(args) -> int:
                 print(f"{int((~err.result.failed).sum())} frames fitted before the plugin error saved to {args.out}",
                       file=sys.stderr)
             raise
-        if not args.no_polish and not result.interrupted:
-            try:  # a stop signal waits for the polish (seconds), then the polished frames are written
-                with stops.deferred():
-                    result = refine_fit(result, data["proposals"], data["confidences"], **common)
-            except KeyboardInterrupt:
-                result.interrupted = True
+    if not args.no_polish and not result.interrupted:  # a tracked sequence too, once tracked
+        try:  # a stop signal waits for the polish (seconds), then the polished frames are written
+            with stops.deferred():
+                result = refine_fit(result, data["proposals"], data["confidences"], **common)
+        except KeyboardInterrupt:
+            result.interrupted = True
     save_npz(args.out, **result.to_npz(), **extra)
     F, done = len(result.failed), ~result.failed
     print(f"fitted {int(done.sum())}/{F} frames -> {args.out}")

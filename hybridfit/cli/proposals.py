@@ -15,7 +15,9 @@ def register(sub) -> None:
     q.add_argument("--dataset", required=True, help="skeleton and camera convention: icvl, nyu, "
                    "nyu36, msra, mediapipe, mano or a skeleton .toml file")
     q.add_argument("--confidences", nargs="+", type=float, metavar="C",
-                   help="one non-negative confidence per file (default: equal)")
+                   help="one non-negative confidence per file (default: per point from the files' agreement: "
+                   "with three or more, the inverse of each file's own error variance estimated from the "
+                   "differences between files; equal for one or two)")
     q.add_argument("--ground-truth", metavar="LABELS", help="ground truth in the same format, stored for evaluation")
     q.add_argument("--frames", metavar="START:STOP", help="keep only these frames (default: all)")
     q.add_argument("--out", required=True, help="output npz: proposals (F,J,k,3) mm (camera coordinates), "

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import HybridfitError
+from ..agreement import agreement_confidences
 from ..io import require_file
 from ..plausible import check_uvd
 from .conventions import CONVENTIONS
@@ -101,17 +102,21 @@ ESTIMATES_OBJECTIVE = "gaussian-mixture"
 def proposals_from_results(predictions, confidences=None) -> dict[str, np.ndarray]:
     """Other methods' predictions as proposals: a list of n arrays (F, J, 3) mm -> a dict with
     ``proposals`` (F, J, n, 3), ``confidences`` (F, J, n) (one non-negative value per
-    method, equal by default) and ``objective``, the objective to fit them with by default
-    (``ESTIMATES_OBJECTIVE``)."""
+    method; by default, per point from the methods' agreement over the frames,
+    ``hybridfit.agreement``, which is equal for one or two methods) and ``objective``, the
+    objective to fit them with by default (``ESTIMATES_OBJECTIVE``)."""
     arrays = [np.asarray(p, dtype=np.float64) for p in predictions]
     if not arrays or any(a.ndim != 3 or a.shape != arrays[0].shape or a.shape[2] != 3 for a in arrays):
         raise HybridfitError(f"predictions must be arrays of one shape (frames, points, 3), got "
                              f"{[a.shape for a in arrays]}")
-    conf = np.ones(len(arrays)) if confidences is None else np.asarray(confidences, dtype=np.float64)
+    proposals = np.stack(arrays, axis=2)
+    if confidences is None:
+        return {"proposals": proposals, "confidences": agreement_confidences(proposals),
+                "objective": np.asarray(ESTIMATES_OBJECTIVE)}
+    conf = np.asarray(confidences, dtype=np.float64)
     if conf.shape != (len(arrays),) or not np.all(np.isfinite(conf)) or (conf < 0).any() or not conf.any():
         raise HybridfitError(f"need {len(arrays)} finite non-negative confidences (one per method, not all 0), "
                              f"got {', '.join(f'{float(c):g}' for c in np.ravel(conf))}")
-    proposals = np.stack(arrays, axis=2)
     return {"proposals": proposals, "confidences": np.broadcast_to(conf, proposals.shape[:3]).copy(),
             "objective": np.asarray(ESTIMATES_OBJECTIVE)}
 

@@ -23,6 +23,12 @@ the model's joints and derived points. From ground-truth points (F, Q, 3) mm:
    ``(g - s mean) / (s std)`` for lengths (proportions pulled towards the literature's,
    the size free) and ``(g - mean) / std`` for weights.
 5. **Refit** the poses with :func:`hybridfit.fit` on the new model and repeat (``rounds``).
+6. **Centre the bones** (``centre_rounds`` times, :func:`centre_bones`): the least squares
+   fits one rigid skeleton, but every fit (and the floor) is polished with per-frame bone
+   freedom around the subject's bones at a prior cost; where the frames need a bone
+   shorter or longer in most of them, the subject's bone becomes the median of the lengths
+   the polish chose on the calibration frames, so the freedom and its prior are centred on
+   what the frames need.
 
 Reported errors are those of :func:`hybridfit.fit` followed by the least-squares polish
 with its default per-frame bone freedom (:func:`hybridfit.fitting.refine.fit_and_refine`),
@@ -184,7 +190,28 @@ def _fit_error(truth, names, model, budget, seed, jobs, progress, given=None):
     polished = refine(model, r.params, proposals, confidences, names, bone_tolerance=BONE_TOLERANCE,
                       bone_weight=BONE_WEIGHT)
     err = np.linalg.norm(polished.points(model, names) - truth, axis=-1)
-    return float(np.nanmean(err)), polished.params, err
+    return float(np.nanmean(err)), polished, err
+
+
+def centre_bones(model: HandModel, bone_factors: np.ndarray, free: np.ndarray | None = None) -> HandModel:
+    """``model`` (a configured instance) with every geometry entry in millimetres along a
+    bone (its ``ends`` a joint's parent and the joint) scaled by the median over the frames
+    of that joint's bone factor, bone_factors (F, J) (:class:`refine.Polished`), within the
+    entry's bounds; entries not ``free`` (G,) bool, and frames that are NaN, are left alone."""
+    geo = model.geometry()
+    index = {n: i for i, n in enumerate(model.joint_names)}
+    parents = np.asarray(model.parents)
+    factors = np.asarray(bone_factors, dtype=np.float64)
+    factors = factors[np.isfinite(factors).all(1)]
+    if not len(factors):
+        return model
+    median = np.median(factors, axis=0)
+    values = geo.values.astype(np.float64).copy()
+    for i, (a, b) in enumerate(geo.ends):
+        bone = a in index and b in index and parents[index[b]] == index[a]
+        if bone and geo.scaled[i] and (free is None or free[i]):
+            values[i] = np.clip(values[i] * median[index[b]], geo.lower[i], geo.upper[i])
+    return _configured(model, np.round(values, 4))
 
 
 def refining_cost(truth, names, model, *, error_mm: float = PREDICTOR_MM, seed: int = 0, budget: int = 3400,
@@ -286,12 +313,14 @@ def calibrate(
     jobs: int = 1,
     noise_mm: float = 3.0,
     max_nfev: int = 60,
+    centre_rounds: int = 2,
     progress: bool = False,
     log=None,
 ) -> CalibrationResult:
     """Calibrate a model (a registered name or a configured instance, with ``model_config``)
     to truth (F, Q, 3) mm of the named model points (joints or derived points); see the
-    module doc. mirror: the hand (True: the model's mirror image) or None to choose."""
+    module doc. mirror: the hand (True: the model's mirror image) or None to choose;
+    centre_rounds: how often the bones are centred (step 6; 0: never)."""
     truth = np.asarray(truth, dtype=np.float64)
     names = tuple(point_names)
     if truth.ndim != 3 or truth.shape[1:] != (len(names), 3) or not len(truth):
@@ -320,7 +349,8 @@ def calibrate(
         tried[m] = (cand, *_fit_error(fit_truth, names, cand, budget, seed, jobs, progress))
         say(f"{'model' if m is None else 'left' if m else 'right'} hand, prior geometry: fit error {tried[m][1]:.2f} mm")
     hand = min(tried, key=lambda k: tried[k][1])
-    current, before, params, _ = tried[hand]
+    current, before, polished, _ = tried[hand]
+    params = polished.params
     free = determined(current, geo, names)
     at_prior = tuple(n for n, f in zip(geo.names, free) if not f)
     if at_prior:
@@ -331,10 +361,17 @@ def calibrate(
         scale, g, ls_err = _least_squares(fit_truth, names, current, free, scale, g, params, noise_mm, max_nfev,
                                           progress)
         current = _configured(current, np.round(g, 4))
-        after, params, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
+        after, polished, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
+        params = polished.params
         say(f"round {r + 1}: scale {scale:.3f}, least-squares error {ls_err:.2f} mm, fit error {after:.2f} mm")
+    for r in range(centre_rounds):
+        current = centre_bones(current, polished.bone_factors, free)
+        after, polished, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
+        params = polished.params
+        say(f"bones centred ({r + 1}): fit error {after:.2f} mm")
     if per is None:
-        after, params, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
+        after, polished, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
+        params = polished.params
     if len(held):
         heldout, _, per_held = _fit_error(truth[held], names, current, budget, seed, jobs, progress)
         per_held = np.nanmean(per_held, axis=0)

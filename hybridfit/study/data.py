@@ -171,7 +171,7 @@ class StudyData:
             names = z.get("joint_names")
             truth = z.get("ground_truth")
         else:
-            z = read_proposals(files, d.dataset)  # equal confidences, camera coordinates
+            z = read_proposals(files, d.dataset)  # from-results' confidences, camera coordinates
             props, conf, names, truth = z["proposals"], z["confidences"], z["joint_names"], None
         if names is None:
             if d.dataset is None:

@@ -87,3 +87,13 @@ def test_an_interrupted_fit_saves_finished_frames_and_exits_130(proposals_file, 
     with np.load(out) as fits:
         assert list(fits["failed"]) == [False, True, True, True]
         assert np.isfinite(fits["joints"][0]).all()
+
+
+def test_a_tracked_sequence_is_polished_like_a_fit(proposals_file, tmp_path):
+    polished, raw = tmp_path / "polished.npz", tmp_path / "raw.npz"
+    options = ["--budget", "300", "--track"]
+    assert main(["fit", str(proposals_file), "--out", str(polished), *options]) == 0
+    assert main(["fit", str(proposals_file), "--out", str(raw), *options, "--no-polish"]) == 0
+    with np.load(polished) as p, np.load(raw) as r:
+        assert "bone_factors" in p.files and "bone_factors" not in r.files and "lost" in p.files
+        assert not np.array_equal(p["joints"], r["joints"])

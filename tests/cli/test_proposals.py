@@ -63,3 +63,17 @@ def test_proposals_from_results_refuses_mismatched_predictions():
         proposals_from_results([np.zeros((2, 16, 3)), np.zeros((3, 16, 3))])
     with pytest.raises(HybridfitError, match="confidences"):
         proposals_from_results([np.zeros((2, 16, 3))], [-1.0])
+
+
+def test_three_files_get_confidences_from_their_agreement(tmp_path):
+    files = [write_results(tmp_path, frames=30, noise=n, seed=s, name=f"{s}.txt")[0]
+             for s, n in enumerate((1.0, 4.0, 8.0))]
+    out = tmp_path / "p.npz"
+    assert main(["proposals", "from-results", "--dataset", "icvl", *map(str, files), "--out", str(out)]) == 0
+    conf = np.load(out)["confidences"]
+    assert conf.shape == (30, 16, 3)
+    assert (conf == conf[:1]).all() and conf.max() == 1.0  # the same in every frame
+    mean = conf[0].mean(0)  # over the points
+    assert mean[0] > 1.5 * mean[1] and mean[1] > 1.5 * mean[2]
+    assert main(["proposals", "from-results", "--dataset", "icvl", *map(str, files[:2]), "--out", str(out)]) == 0
+    np.testing.assert_array_equal(np.load(out)["confidences"], 1.0)

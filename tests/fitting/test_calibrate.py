@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 from pydantic import Field
 
 import hybridfit
-from hybridfit.fitting.calibrate import HELDOUT_GAP, calibrate, determined, spanning_frames, split_frames, to_toml
+from hybridfit.fitting.calibrate import (HELDOUT_GAP, _fit_error, calibrate, centre_bones, determined, spanning_frames,
+                                        split_frames, to_toml)
 from hybridfit.datasets.skeletons import skeleton, with_derived_points
 from hybridfit.model.rotations import quaternion_matrix
 from hybridfit.model.base import Geometry, HandModel, Stage
@@ -227,3 +228,31 @@ def test_geometry_no_point_determines_stays_at_the_scaled_prior():
 def test_a_model_without_a_mirror_setting_refuses_a_hand():
     with pytest.raises(hybridfit.HybridfitError, match="no mirror setting"):
         calibrate(_toy_truth(ToyHand.joint_names, 3), ToyHand.joint_names, model=ToyHand(), mirror=True)
+
+
+def test_centring_scales_each_bone_by_its_median_factor():
+    model = hybridfit.create("model", "hand26")
+    geo = model.geometry()
+    names = list(model.joint_names)
+    pip, tip = names.index("index_pip"), names.index("little_tip")
+    factors = np.ones((5, model.n_joints))
+    factors[:, pip] = [0.9, 0.9, 0.9, 1.1, 0.8]  # median 0.9
+    factors[:, tip] = [1.1] * 5
+    factors = np.vstack([factors, np.full((1, model.n_joints), np.nan)])  # a failed frame: ignored
+    free = np.ones(len(geo), bool)
+    free[geo.names.index("little_distal")] = False
+    centred = centre_bones(model, factors, free).geometry()
+    changed = {n: centred.values[i] / geo.values[i] for i, n in enumerate(geo.names)
+               if not np.isclose(centred.values[i], geo.values[i])}
+    assert changed == pytest.approx({"index_proximal": 0.9}, abs=1e-4)
+
+
+def test_calibration_centres_the_bones_on_the_polish_s_median_lengths():
+    truth = _truth()
+    kw = dict(model_config=START, rounds=1, budget=800, max_nfev=25)
+    rigid = calibrate(truth, NAMES, centre_rounds=0, **kw)
+    model = hybridfit.create("model", "hand26", rigid.settings)
+    polished = _fit_error(truth[rigid.calibration_frames], NAMES, model, 800, 0, 1, False)[1]
+    free = determined(model, model.geometry(), NAMES)
+    expected = centre_bones(model, polished.bone_factors, free).get_params()
+    assert calibrate(truth, NAMES, centre_rounds=1, **kw).settings == expected
