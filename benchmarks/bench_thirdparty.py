@@ -1,8 +1,8 @@
 """Third-party plugins against the built-ins, on one core, through ``hybridfit.fit`` end to end.
 
-    python benchmarks/bench_thirdparty.py [--frames 200 --budget 3400 --repeat 5]
+    python benchmarks/bench_thirdparty.py [--frames 200 --budget 3400 --repeat 5 --cpu 0]
 
-Pins itself to one core (CPU 0, as ``taskset -c 0`` would) and prints medians of CPU time
+Pins itself to one core (``--cpu``, as ``taskset -c 0`` would) and prints medians of CPU time
 per frame, with the mean joint error of each fit (synthetic frames, k = 3), for:
 
 1. objective: the plain-numpy ``numpy-clamped`` example (``examples/hybridfit-numpy-objective``,
@@ -63,9 +63,10 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=200)
     parser.add_argument("--budget", type=int, default=3400)
     parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--cpu", type=int, default=0, help="the core to run on")
     args = parser.parse_args()
     if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {0})
+        os.sched_setaffinity(0, {args.cpu})
     data = hybridfit.synthetic_proposals(args.frames, k=3, seed=11)
     stepwise = lambda inner: {"optimizer": "stepwise", "optimizer_config": {"optimizer": inner, "refine_share": 0.25}}  # noqa: E731
     rows = {
@@ -74,7 +75,7 @@ def main() -> None:
         "bind-only": (dict(objective="clamped-confidence"), dict(objective=BindOnly())),
     }
     ratios = []
-    print(f"{args.frames} synthetic frames, budget {args.budget}, one core (CPU 0), CPU ms per frame (median of "
+    print(f"{args.frames} synthetic frames, budget {args.budget}, one core (CPU {args.cpu}), CPU ms per frame (median of "
           f"{args.repeat}), mean joint error mm")
     for name, (built_in, third_party) in rows.items():
         (t_ref, e_ref), (t, e) = (measure(data, args.budget, args.repeat, **built_in),
