@@ -10,7 +10,8 @@ hypotheses (the parameters outside the stage at ``base``) scored over ``points``
   per generation for all frames of a group.
 - :class:`NumpyScorer`: a kinematic tree's points by the same numba kinematics (or, for a model
   without a kinematic tree, its ``forward``), scored by the objective's ``score_frames`` (one
-  call per generation for all frames) or ``bind`` (one call per frame).
+  call per generation for all frames) or ``bind`` (one call per frame). The points are handed
+  over as a view of the kinematics' buffer, the hypothesis innermost in memory (no copy).
 """
 
 from __future__ import annotations
@@ -331,8 +332,7 @@ class NumpyScorer:
         """(F, m, Q, 3) points of hypotheses X (F, m, d) (those in ``subset`` guaranteed). From
         the kinematic tree they are a view of an (F, Q, 3, n) buffer, the hypothesis innermost
         in memory as the kinematics compute them: no copy, and numpy's elementwise operations
-        on them run along the hypotheses (a stride-aware ``bind`` or ``score_frames`` is
-        several times faster on this layout than on a C-ordered copy)."""
+        on them run along the hypotheses (the objective's contract allows any strides)."""
         stage, buffer = stage
         F, m = X.shape[:2]
         if self.tree is not None:
