@@ -17,6 +17,13 @@ and the third-party fit alternately (so a load that changes during the run hits 
 
 The last line reads ``objective 1.8x, optimizer 1.9x, bind-only 5.2x``: each third-party
 time over the built-in's.
+
+``--breakdown`` first shows where a numpy objective's time goes: fits with objectives that
+score nothing (all-zero losses through ``score_frames``, or through ``bind`` per frame), whose
+time is the driver's and the kinematics' alone, against the built-in; and the example's bound
+loss per call, on points as the driver hands them (a view with the hypothesis innermost,
+``hybridfit.testing.hypotheses_innermost``) and on a C-ordered copy, at each stage's batch
+(hypotheses x scored points) of the default schedule.
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ import argparse
 import os
 import sys
 import time
+import timeit
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +57,41 @@ class BindOnly(Objective):
     lower_bound = NumpyClamped.lower_bound
 
 
+class FreeBind(Objective):
+    """Scores nothing, through ``bind`` per frame: a fit's time is the driver's and the kinematics'."""
+
+    def bind(self, proposals, weights):
+        return lambda points, subset: np.zeros(len(points))
+
+
+class FreeFrames(FreeBind):
+    """Scores nothing, through ``score_frames`` for all frames at once."""
+
+    def score_frames(self, points, subset, proposals, weights):
+        return np.zeros(points.shape[:2])
+
+
+def breakdown(data, budget: int, repeat: int) -> None:
+    """Print the driver's share of a numpy objective's fit and the example's cost per call."""
+    from hybridfit.testing import hypotheses_innermost
+
+    built_in = dict(objective="clamped-confidence")
+    for name, free in (("score_frames", FreeFrames()), ("bind", FreeBind())):
+        (t_ref, _), (t, _) = measure(data, budget, repeat, built_in, dict(objective=free))
+        print(f"nothing scored through {name:12s} {t:6.3f} ms per frame, {t / t_ref:.2f}x the built-in's {t_ref:.3f} ms")
+    proposals, weights = data["proposals"][0], hybridfit.objective.normalise_confidences(data["confidences"][0])
+    loss = NumpyClamped().bind(proposals, weights)
+    rng = np.random.default_rng(0)
+    Q = len(proposals)
+    for stage, n, m in (("palm", 28, 6), ("finger", 19, 3), ("refinement", 29, Q)):
+        points = proposals[None, :, 0] + rng.normal(0.0, 20.0, size=(n, Q, 3))
+        subset = np.sort(rng.choice(Q, m, replace=False)).astype(np.int64)
+        us = [1e6 * min(timeit.repeat(lambda p=p: loss(p, subset), number=1000, repeat=5)) / 1000
+              for p in (hypotheses_innermost(points), points)]
+        print(f"bound loss per call, {stage:10s} ({n} x {m:2d} points): {us[0]:6.1f} us on the driver's view, "
+              f"{us[1]:6.1f} us on a C-ordered copy")
+
+
 def measure(data, budget: int, repeat: int, *plugins: dict) -> list[tuple[float, float]]:
     """For each set of plugins: (CPU ms per frame, median over ``repeat`` fits; mean joint
     error mm). The sets' fits alternate."""
@@ -71,10 +114,13 @@ def main() -> None:
     parser.add_argument("--budget", type=int, default=3400)
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--cpu", type=int, default=0, help="the core to run on")
+    parser.add_argument("--breakdown", action="store_true", help="first show where a numpy objective's time goes")
     args = parser.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {args.cpu})
     data = hybridfit.synthetic_proposals(args.frames, k=3, seed=11)
+    if args.breakdown:
+        breakdown(data, args.budget, args.repeat)
     stepwise = lambda inner: {"optimizer": "stepwise", "optimizer_config": {"optimizer": inner, "refine_share": 0.25}}  # noqa: E731
     rows = {
         "objective": (dict(objective="clamped-confidence"), dict(objective=NumpyClamped())),
