@@ -147,7 +147,8 @@ def create(kind: str, spec: Any, config: Mapping[str, Any] | None = None):
 
 
 def available(kind: str) -> list[PluginInfo]:
-    """Every registered plugin of a kind; import failures are warned about and kept."""
+    """Every registered plugin of a kind; import failures are warned about and kept, a module
+    that needs a missing optional library is listed as unavailable."""
     infos = []
     for name, ep in sorted(_entry_points(kind).items()):
         dist = ep.dist.name if ep.dist is not None else "?"
@@ -156,6 +157,8 @@ def available(kind: str) -> list[PluginInfo]:
             doc = (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
             error = None
             unavailable = optional.unavailable(f"plugin {name!r}", getattr(cls, "requires", {}))
+        except optional.MissingLibrary as err:
+            doc, error, unavailable = "", None, str(err)
         except Exception as err:
             doc, error, unavailable = "", f"{type(err).__name__}: {err}", None
             warnings.warn(
