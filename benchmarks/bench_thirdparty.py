@@ -78,7 +78,8 @@ def breakdown(data, budget: int, repeat: int) -> None:
     built_in = dict(objective="clamped-confidence")
     for name, free in (("score_frames", FreeFrames()), ("bind", FreeBind())):
         (t_ref, _), (t, _) = measure(data, budget, repeat, built_in, dict(objective=free))
-        print(f"nothing scored through {name:12s} {t:6.3f} ms per frame, {t / t_ref:.2f}x the built-in's {t_ref:.3f} ms")
+        print(f"nothing scored through {name:12s} {t:6.3f} ms per frame, {t / t_ref:.2f}x the built-in's "
+              f"{t_ref:.3f} ms")
     proposals, weights = data["proposals"][0], hybridfit.objective.normalise_confidences(data["confidences"][0])
     loss = NumpyClamped().bind(proposals, weights)
     rng = np.random.default_rng(0)
