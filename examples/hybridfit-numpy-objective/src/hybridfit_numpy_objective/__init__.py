@@ -56,7 +56,7 @@ def bound_clamped_loss(proposals, weights, d_max_mm):
         p, w, ws = cut[key]
         diff = points[:, subset, None, :] - p  # (N, m, K, 3)
         d2 = np.einsum("nmkc,nmkc->nmk", diff, diff)
-        terms = np.maximum(w - ws * d2, 0.0)  # w (1 - d^2 / d_max^2), clamped at 0
+        terms = w - ws * d2  # w (1 - d^2 / d_max^2); the maximum's initial 0 is the clamp
         return -terms.max(axis=-1, initial=0.0).sum(axis=-1)
 
     return loss
