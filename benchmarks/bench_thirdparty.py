@@ -1,9 +1,10 @@
 """Third-party plugins against the built-ins, on one core, through ``hybridfit.fit`` end to end.
 
-    python benchmarks/bench_thirdparty.py [--frames 200 --budget 3400 --repeat 5]
+    python benchmarks/bench_thirdparty.py [--frames 200 --budget 3400 --repeat 5 --cpu 0]
 
-Pins itself to one core (CPU 0, as ``taskset -c 0`` would) and prints medians of CPU time
-per frame, with the mean joint error of each fit (synthetic frames, k = 3), for:
+Pins itself to one core (``--cpu``, as ``taskset -c 0`` would) and prints medians of CPU time
+per frame, with the mean joint error of each fit (synthetic frames, k = 3), timing the built-in
+and the third-party fit alternately (so a load that changes during the run hits both), for:
 
 1. objective: the plain-numpy ``numpy-clamped`` example (``examples/hybridfit-numpy-objective``,
    the paper's formula with the frame-batched ``score_frames`` capability) against the
@@ -16,6 +17,13 @@ per frame, with the mean joint error of each fit (synthetic frames, k = 3), for:
 
 The last line reads ``objective 1.8x, optimizer 1.9x, bind-only 5.2x``: each third-party
 time over the built-in's.
+
+``--breakdown`` first shows where a numpy objective's time goes: fits with objectives that
+score nothing (all-zero losses through ``score_frames``, or through ``bind`` per frame), whose
+time is the driver's and the kinematics' alone, against the built-in; and the example's bound
+loss per call, on points as the driver hands them (a view with the hypothesis innermost,
+``hybridfit.testing.hypotheses_innermost``) and on a C-ordered copy, at each stage's batch
+(hypotheses x scored points) of the default schedule.
 """
 
 from __future__ import annotations
@@ -24,6 +32,7 @@ import argparse
 import os
 import sys
 import time
+import timeit
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +47,6 @@ from hybridfit.objective import Objective  # noqa: E402
 from hybridfit_numpy_objective import NumpyClamped  # noqa: E402
 from hybridfit_numpy_pso import NumpyPSO  # noqa: E402
 
-from _util import median_time  # noqa: E402
 
 
 class BindOnly(Objective):
@@ -49,13 +57,56 @@ class BindOnly(Objective):
     lower_bound = NumpyClamped.lower_bound
 
 
-def measure(data, budget: int, repeat: int, **plugins) -> tuple[float, float]:
-    """(CPU ms per frame, median over ``repeat`` fits; mean joint error mm)."""
-    run = lambda: hybridfit.fit(data["proposals"], data["confidences"], budget=budget, seed=0, **plugins)  # noqa: E731
-    fit = run()  # compiles or loads from numba's cache
-    seconds = median_time(run, repeat=repeat, clock=time.process_time)
-    error = float(np.linalg.norm(fit.model_joints - data["ground_truth"], axis=-1).mean())
-    return 1e3 * seconds / len(data["proposals"]), error
+class FreeBind(Objective):
+    """Scores nothing, through ``bind`` per frame: a fit's time is the driver's and the kinematics'."""
+
+    def bind(self, proposals, weights):
+        return lambda points, subset: np.zeros(len(points))
+
+
+class FreeFrames(FreeBind):
+    """Scores nothing, through ``score_frames`` for all frames at once."""
+
+    def score_frames(self, points, subset, proposals, weights):
+        return np.zeros(points.shape[:2])
+
+
+def breakdown(data, budget: int, repeat: int) -> None:
+    """Print the driver's share of a numpy objective's fit and the example's cost per call."""
+    from hybridfit.testing import hypotheses_innermost
+
+    built_in = dict(objective="clamped-confidence")
+    for name, free in (("score_frames", FreeFrames()), ("bind", FreeBind())):
+        (t_ref, _), (t, _) = measure(data, budget, repeat, built_in, dict(objective=free))
+        print(f"nothing scored through {name:12s} {t:6.3f} ms per frame, {t / t_ref:.2f}x the built-in's "
+              f"{t_ref:.3f} ms")
+    proposals, weights = data["proposals"][0], hybridfit.objective.normalise_confidences(data["confidences"][0])
+    loss = NumpyClamped().bind(proposals, weights)
+    rng = np.random.default_rng(0)
+    Q = len(proposals)
+    for stage, n, m in (("palm", 28, 6), ("finger", 19, 3), ("refinement", 29, Q)):
+        points = proposals[None, :, 0] + rng.normal(0.0, 20.0, size=(n, Q, 3))
+        subset = np.sort(rng.choice(Q, m, replace=False)).astype(np.int64)
+        us = [1e6 * min(timeit.repeat(lambda p=p: loss(p, subset), number=1000, repeat=5)) / 1000
+              for p in (hypotheses_innermost(points), points)]
+        print(f"bound loss per call, {stage:10s} ({n} x {m:2d} points): {us[0]:6.1f} us on the driver's view, "
+              f"{us[1]:6.1f} us on a C-ordered copy")
+
+
+def measure(data, budget: int, repeat: int, *plugins: dict) -> list[tuple[float, float]]:
+    """For each set of plugins: (CPU ms per frame, median over ``repeat`` fits; mean joint
+    error mm). The sets' fits alternate."""
+    runs = [lambda p=p: hybridfit.fit(data["proposals"], data["confidences"], budget=budget, seed=0, **p)
+            for p in plugins]
+    errors = [float(np.linalg.norm(run().model_joints - data["ground_truth"], axis=-1).mean())  # compiles or loads
+              for run in runs]
+    seconds = [[] for _ in runs]
+    for _ in range(repeat):
+        for run, out in zip(runs, seconds):
+            start = time.process_time()
+            run()
+            out.append(time.process_time() - start)
+    return [(1e3 * float(np.median(s)) / len(data["proposals"]), e) for s, e in zip(seconds, errors)]
 
 
 def main() -> None:
@@ -63,10 +114,14 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=200)
     parser.add_argument("--budget", type=int, default=3400)
     parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--cpu", type=int, default=0, help="the core to run on")
+    parser.add_argument("--breakdown", action="store_true", help="first show where a numpy objective's time goes")
     args = parser.parse_args()
     if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {0})
+        os.sched_setaffinity(0, {args.cpu})
     data = hybridfit.synthetic_proposals(args.frames, k=3, seed=11)
+    if args.breakdown:
+        breakdown(data, args.budget, args.repeat)
     stepwise = lambda inner: {"optimizer": "stepwise", "optimizer_config": {"optimizer": inner, "refine_share": 0.25}}  # noqa: E731
     rows = {
         "objective": (dict(objective="clamped-confidence"), dict(objective=NumpyClamped())),
@@ -74,11 +129,10 @@ def main() -> None:
         "bind-only": (dict(objective="clamped-confidence"), dict(objective=BindOnly())),
     }
     ratios = []
-    print(f"{args.frames} synthetic frames, budget {args.budget}, one core (CPU 0), CPU ms per frame (median of "
+    print(f"{args.frames} synthetic frames, budget {args.budget}, one core (CPU {args.cpu}), CPU ms per frame (median of "
           f"{args.repeat}), mean joint error mm")
     for name, (built_in, third_party) in rows.items():
-        (t_ref, e_ref), (t, e) = (measure(data, args.budget, args.repeat, **built_in),
-                                  measure(data, args.budget, args.repeat, **third_party))
+        (t_ref, e_ref), (t, e) = measure(data, args.budget, args.repeat, built_in, third_party)
         print(f"{name:10s} built-in {t_ref:6.3f} ms ({e_ref:.2f} mm)   third-party {t:6.3f} ms ({e:.2f} mm)   "
               f"{t / t_ref:.2f}x")
         ratios.append(f"{name} {t / t_ref:.1f}x")

@@ -25,13 +25,6 @@ class UnknownPluginError(HybridfitError, KeyError):
         return str(self.args[0])
 
 
-class BudgetExceeded(RuntimeError):
-    """An optimiser asked for more objective evaluations than its budget allows.
-
-    This is a bug in the optimiser plugin, not a user error.
-    """
-
-
 class PluginError(RuntimeError):
     """A plugin failed in a way no input explains (a bug); the message names the plugin.
 
@@ -39,6 +32,14 @@ class PluginError(RuntimeError):
     others marked failed), so that no finished work is lost."""
 
     result = None
+
+
+class BudgetExceeded(PluginError):
+    """An optimiser asked for more objective evaluations than its budget allows.
+
+    This is a bug in the optimiser plugin, not a user error: ``Optimizer.run`` names the
+    optimiser, ``hybridfit.fit`` the frame and the plugins.
+    """
 
 
 class Terminated(KeyboardInterrupt):

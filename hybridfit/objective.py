@@ -36,7 +36,8 @@ from .plugin import Plugin, defining_class
 KERNEL_SIGNATURE = nb.types.void(nb.types.float64[:, :, ::1], nb.types.int64[::1], nb.types.float64[:, :, ::1],
                                  nb.types.float64[:, ::1], nb.types.float64[::1], nb.types.float64[::1])
 
-#: loss(points (N, Q, 3) mm, subset (m,) int64 point indices) -> (N,) float64 losses
+#: loss(points (N, Q, 3) mm, subset (m,) int64 point indices) -> (N,) float64 losses; points
+#: may be any strided view (the driver's has the hypothesis innermost in memory)
 Loss = Callable[[np.ndarray, np.ndarray], np.ndarray]
 #: loss(points (N, Q, 3) mm, subset (m,), joints (N, J, 3) mm model joints) -> (N,) float64 losses
 ObservedLoss = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -132,8 +133,8 @@ class Objective(Plugin, abc.ABC):
     def score_frames(self, points: np.ndarray, subset: np.ndarray, proposals: np.ndarray,
                      weights: np.ndarray) -> np.ndarray | None:
         """Capability: the losses of many frames at once, plain numpy allowed. points
-        (F, N, Q, 3) mm, subset (m,) int64, proposals (F, Q, K, 3) mm, weights (F, Q, K)
-        normalised -> (F, N) float64, row f equal to ``bind(proposals[f], weights[f])(points[f],
+        (F, N, Q, 3) mm (any strided view), subset (m,) int64, proposals (F, Q, K, 3) mm, weights
+        (F, Q, K) normalised -> (F, N) float64, row f equal to ``bind(proposals[f], weights[f])(points[f],
         subset)``. None (the default): not offered."""
         return None
 

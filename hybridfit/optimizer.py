@@ -253,7 +253,10 @@ class Optimizer(Plugin, abc.ABC):
         task = Task(problem, budget)
         self.check_budget(task)
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-        self.minimize(task, rng)
+        try:
+            self.minimize(task, rng)
+        except BudgetExceeded as err:
+            raise BudgetExceeded(f"optimizer {self.name or type(self).__name__}: {err}") from err
         if task.used == 0:
             raise HybridfitError(f"optimizer {self.name or type(self).__name__} evaluated nothing")
         return task.result()

@@ -12,12 +12,22 @@ from typing import Sequence
 import numpy as np
 
 from .alignment import INLIER_MM, _aligned_guesses, alignment_points, initial_guess, robust_alignment  # noqa: F401
-from .errors import HybridfitError
+from .errors import HybridfitError, PluginError
 from .model.base import ORIENTATION, POSITION, HandModel
 from .model.kinematics import COLUMNS, block_setup, tree_points
 from .objective import Objective, Observation, compiled_kernel_of, normalise_confidences
 from .stages import (MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, _Structure, guide_points, point_depths,  # noqa: F401
                      rotation_lever_mm, structure_of)
+
+
+def checked_losses(out, n: int, objective) -> np.ndarray:
+    """A bound loss's result as (n,) float64, or a PluginError naming the objective."""
+    if type(out) is not np.ndarray or out.dtype != np.float64:
+        out = np.asarray(out, dtype=np.float64)
+    if out.shape != (n,):
+        raise PluginError(f"objective {getattr(objective, 'name', None) or type(objective).__name__}: its bound loss "
+                          f"returned shape {out.shape}, expected {(n,)}")
+    return out
 
 
 class Problem:
@@ -98,14 +108,17 @@ class Problem:
         return self._needed[key]
 
     def evaluate(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
-        """(N, P) -> (N,) loss over the points in ``subset`` (all by default)."""
+        """(N, P) -> (N,) loss over the points in ``subset`` (all by default). A bound loss
+        returning another shape is a PluginError naming the objective."""
         subset = self.all_points if subset is None else subset
         if self._kernel is not None and getattr(params, "ndim", 0) == 2 and params.shape[1] == self.model.n_params:
             return self._evaluate_compiled(params, subset)
         if self.observed:  # an image term needs the whole hand
             joints = self.model.forward(params)
-            return self.loss(self._from_joints(joints), subset, joints)
-        return self.loss(self.points(params, subset), subset)
+            out = self.loss(self._from_joints(joints), subset, joints)
+        else:
+            out = self.loss(self.points(params, subset), subset)
+        return checked_losses(out, len(params), self.objective)
 
     def _evaluate_compiled(self, params: np.ndarray, subset: np.ndarray) -> np.ndarray:
         """:meth:`evaluate` by :func:`tree_points` and the objective's compiled kernel (in

@@ -2,10 +2,14 @@
 
 Three entry-point groups: ``hybridfit.models``, ``hybridfit.objectives`` and
 ``hybridfit.optimizers``. The core never imports a plugin by name: every plugin, the
-reference ones included, is found here. A plugin whose import fails is reported as a
-warning naming the entry point and its error, and every other plugin keeps working. A
-plugin whose optional library is missing (``Plugin.requires``) is listed as unavailable,
-with the ``pip install`` line that fixes it.
+reference ones included, is found here. A plugin whose import fails (its module raises, or
+its entry point names an attribute the module lacks) is a bug of that plugin: listing
+plugins warns, naming the entry point and its error, and every other plugin keeps working;
+asking for it (:func:`get`) raises a :class:`~hybridfit.errors.PluginError` naming the plugin
+and its entry point. A plugin whose optional library is missing (``Plugin.requires``) is
+listed as unavailable, with the ``pip install`` line that fixes it, and creating it raises
+:class:`~hybridfit.optional.MissingLibrary` (a user error), as does a plugin module that
+imports its library through :func:`~hybridfit.optional.import_library`.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 from . import optional
-from .errors import HybridfitError, UnknownPluginError
+from .errors import HybridfitError, PluginError, UnknownPluginError
 
 GROUPS = {
     "model": "hybridfit.models",
@@ -109,8 +113,10 @@ def name_of(cls: type) -> str:
 def get(kind: str, name: str) -> type:
     """The plugin class registered under ``name``.
 
-    Raises UnknownPluginError listing the registered names and the closest match, or
-    HybridfitError when the plugin's import fails.
+    Raises UnknownPluginError listing the registered names and the closest match;
+    :class:`~hybridfit.optional.MissingLibrary` when the plugin's module needs an optional
+    library that is not installed; PluginError naming the plugin and its entry point when
+    its import fails otherwise.
     """
     eps = _entry_points(kind)
     if name not in eps:
@@ -122,9 +128,11 @@ def get(kind: str, name: str) -> type:
         )
     try:
         return _load(kind, eps[name])
-    except Exception as err:  # a broken third-party plugin must not look like ours
-        raise HybridfitError(
-            f"{_group(kind)} plugin {name!r} ({eps[name].value}) failed to import: "
+    except optional.MissingLibrary:  # the user's to install: one line with the pip command
+        raise
+    except Exception as err:  # a broken plugin: its bug, named, never a user error or ours
+        raise PluginError(
+            f"{kind} plugin {name!r} ({_group(kind)} = {eps[name].value}) failed to import: "
             f"{type(err).__name__}: {err}"
         ) from err
 
@@ -139,7 +147,8 @@ def create(kind: str, spec: Any, config: Mapping[str, Any] | None = None):
 
 
 def available(kind: str) -> list[PluginInfo]:
-    """Every registered plugin of a kind; import failures are warned about and kept."""
+    """Every registered plugin of a kind; import failures are warned about and kept, a module
+    that needs a missing optional library is listed as unavailable."""
     infos = []
     for name, ep in sorted(_entry_points(kind).items()):
         dist = ep.dist.name if ep.dist is not None else "?"
@@ -148,6 +157,8 @@ def available(kind: str) -> list[PluginInfo]:
             doc = (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
             error = None
             unavailable = optional.unavailable(f"plugin {name!r}", getattr(cls, "requires", {}))
+        except optional.MissingLibrary as err:
+            doc, error, unavailable = "", None, str(err)
         except Exception as err:
             doc, error, unavailable = "", f"{type(err).__name__}: {err}", None
             warnings.warn(

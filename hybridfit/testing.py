@@ -414,6 +414,42 @@ def check_objective_capabilities(objective: Objective) -> None:
                                        err_msg=f"{_label(objective)}: score_frames disagrees with bind")
 
 
+def hypotheses_innermost(points: np.ndarray) -> np.ndarray:
+    """The same points (..., N, Q, 3), laid out as the driver hands them to ``bind``'s loss and
+    ``score_frames``: a view of a (..., Q, 3, N) array, the hypothesis innermost in memory."""
+    points = np.asarray(points, dtype=np.float64)
+    axes = tuple(range(points.ndim - 3))
+    n = points.ndim
+    inner = np.ascontiguousarray(points.transpose(*axes, n - 2, n - 1, n - 3))
+    return inner.transpose(*axes, n - 1, n - 3, n - 2)
+
+
+def check_objective_strided_points(objective: Objective) -> None:
+    """``bind``'s loss (and ``score_frames``, when the core would use it) score points laid out
+    as the driver hands them (:func:`hypotheses_innermost`, not C-contiguous) as they score a
+    C-contiguous copy: numpy code is layout-agnostic, code that assumes C order is not."""
+    if objective.observes_depth:
+        return
+    proposals, weights, points = _objective_frame(5)
+    loss = objective.bind(proposals, weights)
+    score_frames = capability(objective, "score_frames")
+    for subset in (np.arange(len(proposals), dtype=np.int64), np.array([0, 2, 3], dtype=np.int64)):
+        want = loss(points.copy(), subset)
+        try:
+            got = loss(hypotheses_innermost(points), subset)
+        except Exception as err:
+            raise AssertionError(f"{_label(objective)}: its loss fails on points that are not C-contiguous (the "
+                                 f"driver's layout): {type(err).__name__}: {err}") from err
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12, err_msg=f"{_label(objective)}: its loss "
+                                   f"differs on points that are not C-contiguous (the driver's layout)")
+        if score_frames is not None:
+            frames = hypotheses_innermost(np.stack([points, points[::-1]]))
+            got = np.asarray(score_frames(frames, subset, np.stack([proposals] * 2), np.stack([weights] * 2)))
+            np.testing.assert_allclose(got, np.stack([want, want[::-1]]), rtol=1e-9, atol=1e-9,
+                                       err_msg=f"{_label(objective)}: score_frames differs on points that are not "
+                                       f"C-contiguous (the driver's layout)")
+
+
 def check_objective_observed(objective: Objective) -> None:
     """An objective that observes depth scores the rendered pose itself at least as well as
     perturbed poses, and a Problem without the frame's depth is refused with a clear error.
@@ -629,7 +665,7 @@ _CHECKS: dict[str, tuple[Callable, ...]] = {
                         check_model_joint_subset, check_model_stage_parameters),
     "objective": _COMMON + (check_objective_shapes, check_objective_batching, check_objective_sum_over_points,
                             check_objective_lower_bound, check_objective_deterministic, check_objective_capabilities,
-                            check_objective_observed),
+                            check_objective_strided_points, check_objective_observed),
     "optimizer": _COMMON + (check_optimizer_budget, check_optimizer_deterministic, check_optimizer_bounds,
                             check_optimizer_subset, check_optimizer_min_budget, check_optimizer_improves,
                             check_optimizer_batch_steps),

@@ -59,3 +59,31 @@ def test_guide_points_are_scored_but_not_owned(problem):
     assert stage.best_owned_loss == pytest.approx(problem.evaluate(stage.full(best[None]), owned)[0])
     task.commit(stage)
     assert task.best_loss == pytest.approx(stage.best_owned_loss)
+
+
+class _Overshoots(hybridfit.Optimizer):
+    """Asks for one evaluation more than its budget (a plugin bug)."""
+
+    def minimize(self, task, rng) -> None:
+        task.evaluate(np.tile(task.x0, (task.remaining + 1, 1)))
+
+
+def test_a_budget_overrun_is_a_plugin_error_naming_the_optimizer(problem):
+    from hybridfit.errors import BudgetExceeded, HybridfitError, PluginError
+
+    with pytest.raises(PluginError, match=r"optimizer _Overshoots: task .*: 11 evaluations asked, 10 left") as err:
+        _Overshoots().run(problem, 10)
+    assert isinstance(err.value, BudgetExceeded) and not isinstance(err.value, HybridfitError)
+
+
+def test_a_wrong_ask_shape_on_the_task_path_is_a_plugin_error_naming_the_optimizer(problem):
+    from hybridfit.errors import PluginError
+    from hybridfit.optimizer import BatchSteps
+    from hybridfit_plugins.optimizers.pso import PSO, STEPS
+
+    class Sloppy(PSO):
+        def batch_steps(self):
+            return BatchSteps(STEPS.init, lambda state, m: STEPS.ask(state, m)[:, :1], STEPS.tell)
+
+    with pytest.raises(PluginError, match=r"optimizer Sloppy: ask returned hypotheses of shape \(1, 1, 27\)"):
+        Sloppy(particles=4).run(problem, 20)

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hybridfit.errors import HybridfitError
+from hybridfit.errors import HybridfitError, PluginError
 from hybridfit.metrics import joint_errors
+from hybridfit.objective import Objective
 from hybridfit.problem import Problem
 
 
@@ -71,3 +72,27 @@ def test_compiled_evaluation_is_the_objectives_loss_of_the_points(hand26, clampe
     for subset in (None, np.array([0, 1, 5, 9]), np.array([6, 7, 8]), np.array([20])):
         s = p.all_points if subset is None else subset
         np.testing.assert_allclose(p.evaluate(X, subset), p.loss(p.points(X, s), s), rtol=0, atol=1e-12)
+
+
+class _OneLossTooMany(Objective):
+    """A bound loss returning N + 1 losses for N hypotheses (a plugin bug)."""
+
+    def bind(self, proposals, weights):
+        return lambda points, subset: np.zeros(len(points) + 1)
+
+
+class _ListOfLosses(Objective):
+    """A bound loss returning a list of N losses: not an array, but the right shape."""
+
+    def bind(self, proposals, weights):
+        return lambda points, subset: [0.0] * len(points)
+
+
+def test_a_bound_loss_of_the_wrong_shape_is_a_plugin_error_naming_the_objective(hand26, frames):
+    params = np.repeat(hand26.default_params()[None], 3, axis=0)
+    problem = Problem(hand26, _OneLossTooMany(), frames["proposals"][0], frames["confidences"][0])
+    with pytest.raises(PluginError, match=r"objective _OneLossTooMany: its bound loss returned shape \(4,\), "
+                                          r"expected \(3,\)"):
+        problem.evaluate(params)
+    losses = Problem(hand26, _ListOfLosses(), frames["proposals"][0], frames["confidences"][0]).evaluate(params)
+    assert losses.dtype == np.float64 and losses.shape == (3,)

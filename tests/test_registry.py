@@ -7,8 +7,10 @@ import warnings
 
 import pytest
 
+import hybridfit
 from hybridfit import registry
-from hybridfit.errors import HybridfitError, UnknownPluginError
+from hybridfit.errors import HybridfitError, PluginError, UnknownPluginError
+from hybridfit.optional import MissingLibrary
 
 
 def test_reference_plugins_are_registered():
@@ -49,6 +51,14 @@ def broken_distribution(tmp_path):
         "[hybridfit.optimizers]\n"
         "broken-opt = brokenplugins_mod:Missing\n"
         "fine-opt = brokenplugins_mod:Fine\n"
+        "[hybridfit.objectives]\n"
+        "raising-obj = brokenplugins_raising:Objective\n"
+        "needs-lib-obj = brokenplugins_needs:Objective\n"
+    )
+    (tmp_path / "brokenplugins_raising.py").write_text("raise ZeroDivisionError('broken at import')\n")
+    (tmp_path / "brokenplugins_needs.py").write_text(
+        "from hybridfit.optional import import_library\n"
+        "import_library('no_such_library_x', 'no-such-library>=2', 'plugin needs-lib-obj')\n"
     )
     (tmp_path / "brokenplugins_mod.py").write_text(
         "from hybridfit_plugins.optimizers.pso import PSO\n"
@@ -58,7 +68,8 @@ def broken_distribution(tmp_path):
     registry.refresh()
     yield
     sys.path.remove(str(tmp_path))
-    sys.modules.pop("brokenplugins_mod", None)
+    for module in ("brokenplugins_mod", "brokenplugins_raising", "brokenplugins_needs"):
+        sys.modules.pop(module, None)
     registry.refresh()
 
 
@@ -68,11 +79,33 @@ def test_a_broken_plugin_warns_and_the_others_keep_working(broken_distribution):
     assert infos["broken-opt"].error and "Missing" in infos["broken-opt"].error
     assert infos["fine-opt"].error is None and infos["fine-opt"].distribution == "brokenplugins"
     assert infos["pso"].error is None
-    with pytest.raises(HybridfitError, match="broken-opt.*failed to import"):
+    with pytest.raises(PluginError, match=r"optimizer plugin 'broken-opt' \(hybridfit.optimizers = "
+                                          r"brokenplugins_mod:Missing\) failed to import: AttributeError"):
         registry.get("optimizer", "broken-opt")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert registry.create("optimizer", "fine-opt").settings.particles is None
+
+
+def test_a_plugin_whose_import_fails_is_a_plugin_error_naming_it_and_its_entry_point(broken_distribution):
+    for get in (lambda: registry.get("objective", "raising-obj"), lambda: hybridfit.create("objective", "raising-obj")):
+        with pytest.raises(PluginError, match=r"objective plugin 'raising-obj' \(hybridfit.objectives = "
+                                              r"brokenplugins_raising:Objective\) failed to import: "
+                                              r"ZeroDivisionError: broken at import") as err:
+            get()
+        assert not isinstance(err.value, HybridfitError)  # a bug of the plugin, not the user's input
+    with pytest.raises(PluginError, match="optimizer plugin 'broken-opt'"):  # a wrapper's inner optimiser too
+        hybridfit.create("optimizer", "stepwise", {"optimizer": "broken-opt"}).inner
+
+
+def test_a_plugin_module_missing_its_optional_library_stays_a_user_error_with_the_install_line(broken_distribution):
+    with pytest.raises(MissingLibrary, match=r'plugin needs-lib-obj needs no_such_library_x, not installed: '
+                                             r'pip install "no-such-library>=2"'):
+        registry.get("objective", "needs-lib-obj")
+    with pytest.warns(UserWarning) as caught:  # the fixture's raising-obj warns; needs-lib-obj is no failure
+        info = next(i for i in registry.available("objective") if i.name == "needs-lib-obj")
+    assert not any("needs-lib-obj" in str(w.message) for w in caught)
+    assert info.error is None and info.unavailable.endswith('pip install "no-such-library>=2"')
 
 
 def test_the_registry_writes_no_names_onto_classes():

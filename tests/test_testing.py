@@ -350,3 +350,38 @@ def test_casadi_symbols_follow_the_same_rule():
 
     assert optimised_loss(WithSymbols(), 10.0) is None
     assert "surrogate" in optimised_loss(OwnBind(), 10.0)
+
+
+def test_a_loss_that_assumes_c_ordered_points_fails_its_check():
+    import numba as nb
+
+    @nb.njit("float64[:](float64[:, :, ::1], int64[::1], float64[:, ::1])")
+    def nearest_sq(points, subset, target):  # a C-contiguous signature: refuses the driver's strided points
+        out = np.zeros(points.shape[0])
+        for n in range(points.shape[0]):
+            for q in subset:
+                for c in range(3):
+                    out[n] += (points[n, q, c] - target[q, c]) ** 2
+        return out
+
+    class COrdered(Objective):
+        def bind(self, proposals, weights):
+            target = np.ascontiguousarray(proposals[:, 0] * (weights.sum(-1) > 0)[:, None])
+            return lambda points, subset: nearest_sq(points, subset, target)
+
+    with pytest.raises(AssertionError, match="not C-contiguous"):
+        testing.check_objective_strided_points(COrdered())
+
+    class AnyLayout(COrdered):
+        def bind(self, proposals, weights):
+            loss = COrdered.bind(self, proposals, weights)
+            return lambda points, subset: loss(np.ascontiguousarray(points), subset)
+
+    testing.check_objective_strided_points(AnyLayout())
+
+
+def test_the_driver_layout_is_the_same_points_not_c_contiguous():
+    points = np.random.default_rng(0).normal(size=(2, 5, 4, 3))
+    strided = testing.hypotheses_innermost(points)
+    assert np.array_equal(strided, points) and not strided.flags.c_contiguous
+    assert strided.strides[1] == 8  # the hypothesis innermost

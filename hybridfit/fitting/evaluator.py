@@ -11,7 +11,8 @@ hypotheses (the parameters outside the stage at ``base``) scored over ``points``
   per generation for all frames of a group.
 - :class:`NumpyScorer`: a kinematic tree's points by the same numba kinematics (or, for a model
   without a kinematic tree, its ``forward``), scored by the objective's ``score_frames`` (one
-  call per generation for all frames) or ``bind`` (one call per frame).
+  call per generation for all frames) or ``bind`` (one call per frame). The points are handed
+  over as a view of the kinematics' buffer, the hypothesis innermost in memory (no copy).
 """
 
 from __future__ import annotations
@@ -60,21 +61,16 @@ def kernel_frames():
 @nb.njit(cache=True, nogil=True, fastmath=True)
 def frame_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
                  ints, floats, X, subset, out):
-    """out (F, m, Q, 3) mm: the points ``subset`` of every frame's hypotheses X (F, m, d) (the
-    other points are left as they are)."""
+    """out (F, Q, 3, n >= m) mm, the hypothesis innermost: out[f, :, :, :m] the points
+    ``subset`` of frame f's hypotheses X[f] (m, d) (the other points are left as they are)."""
     F, m = X.shape[0], X.shape[1]
     G = ints[9]
-    WpB, pts = block_views(ints, floats)[9], block_views(ints, floats)[11]
+    WpB = block_views(ints, floats)[9]
     for f0 in range(0, F, G):
         f1 = min(F, f0 + G)
         block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X)
         for f in range(f0, f1):
-            block_points(m, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], pts, (f - f0) * m)
-            for t in range(subset.shape[0]):
-                q = subset[t]
-                for c in range(3):
-                    for i in range(m):
-                        out[f, i, q, c] = pts[q, c, i]
+            block_points(m, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out[f], (f - f0) * m)
 
 
 @functools.cache
@@ -127,18 +123,19 @@ class NumpyScorer:
     def prepare(self, base, pidx, subset, owned, n):
         if self.tree is not None:
             stage = block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n)
-        else:
-            stage = (base.copy(), pidx)
-        return stage, np.zeros((len(base), max(n, 1), self.Q, 3))
+            return stage, np.zeros((len(base), self.Q, 3, max(n, 1)))
+        return (base.copy(), pidx), None
 
     def points(self, stage, X, subset):
-        """(F, m, Q, 3) points of hypotheses X (F, m, d) (those in ``subset`` guaranteed)."""
+        """(F, m, Q, 3) points of hypotheses X (F, m, d) (those in ``subset`` guaranteed). From
+        the kinematic tree they are a view of an (F, Q, 3, n) buffer, the hypothesis innermost
+        in memory as the kinematics compute them: no copy, and numpy's elementwise operations
+        on them run along the hypotheses (the objective's contract allows any strides)."""
         stage, buffer = stage
         F, m = X.shape[:2]
         if self.tree is not None:
-            out = buffer[:, :m]
-            frame_points(*self.tree, *self.point_map, *stage, X, subset, out)
-            return out
+            frame_points(*self.tree, *self.point_map, *stage, X, subset, buffer)
+            return buffer[..., :m].transpose(0, 3, 1, 2)
         base, pidx = stage
         full = np.repeat(base[:, None], m, axis=1)
         full[:, :, pidx] = X

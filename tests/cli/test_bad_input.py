@@ -168,6 +168,29 @@ def test_a_plugin_bug_propagates_naming_the_plugin(exact_frames):
         hybridfit.fit(exact_frames["proposals"], exact_frames["confidences"], optimizer=_Overshoots(), budget=50)
 
 
+class _OneLossTooMany(hybridfit.Objective):
+    """A bound loss returning N + 1 losses for N hypotheses (a plugin bug)."""
+
+    name = "one-too-many"
+
+    def bind(self, proposals, weights):
+        return lambda points, subset: np.zeros(len(points) + 1)
+
+
+class _OneBatch(Optimizer):
+    """A callback solver (run on a Task per frame): evaluates its start, budget times."""
+
+    def minimize(self, task, rng) -> None:
+        task.evaluate(np.tile(task.x0, (task.remaining, 1)))
+
+
+@pytest.mark.parametrize("optimizer", ["pso", _OneBatch()])  # the driver and the Task path
+def test_a_bound_loss_of_the_wrong_shape_is_a_plugin_error_naming_the_objective(exact_frames, optimizer):
+    with pytest.raises(errors.PluginError, match=r"objective one-too-many: its bound loss returned shape"):
+        hybridfit.fit(exact_frames["proposals"][:2], exact_frames["confidences"][:2], objective=_OneLossTooMany(),
+                      optimizer=optimizer, budget=50)
+
+
 def test_summary_after_ctrl_c_covers_finished_frames_only(frames_file, tmp_path, capsys, interrupt_at):
     interrupt_at(2)
     out = tmp_path / "partial.npz"

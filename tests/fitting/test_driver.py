@@ -238,3 +238,19 @@ def test_a_bug_in_a_bound_loss_is_a_plugin_error_naming_the_plugins(frames):
 
     with pytest.raises(PluginError, match="ZeroDivisionError.*objective Raising"):
         hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], objective=Raising(), budget=300)
+
+
+def test_a_frame_scorer_of_the_wrong_shape_is_a_plugin_error_naming_the_objective(frames):
+    from hybridfit.errors import PluginError
+    from hybridfit.objective import Objective
+
+    class OneColumnShort(Objective):
+        def bind(self, proposals, weights):
+            return lambda points, subset: np.zeros(len(points))
+
+        def score_frames(self, points, subset, proposals, weights):
+            return np.zeros((points.shape[0], points.shape[1] - 1))
+
+    with pytest.raises(PluginError, match=r"objective OneColumnShort: score_frames returned shape \(2, \d+\), "
+                                          r"expected \(2, \d+\)"):
+        hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], objective=OneColumnShort(), budget=300)

@@ -26,20 +26,19 @@ def clamped_loss(points, subset, proposals, weights, d_max_mm):
     -> (..., N) losses -E over the points in ``subset``.
 
     One proposal at a time, on (..., N, m) arrays (K is small): fewer and smaller temporaries
-    than one (..., N, m, K, 3) difference array."""
+    than one (..., N, m, K, 3) difference array. w (1 - d^2) = w - (w / d_max^2) ||p - h||^2,
+    and the clamp at 0 is the running maximum's start."""
     h = points[..., subset, :]  # (..., N, m, 3)
     hx, hy, hz = h[..., 0], h[..., 1], h[..., 2]
     p = proposals[..., None, subset, :, :]  # (..., 1, m, K, 3)
     w = weights[..., None, subset, :]  # (..., 1, m, K)
-    scale = 1.0 / d_max_mm**2
+    ws = w / d_max_mm**2
     best = np.zeros(hx.shape)
     for k in range(p.shape[-2]):
         d2 = np.square(hx - p[..., k, 0])
         d2 += np.square(hy - p[..., k, 1])
         d2 += np.square(hz - p[..., k, 2])
-        term = np.maximum(1.0 - scale * d2, 0.0)
-        term *= w[..., k]
-        np.maximum(best, term, out=best)
+        np.maximum(best, w[..., k] - ws[..., k] * d2, out=best)
     return -best.sum(axis=-1)
 
 
@@ -57,7 +56,7 @@ def bound_clamped_loss(proposals, weights, d_max_mm):
         p, w, ws = cut[key]
         diff = points[:, subset, None, :] - p  # (N, m, K, 3)
         d2 = np.einsum("nmkc,nmkc->nmk", diff, diff)
-        terms = np.maximum(w - ws * d2, 0.0)  # w (1 - d^2 / d_max^2), clamped at 0
+        terms = w - ws * d2  # w (1 - d^2 / d_max^2); the maximum's initial 0 is the clamp
         return -terms.max(axis=-1, initial=0.0).sum(axis=-1)
 
     return loss
