@@ -227,6 +227,17 @@ _HEADER = 10
 COLUMNS = 256
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def block_lists(ints, J, P):
+    """The index lists of a block computation's ints (after its header): the joints to
+    recompute in order, the joints whose rotation is read (1/0), the fixed joints read (J,
+    each); the stage's angle rows, the fixed parameter rows read and each parameter's position
+    in the stage or -1 (P, each)."""
+    return (ints[_HEADER:_HEADER + J], ints[_HEADER + J:_HEADER + 2 * J], ints[_HEADER + 2 * J:_HEADER + 3 * J],
+            ints[_HEADER + 3 * J:_HEADER + 3 * J + P], ints[_HEADER + 3 * J + P:_HEADER + 3 * J + 2 * P],
+            ints[_HEADER + 3 * J + 2 * P:])
+
+
 @nb.njit(cache=True, nogil=True)
 def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
                 base, pidx, subset, owned, n):
@@ -246,12 +257,7 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
     mark_needed(parents, pm_ptr, pm_joint, subset, needed)
     mark_needed(parents, pm_ptr, pm_joint, owned, needed)
     ints = np.zeros(_HEADER + 3 * J + 3 * P, dtype=np.int64)
-    order = ints[_HEADER:_HEADER + J]
-    oriented = ints[_HEADER + J:_HEADER + 2 * J]
-    fixed = ints[_HEADER + 2 * J:_HEADER + 3 * J]
-    rows = ints[_HEADER + 3 * J:_HEADER + 3 * J + P]
-    frows = ints[_HEADER + 3 * J + P:_HEADER + 3 * J + 2 * P]
-    stage_pos = ints[_HEADER + 3 * J + 2 * P:]
+    order, oriented, fixed, rows, frows, stage_pos = block_lists(ints, J, P)
     stage_pos[:] = -1
     is_global = False
     for t in range(pidx.shape[0]):
@@ -384,12 +390,7 @@ def block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, m
     hypothesis first + i in column (f - f0) m + i."""
     (base, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = block_views(ints, floats)
     J, P = ints[7], ints[6]
-    order = ints[_HEADER:_HEADER + J]
-    oriented = ints[_HEADER + J:_HEADER + 2 * J]
-    fixed = ints[_HEADER + 2 * J:_HEADER + 3 * J]
-    rows = ints[_HEADER + 3 * J:_HEADER + 3 * J + P]
-    frows = ints[_HEADER + 3 * J + P:_HEADER + 3 * J + 2 * P]
-    stage_pos = ints[_HEADER + 3 * J + 2 * P:]
+    order, oriented, fixed, rows, frows, stage_pos = block_lists(ints, J, P)
     if m < 0:
         m = X.shape[1] - first
     count, n_fixed, n_rows, n_frows = ints[0], ints[1], ints[2], ints[3]
