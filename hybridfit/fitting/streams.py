@@ -75,39 +75,35 @@ def normal(key, counter):
     return b if counter & 1 else a
 
 
-@nb.njit(cache=True)
-def fill_uniform(key, start, out):
-    """out (n,) = uniform numbers start, start + 1, ... of stream ``key`` (one hash per pair)."""
+@nb.njit(cache=True, inline="always")
+def _fill(pair, key, start, out):
+    """out (n,) = numbers start, start + 1, ... of the stream whose pair p is ``pair(key, p)``:
+    one pair per two numbers, half a pair at an odd start or end."""
     n = out.shape[0]
     if n == 0:
         return
     first = start & 1
     if first:
-        out[0] = uniform(key, start)
+        out[0] = pair(key, start >> 1)[1]
     pairs = (n - first) // 2
     p0 = (start + first) >> 1
     for p in range(pairs):  # one flat loop: it vectorises
-        out[first + 2 * p], out[first + 2 * p + 1] = uniform_pair(key, p0 + p)
+        out[first + 2 * p], out[first + 2 * p + 1] = pair(key, p0 + p)
     if first + 2 * pairs < n:
-        out[n - 1] = uniform(key, start + n - 1)
+        out[n - 1] = pair(key, (start + n - 1) >> 1)[0]
+
+
+@nb.njit(cache=True)
+def fill_uniform(key, start, out):
+    """out (n,) = uniform numbers start, start + 1, ... of stream ``key`` (one hash per pair)."""
+    _fill(uniform_pair, key, start, out)
 
 
 @nb.njit(cache=True)
 def fill_normal(key, start, out):
     """out (n,) = standard normal numbers start, start + 1, ... of stream ``key`` (one
     Box-Muller pair per two numbers)."""
-    n = out.shape[0]
-    if n == 0:
-        return
-    first = start & 1
-    if first:
-        out[0] = normal(key, start)
-    pairs = (n - first) // 2
-    p0 = (start + first) >> 1
-    for p in range(pairs):
-        out[first + 2 * p], out[first + 2 * p + 1] = normal_pair(key, p0 + p)
-    if first + 2 * pairs < n:
-        out[n - 1] = normal(key, start + n - 1)
+    _fill(normal_pair, key, start, out)
 
 
 @nb.njit(cache=True)
