@@ -20,13 +20,17 @@ from .stages import (MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, _Structure, guide_point
                      rotation_lever_mm, structure_of)
 
 
+def objective_label(objective) -> str:
+    """How errors name an objective: ``objective NAME``."""
+    return f"objective {getattr(objective, 'name', None) or type(objective).__name__}"
+
+
 def checked_losses(out, n: int, objective) -> np.ndarray:
     """A bound loss's result as (n,) float64, or a PluginError naming the objective."""
     if type(out) is not np.ndarray or out.dtype != np.float64:
         out = np.asarray(out, dtype=np.float64)
     if out.shape != (n,):
-        raise PluginError(f"objective {getattr(objective, 'name', None) or type(objective).__name__}: its bound loss "
-                          f"returned shape {out.shape}, expected {(n,)}")
+        raise PluginError(f"{objective_label(objective)}: its bound loss returned shape {out.shape}, expected {(n,)}")
     return out
 
 

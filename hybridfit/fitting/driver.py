@@ -329,7 +329,7 @@ class Driver:
             losses = None if self.score_frames is not None else [self.objective.bind(p, w)
                                                                   for p, w in zip(proposals, weights)]
             scorer = NumpyScorer(self.model, self.tree, self.point_map, self.point_matrix, proposals, weights,
-                                 self.score_frames, losses, where=f"objective {_name(self.objective)}")
+                                 self.score_frames, losses, objective=self.objective)
         try:
             run_schedule(lay.optimizer, lay.steps, scorer, lay.stages, lay.indices, lay.settings,
                          _require(chunk.x0[sel], np.float64), _require(chunk.lower[sel], np.float64),

@@ -28,6 +28,7 @@ import numpy as np
 
 from ..errors import PluginError
 from ..objective import KERNEL_SIGNATURE
+from ..problem import checked_losses, objective_label
 from ..model.kinematics import block_kinematics, block_points, block_setup, block_views
 
 
@@ -111,13 +112,13 @@ class NumpyScorer:
     tree: as :class:`KernelScorer`'s, or None (then the model's ``forward`` gives the joints);
     point_map, point_matrix: the (Q, J) point matrix in CSR form and dense (None: the model's
     joints); score_frames: the objective's valid capability or None, then ``losses`` (one bound
-    loss per frame) are called one frame at a time. ``where`` names the objective in errors."""
+    loss per frame) are called one frame at a time. ``objective`` is named in errors."""
 
     def __init__(self, model, tree, point_map, point_matrix, proposals, weights, score_frames=None, losses=None,
-                 where: str = "objective") -> None:
+                 objective=None) -> None:
         self.model, self.tree, self.point_map, self.point_matrix = model, tree, point_map, point_matrix
         self.proposals, self.weights = proposals, weights
-        self.score_frames, self.losses, self.where = score_frames, losses, where
+        self.score_frames, self.losses, self.objective = score_frames, losses, objective
         self.Q = len(point_map[0]) - 1
 
     def prepare(self, base, pidx, subset, owned, n):
@@ -148,13 +149,9 @@ class NumpyScorer:
         if self.score_frames is not None:
             out = np.asarray(self.score_frames(points, subset, self.proposals, self.weights), dtype=np.float64)
             if out.shape != (len(X), m):
-                raise PluginError(f"{self.where}: score_frames returned shape {out.shape}, expected {(len(X), m)}")
+                raise PluginError(f"{objective_label(self.objective)}: score_frames returned shape {out.shape}, "
+                                  f"expected {(len(X), m)}")
             losses[:, :m] = out
             return
         for f, loss in enumerate(self.losses):
-            out = loss(points[f], subset)
-            if type(out) is not np.ndarray or out.shape != (m,):
-                out = np.asarray(out, dtype=np.float64)
-            if out.shape != (m,):
-                raise PluginError(f"{self.where}: its bound loss returned shape {out.shape}, expected {(m,)}")
-            losses[f, :m] = out
+            losses[f, :m] = checked_losses(loss(points[f], subset), m, self.objective)
