@@ -350,7 +350,6 @@ def calibrate(
         say(f"{'model' if m is None else 'left' if m else 'right'} hand, prior geometry: fit error {tried[m][1]:.2f} mm")
     hand = min(tried, key=lambda k: tried[k][1])
     current, before, polished, _ = tried[hand]
-    params = polished.params
     free = determined(current, geo, names)
     at_prior = tuple(n for n, f in zip(geo.names, free) if not f)
     if at_prior:
@@ -358,20 +357,17 @@ def calibrate(
     ls_err = np.nan
     per = None
     for r in range(rounds):
-        scale, g, ls_err = _least_squares(fit_truth, names, current, free, scale, g, params, noise_mm, max_nfev,
-                                          progress)
+        scale, g, ls_err = _least_squares(fit_truth, names, current, free, scale, g, polished.params, noise_mm,
+                                          max_nfev, progress)
         current = _configured(current, np.round(g, 4))
         after, polished, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
-        params = polished.params
         say(f"round {r + 1}: scale {scale:.3f}, least-squares error {ls_err:.2f} mm, fit error {after:.2f} mm")
     for r in range(centre_rounds):
         current = centre_bones(current, polished.bone_factors, free)
         after, polished, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
-        params = polished.params
         say(f"bones centred ({r + 1}): fit error {after:.2f} mm")
     if per is None:
         after, polished, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
-        params = polished.params
     if len(held):
         heldout, _, per_held = _fit_error(truth[held], names, current, budget, seed, jobs, progress)
         per_held = np.nanmean(per_held, axis=0)
@@ -380,7 +376,7 @@ def calibrate(
         say(f"a {cost[0]:.2f} mm predictor on the held-out frames, fitted: {cost[1]:.2f} mm")
     else:
         heldout, per_held, cost = np.nan, np.full(len(names), np.nan), (np.nan, np.nan)
-    return CalibrationResult(current.get_params(), before, after, heldout, cal, held, ls_err, params,
+    return CalibrationResult(current.get_params(), before, after, heldout, cal, held, ls_err, polished.params,
                              np.nanmean(per, axis=0), per_held, scale, at_prior, *cost)
 
 
