@@ -96,8 +96,10 @@ def test_ctrl_c_during_start_up_exits_130_without_a_traceback(tmp_path):
 
 @pytest.mark.parametrize("delay_s", [0.2, 0.6, 1.5])
 def test_ctrl_c_at_any_moment_exits_130_without_a_traceback(tmp_path, delay_s):
-    """Some moment in start-up (the imports) or in the run: the same exit, never a traceback."""
-    np.savez(tmp_path / "p.npz", **hybridfit.synthetic_proposals(300, seed=1))
+    """Some moment in start-up (the imports) or in the run: the same exit, never a traceback.
+    The fit is long enough (2000 frames at budget 30000, seconds on a fast machine) that the
+    latest moment still falls inside it."""
+    np.savez(tmp_path / "p.npz", **hybridfit.synthetic_proposals(2000, seed=1))
     run = Running([sys.executable, "-X", "importtime", "-m", "hybridfit", "fit", "p.npz", "--out", "o.npz",
                    "--budget", "30000"], tmp_path)
     run.wait_for(r"\| hybridfit\.cli\n")
