@@ -31,6 +31,7 @@ from pydantic import Field
 from . import registry
 from .errors import HybridfitError
 from .fitting.angles import PARAMETER_NAME
+from .fitting.evaluator import frames_innermost
 from .model.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
 from .model.base import ANGLES, HandModel, Stage
 from .objective import Objective, capability, compiled_kernel_of, normalise_confidences
@@ -407,11 +408,31 @@ def check_objective_capabilities(objective: Objective) -> None:
             np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9,
                                        err_msg=f"{_label(objective)}: compiled_kernel disagrees with bind")
         if score_frames is not None:
-            got = np.asarray(score_frames(points.copy(), subset, proposals, weights))
+            got = _scored_frames(objective, score_frames, *frames_arguments(points, subset, proposals, weights))
             _require(got.shape == want.shape, f"{_label(objective)}: score_frames returned shape {got.shape}, "
                      f"expected {want.shape}")
             np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9,
                                        err_msg=f"{_label(objective)}: score_frames disagrees with bind")
+
+
+def frames_arguments(points: np.ndarray, subset: np.ndarray, proposals: np.ndarray, weights: np.ndarray):
+    """What the driver hands ``score_frames`` for frames' points (F, N, Q, 3), proposals
+    (F, Q, K, 3) and weights (F, Q, K) scored over ``subset`` (m,): (points (F, N, m, 3),
+    subset, proposals (F, m, K, 3), weights (F, m, K)), the points' rows and the proposals cut
+    to ``subset``, each laid out with the frame innermost in memory (views, not C-contiguous;
+    :func:`hybridfit.fitting.evaluator.frames_innermost`)."""
+    return (frames_innermost(np.asarray(points)[:, :, subset], 2), subset,
+            frames_innermost(np.asarray(proposals)[:, subset], 1), frames_innermost(np.asarray(weights)[:, subset], 1))
+
+
+def _scored_frames(objective: Objective, score_frames, points, subset, proposals, weights) -> np.ndarray:
+    """score_frames' result; its failure on the driver's arguments is the check's failure."""
+    try:
+        return np.asarray(score_frames(points, subset, proposals, weights))
+    except Exception as err:
+        raise AssertionError(f"{_label(objective)}: score_frames fails on the driver's arguments (the points in "
+                             f"subset only, proposals and weights cut to them, the frame innermost in memory): "
+                             f"{type(err).__name__}: {err}") from err
 
 
 def hypotheses_innermost(points: np.ndarray) -> np.ndarray:
@@ -425,9 +446,11 @@ def hypotheses_innermost(points: np.ndarray) -> np.ndarray:
 
 
 def check_objective_strided_points(objective: Objective) -> None:
-    """``bind``'s loss (and ``score_frames``, when the core would use it) score points laid out
-    as the driver hands them (:func:`hypotheses_innermost`, not C-contiguous) as they score a
-    C-contiguous copy: numpy code is layout-agnostic, code that assumes C order is not."""
+    """``bind``'s loss scores points laid out as the driver hands them (:func:`hypotheses_innermost`,
+    not C-contiguous) as it scores a C-contiguous copy, and ``score_frames`` (when the core
+    would use it) scores the driver's arguments (:func:`frames_arguments`, the frame innermost)
+    as it scores C-contiguous copies: numpy code is layout-agnostic, code that assumes C order
+    is not."""
     if objective.observes_depth:
         return
     proposals, weights, points = _objective_frame(5)
@@ -443,11 +466,14 @@ def check_objective_strided_points(objective: Objective) -> None:
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12, err_msg=f"{_label(objective)}: its loss "
                                    f"differs on points that are not C-contiguous (the driver's layout)")
         if score_frames is not None:
-            frames = hypotheses_innermost(np.stack([points, points[::-1]]))
-            got = np.asarray(score_frames(frames, subset, np.stack([proposals] * 2), np.stack([weights] * 2)))
-            np.testing.assert_allclose(got, np.stack([want, want[::-1]]), rtol=1e-9, atol=1e-9,
-                                       err_msg=f"{_label(objective)}: score_frames differs on points that are not "
-                                       f"C-contiguous (the driver's layout)")
+            frames = (np.stack([points, points[::-1]]), subset, np.stack([proposals] * 2), np.stack([weights] * 2))
+            driver_args = frames_arguments(*frames)
+            c_ordered = [np.ascontiguousarray(a) for a in driver_args]
+            want_frames = np.asarray(score_frames(*c_ordered))
+            got = _scored_frames(objective, score_frames, *driver_args)
+            np.testing.assert_allclose(got, want_frames, rtol=1e-12, atol=1e-12,
+                                       err_msg=f"{_label(objective)}: score_frames differs on the driver's layout "
+                                       f"(the frame innermost) from C-contiguous arrays")
 
 
 def check_objective_observed(objective: Objective) -> None:
