@@ -146,18 +146,25 @@ def _normals(keys, start, out):
         fill_normal(keys[f], start, out[f])
 
 
-def uniforms(keys: np.ndarray, start: int, shape) -> np.ndarray:
+def uniforms(keys: np.ndarray, start: int, shape, frames_last: bool = False) -> np.ndarray:
     """(F, *shape) uniform numbers in [0, 1): per frame f the numbers start, start + 1, ... of
-    stream ``keys[f]`` in C order (for numpy optimisers)."""
-    keys = np.ascontiguousarray(keys, dtype=np.uint64)
-    out = np.empty((len(keys), int(np.prod(shape))))
-    _uniforms(keys, int(start), out)
-    return out.reshape((len(keys), *shape))
+    stream ``keys[f]`` in C order of ``shape`` (for numpy optimisers). frames_last: the same
+    numbers as a C-contiguous (*shape, F) array, frame f's at ``[..., f]``."""
+    return _draw(_uniforms, keys, start, shape, frames_last)
 
 
-def normals(keys: np.ndarray, start: int, shape) -> np.ndarray:
+def normals(keys: np.ndarray, start: int, shape, frames_last: bool = False) -> np.ndarray:
     """(F, *shape) standard normal numbers, as :func:`uniforms`."""
+    return _draw(_normals, keys, start, shape, frames_last)
+
+
+def _draw(fill, keys, start, shape, frames_last):
     keys = np.ascontiguousarray(keys, dtype=np.uint64)
-    out = np.empty((len(keys), int(np.prod(shape))))
-    _normals(keys, int(start), out)
+    size = int(np.prod(shape))
+    if frames_last:
+        out = np.empty((size, len(keys)))
+        fill(keys, int(start), out.T)
+        return out.reshape((*shape, len(keys)))
+    out = np.empty((len(keys), size))
+    fill(keys, int(start), out)
     return out.reshape((len(keys), *shape))
