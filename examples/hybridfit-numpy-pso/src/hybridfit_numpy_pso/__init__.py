@@ -10,8 +10,10 @@ the budget come for free. Frame f's random numbers come only from its key ``keys
 
 The swarm keeps the frame axis last ((n, d, F) arrays, C order): a frame's bounds (d, F)
 then broadcast over the particles, and numpy's operations run over long contiguous (d, F)
-rows even when a stage moves few parameters. The updates work in place. ``ask`` hands the
-driver an (F, m, d) view of the swarm (no copy).
+rows even when a stage moves few parameters. The updates work in place, in the state's
+arrays and one scratch array allocated by ``init`` (fresh arrays of this size every
+generation cost page faults). ``ask`` hands the driver an (F, m, d) view of the swarm (no
+copy).
 """
 
 from __future__ import annotations
@@ -47,8 +49,8 @@ def init(start, lower, upper, keys, budget, settings):
     np.maximum(x, lower, out=x)
     np.minimum(x, upper, out=x)
     return {"x": x, "v": np.zeros_like(x), "pbest_x": x.copy(), "pbest_f": np.full((n, F), np.inf),
-            "lower": lower, "upper": upper, "vmax": settings[4] * span, "keys": keys, "settings": settings,
-            "counter": n * d, "first": True}
+            "scratch": np.empty_like(x), "lower": lower, "upper": upper, "vmax": settings[4] * span,
+            "min_v": -settings[4] * span, "keys": keys, "settings": settings, "counter": n * d, "first": True}
 
 
 def ask(state, m):
@@ -60,17 +62,18 @@ def ask(state, m):
     r = uniforms(state["keys"], state["counter"], (2, m, d), frames_last=True)  # (2, m, d, F)
     state["counter"] += 2 * m * d
     best = state["pbest_x"][state["pbest_f"].argmin(axis=0), :, np.arange(F)].T  # (d, F)
-    xs, vs = x[:m], state["v"][:m]
-    cognitive = c1 * r[0]
-    cognitive *= state["pbest_x"][:m] - xs
-    social = c2 * r[1]
-    social *= best - xs
-    vs += cognitive  # v = chi (v + c1 r1 (pbest - x) + c2 r2 (best - x)), clipped to +-vmax
-    vs += social
+    xs, vs, scratch = x[:m], state["v"][:m], state["scratch"][:m]
+    # v = chi (v + c1 r1 (pbest - x) + c2 r2 (best - x)), clipped to +-vmax
+    r[0] *= c1
+    r[0] *= np.subtract(state["pbest_x"][:m], xs, out=scratch)
+    r[1] *= c2
+    r[1] *= np.subtract(best, xs, out=scratch)
+    vs += r[0]
+    vs += r[1]
     vs *= chi
-    np.maximum(vs, -state["vmax"], out=vs)
+    np.maximum(vs, state["min_v"], out=vs)
     np.minimum(vs, state["vmax"], out=vs)
-    moved = xs + vs
+    moved = np.add(xs, vs, out=scratch)
     np.maximum(moved, state["lower"], out=xs)
     np.minimum(xs, state["upper"], out=xs)
     np.copyto(vs, 0.0, where=xs != moved)  # a particle that hits a bound stops there
