@@ -63,12 +63,13 @@ def bound_clamped_loss(proposals, weights, d_max_mm):
         key = subset.tobytes()
         if key not in cut:
             w = weights[subset]
-            cut[key] = (proposals[subset], w, w * scale)
-        p, w, ws = cut[key]
+            cut[key] = (proposals[subset], -w, w * scale)
+        p, neg_w, ws = cut[key]
         diff = points[:, subset, None, :] - p  # (N, m, K, 3)
-        d2 = np.einsum("nmkc,nmkc->nmk", diff, diff)
-        terms = w - ws * d2  # w (1 - d^2 / d_max^2); the maximum's initial 0 is the clamp
-        return -terms.max(axis=-1, initial=0.0).sum(axis=-1)
+        terms = np.einsum("nmkc,nmkc->nmk", diff, diff)
+        terms *= ws
+        terms += neg_w  # -w (1 - d^2 / d_max^2); the minimum's initial 0 is the clamp
+        return terms.min(axis=-1, initial=0.0).sum(axis=-1)
 
     return loss
 
