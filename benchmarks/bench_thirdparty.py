@@ -20,10 +20,12 @@ time over the built-in's.
 
 ``--breakdown`` first shows where a numpy objective's time goes: fits with objectives that
 score nothing (all-zero losses through ``score_frames``, or through ``bind`` per frame), whose
-time is the driver's and the kinematics' alone, against the built-in; and the example's bound
-loss per call, on points as the driver hands them (a view with the hypothesis innermost,
-``hybridfit.testing.hypotheses_innermost``) and on a C-ordered copy, at each stage's batch
-(hypotheses x scored points) of the default schedule.
+time is the driver's, the kinematics' and the PSO's alone, against the built-in; then, at each
+stage's batch (hypotheses x scored points) of the default schedule, the example's bound loss
+per call on points as the driver hands them (a view with the hypothesis innermost,
+``hybridfit.testing.hypotheses_innermost``) and on a C-ordered copy, and its ``score_frames``
+per call for all frames on the driver's arguments (the frame innermost,
+``hybridfit.testing.frames_arguments``) and on C-ordered copies.
 """
 
 from __future__ import annotations
@@ -73,17 +75,20 @@ class FreeFrames(FreeBind):
 
 def breakdown(data, budget: int, repeat: int) -> None:
     """Print the driver's share of a numpy objective's fit and the example's cost per call."""
-    from hybridfit.testing import hypotheses_innermost
+    from hybridfit.testing import frames_arguments, hypotheses_innermost
 
     built_in = dict(objective="clamped-confidence")
     for name, free in (("score_frames", FreeFrames()), ("bind", FreeBind())):
         (t_ref, _), (t, _) = measure(data, budget, repeat, built_in, dict(objective=free))
         print(f"nothing scored through {name:12s} {t:6.3f} ms per frame, {t / t_ref:.2f}x the built-in's "
               f"{t_ref:.3f} ms")
-    proposals, weights = data["proposals"][0], hybridfit.objective.normalise_confidences(data["confidences"][0])
-    loss = NumpyClamped().bind(proposals, weights)
+    all_proposals = data["proposals"]
+    all_weights = hybridfit.objective.normalise_confidences(data["confidences"])
+    proposals, weights = all_proposals[0], all_weights[0]
+    objective = NumpyClamped()
+    loss = objective.bind(proposals, weights)
     rng = np.random.default_rng(0)
-    Q = len(proposals)
+    F, Q = all_proposals.shape[:2]
     for stage, n, m in (("palm", 28, 6), ("finger", 19, 3), ("refinement", 29, Q)):
         points = proposals[None, :, 0] + rng.normal(0.0, 20.0, size=(n, Q, 3))
         subset = np.sort(rng.choice(Q, m, replace=False)).astype(np.int64)
@@ -91,6 +96,13 @@ def breakdown(data, budget: int, repeat: int) -> None:
               for p in (hypotheses_innermost(points), points)]
         print(f"bound loss per call, {stage:10s} ({n} x {m:2d} points): {us[0]:6.1f} us on the driver's view, "
               f"{us[1]:6.1f} us on a C-ordered copy")
+        frames = all_proposals[:, None, :, 0] + rng.normal(0.0, 20.0, size=(F, n, Q, 3))
+        laid_out = frames_arguments(frames, subset, all_proposals, all_weights)
+        c_ordered = [np.ascontiguousarray(a) for a in laid_out]
+        us = [1e6 * min(timeit.repeat(lambda a=a: objective.score_frames(*a), number=20, repeat=5)) / 20
+              for a in (laid_out, c_ordered)]
+        print(f"score_frames per call, {stage:10s} ({F} frames x {n} x {m:2d} points): {us[0]:7.1f} us on the "
+              f"driver's layout, {us[1]:7.1f} us on C-ordered arrays")
 
 
 def measure(data, budget: int, repeat: int, *plugins: dict) -> list[tuple[float, float]]:
