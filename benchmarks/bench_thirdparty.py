@@ -128,7 +128,8 @@ def scoring_breakdown(data, budget: int) -> None:
     kernel = (evaluator.as_cfunc(fitter.kernel[0]), fitter.kernel[1])
     proposals, weights = np.ascontiguousarray(chunk.proposals), np.ascontiguousarray(chunk.weights)
     calls = {
-        "kinematics alone": lambda: evaluator.subset_points(*fitter.tree, *fitter.point_map, *stage, X, points[:0], out),
+        "kinematics alone": lambda: evaluator.subset_points(
+            *fitter.tree, *fitter.point_map, *stage, X, points[:0], out),
         "kinematics + points written for score_frames": lambda: evaluator.subset_points(
             *fitter.tree, *fitter.point_map, *stage, X, points, out),
         "kinematics + compiled kernel (built-in)": lambda: evaluator.kernel_frames()(

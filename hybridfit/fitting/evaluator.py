@@ -169,11 +169,12 @@ class NumpyScorer:
 
     def prepare(self, base, pidx, subset, owned, n):
         F, n = len(base), max(n, 1)
-        buffer = None  # score_frames: (3, n, Q, F), the frame innermost; bind: (F, Q, 3, n), the hypothesis innermost
-        if self.score_frames is not None:
+        if self.score_frames is not None:  # the frame innermost; the part handed over is always written
             buffer = np.empty((3, n, self.Q, F))
-        elif self.tree is not None:
-            buffer = np.empty((F, self.Q, 3, n))
+        elif self.tree is not None:  # the hypothesis innermost; points outside the subset stay 0
+            buffer = np.zeros((F, self.Q, 3, n))
+        else:
+            buffer = None
         if self.tree is not None:
             return block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n), buffer
         return (base.copy(), pidx), buffer
