@@ -140,7 +140,10 @@ class Objective(Plugin, abc.ABC):
         points[f]. The driver hands views with the frame axis innermost in memory, then the
         point axis (not C-contiguous; any strides must work): numpy's elementwise operations
         between points and proposals then run in long contiguous loops, and arrays made by
-        them or by ``np.empty_like`` keep that layout. None (the default): not offered."""
+        them or by ``np.empty_like`` keep that layout. F >= 2 (a single frame is scored beside a
+        copy of itself: numpy sums over one frame's points pairwise, over several frames' one
+        by one), and row f must not depend on the other frames, bit for bit. None (the
+        default): not offered."""
         return None
 
     def casadi_loss(self, points: Any, proposals: np.ndarray, weights: np.ndarray, subset: np.ndarray) -> Any:

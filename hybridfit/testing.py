@@ -415,6 +415,26 @@ def check_objective_capabilities(objective: Objective) -> None:
                                        err_msg=f"{_label(objective)}: score_frames disagrees with bind")
 
 
+def check_objective_frames_independent(objective: Objective) -> None:
+    """``score_frames`` (when the core would use it) gives each frame's losses bit for bit the
+    same beside any other frames (groups of two or more, as the driver hands them), so a
+    frame's fit does not depend on the frames fitted beside it, the chunking or ``--jobs``."""
+    score_frames = capability(objective, "score_frames")
+    if objective.observes_depth or score_frames is None:
+        return
+    frames = [_objective_frame(seed, Q=10) for seed in (21, 22, 23)]  # 10 points: numpy sums them pairwise
+    proposals, weights, points = (np.stack([f[i] for f in frames]) for i in range(3))
+    every = np.arange(proposals.shape[1], dtype=np.int64)
+    together = _scored_frames(objective, score_frames, *frames_arguments(points, every, proposals, weights))
+    for group in ([0, 1], [1, 2], [2, 0]):
+        got = _scored_frames(objective, score_frames,
+                             *frames_arguments(points[group], every, proposals[group], weights[group]))
+        for row, f in enumerate(group):
+            _require(np.array_equal(got[row], together[f]), f"{_label(objective)}: score_frames gives frame {f} "
+                     f"other losses beside frames {group} than beside [0, 1, 2]: a frame's fit would depend on "
+                     f"the frames fitted beside it")
+
+
 def frames_arguments(points: np.ndarray, subset: np.ndarray, proposals: np.ndarray, weights: np.ndarray):
     """What the driver hands ``score_frames`` for frames' points (F, N, Q, 3), proposals
     (F, Q, K, 3) and weights (F, Q, K) scored over ``subset`` (m,): (points (F, N, m, 3),
@@ -691,7 +711,8 @@ _CHECKS: dict[str, tuple[Callable, ...]] = {
                         check_model_joint_subset, check_model_stage_parameters),
     "objective": _COMMON + (check_objective_shapes, check_objective_batching, check_objective_sum_over_points,
                             check_objective_lower_bound, check_objective_deterministic, check_objective_capabilities,
-                            check_objective_strided_points, check_objective_observed),
+                            check_objective_frames_independent, check_objective_strided_points,
+                            check_objective_observed),
     "optimizer": _COMMON + (check_optimizer_budget, check_optimizer_deterministic, check_optimizer_bounds,
                             check_optimizer_subset, check_optimizer_min_budget, check_optimizer_improves,
                             check_optimizer_batch_steps),

@@ -304,6 +304,18 @@ def test_a_frame_scorer_that_cuts_the_subset_again_fails_its_check():
         testing.check_objective_capabilities(CutsAgain())
 
 
+def test_a_frame_scorer_whose_frames_depend_on_each_other_fails_its_check():
+    agreeing = type("Agreeing", (_ShiftedScores,), {"score_frames": lambda self, *a: _ShiftedScores.score_frames(self, *a) - 1.0})
+    testing.check_objective_frames_independent(agreeing())
+
+    class BatchCentred(agreeing):
+        def score_frames(self, points, subset, proposals, weights):  # shifted by a statistic of the whole batch
+            return agreeing.score_frames(self, points, subset, proposals, weights) + 1e-9 * points.mean()
+
+    with pytest.raises(AssertionError, match="a frame's fit would depend on the frames fitted beside it"):
+        testing.check_objective_frames_independent(BatchCentred())
+
+
 def test_a_frame_scorer_that_assumes_c_order_fails_its_check():
     class COrdered(_ShiftedScores):
         def score_frames(self, points, subset, proposals, weights):

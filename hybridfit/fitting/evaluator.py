@@ -14,7 +14,8 @@ hypotheses (the parameters outside the stage at ``base``) scored over ``points``
   call per generation for all frames) or ``bind`` (one call per frame). Neither copies the
   points: ``score_frames`` gets the scored points only, in the frame-batched layout
   (:func:`frames_innermost`, with the proposals and weights cut to the same points once per
-  point set); ``bind``'s loss gets a view of an (F, Q, 3, n) buffer, the hypothesis innermost.
+  point set, and at least two frames: a single frame is scored beside a copy of itself);
+  ``bind``'s loss gets a view of an (F, Q, 3, n) buffer, the hypothesis innermost.
 """
 
 from __future__ import annotations
@@ -162,12 +163,20 @@ class NumpyScorer:
     def __init__(self, model, tree, point_map, point_matrix, proposals, weights, score_frames=None, losses=None,
                  objective=None) -> None:
         self.model, self.tree, self.point_map, self.point_matrix = model, tree, point_map, point_matrix
+        # score_frames scores at least two frames: over a single frame numpy orders some loops
+        # otherwise (a sum over the points becomes a pairwise sum), so a frame scored alone would
+        # differ in the last bits from the same frame scored beside others; one is scored twice
+        self.twin = score_frames is not None and len(proposals) == 1
+        if self.twin:
+            proposals, weights = np.concatenate([proposals, proposals]), np.concatenate([weights, weights])
         self.proposals, self.weights = proposals, weights
         self.score_frames, self.losses, self.objective = score_frames, losses, objective
         self.Q = len(point_map[0]) - 1
         self._cuts: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
     def prepare(self, base, pidx, subset, owned, n):
+        if self.twin:
+            base = np.concatenate([base, base])
         F, n = len(base), max(n, 1)
         if self.score_frames is not None:  # the frame innermost; the part handed over is always written
             buffer = np.empty((3, n, self.Q, F))
@@ -222,13 +231,15 @@ class NumpyScorer:
     def score(self, stage, X, subset, losses):
         m = X.shape[1]
         if self.score_frames is not None:
+            if self.twin:
+                X = np.concatenate([X, X])
             proposals, weights = self.cut(subset)
             out = np.asarray(self.score_frames(self.subset_points(stage, X, subset), subset, proposals, weights),
                              dtype=np.float64)
             if out.shape != (len(X), m):
                 raise PluginError(f"{objective_label(self.objective)}: score_frames returned shape {out.shape}, "
                                   f"expected {(len(X), m)}")
-            losses[:, :m] = out
+            losses[:, :m] = out[:len(losses)]
             return
         points = self.points(stage, X, subset)
         for f, loss in enumerate(self.losses):

@@ -270,3 +270,32 @@ def test_a_frame_scorer_of_the_wrong_shape_is_a_plugin_error_naming_the_objectiv
     with pytest.raises(PluginError, match=r"objective OneColumnShort: score_frames returned shape \(2, \d+\), "
                                           r"expected \(2, \d+\)"):
         hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], objective=OneColumnShort(), budget=300)
+
+
+def test_a_frame_scored_by_score_frames_alone_or_beside_others_gets_the_same_losses_bit_for_bit():
+    """A sum over the points of arrays in the frame-batched layout is a pairwise sum over one
+    frame and a running sum over several: the scorer never hands score_frames a single frame."""
+    data = hybridfit.synthetic_proposals(3, k=3, seed=6)
+    model, objective = hybridfit.create("model", "hand26"), _frames_clamped()
+    fitter = driver.Driver(model, objective, hybridfit.create("optimizer", "stepwise-pso"), data["joint_names"], 900, 0)
+    chunk = fitter.prepare(range(3), data["proposals"], data["confidences"])
+    P, Q, n = model.n_params, len(data["joint_names"]), 29
+    every, points = np.arange(P), np.arange(Q)
+    X = chunk.x0[:, None] + np.random.default_rng(2).normal(0.0, 0.05, size=(3, n, P))
+
+    def distance_sums(points, subset, proposals, weights):  # (F, N): summed over the m >= 8 points
+        d2 = np.square(points[..., 0] - proposals[:, None, :, 0, 0])
+        d2 += np.square(points[..., 1] - proposals[:, None, :, 0, 1])
+        return d2.sum(axis=-1)
+
+    def scored(frames):
+        scorer = NumpyScorer(model, fitter.tree, fitter.point_map, fitter.point_matrix, chunk.proposals[frames],
+                             chunk.weights[frames], score_frames=distance_sums)
+        out = np.empty((len(frames), n))
+        scorer.score(scorer.prepare(chunk.x0[frames], every, points, points, n), X[frames], points, out)
+        return out
+
+    together = scored([0, 1, 2])
+    for f in range(3):
+        assert np.array_equal(scored([f])[0], together[f])
+        assert np.array_equal(scored([f, (f + 1) % 3])[0], together[f])
