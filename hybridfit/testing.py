@@ -456,8 +456,8 @@ def _scored_frames(objective: Objective, score_frames, points, subset, proposals
 
 
 def hypotheses_innermost(points: np.ndarray) -> np.ndarray:
-    """The same points (..., N, Q, 3), laid out as the driver hands them to ``bind``'s loss and
-    ``score_frames``: a view of a (..., Q, 3, N) array, the hypothesis innermost in memory."""
+    """The same points (..., N, Q, 3), laid out as the driver hands them to ``bind``'s loss: a
+    view of a (..., Q, 3, N) array, the hypothesis innermost in memory."""
     points = np.asarray(points, dtype=np.float64)
     axes = tuple(range(points.ndim - 3))
     n = points.ndim
