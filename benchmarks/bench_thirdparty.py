@@ -20,10 +20,14 @@ time over the built-in's.
 
 ``--breakdown`` first shows where a numpy objective's time goes: fits with objectives that
 score nothing (all-zero losses through ``score_frames``, or through ``bind`` per frame), whose
-time is the driver's and the kinematics' alone, against the built-in; and the example's bound
-loss per call, on points as the driver hands them (a view with the hypothesis innermost,
-``hybridfit.testing.hypotheses_innermost``) and on a C-ordered copy, at each stage's batch
-(hypotheses x scored points) of the default schedule.
+time is the driver's, the kinematics' and the PSO's alone, against the built-in; one
+refinement generation's kinematics alone, with the points written out for ``score_frames``,
+and with the built-in's compiled kernel (the driver's scorers' calls); then, at each
+stage's batch (hypotheses x scored points) of the default schedule, the example's bound loss
+per call on points as the driver hands them (a view with the hypothesis innermost,
+``hybridfit.testing.hypotheses_innermost``) and on a C-ordered copy, and its ``score_frames``
+per call for all frames on the driver's arguments (the frame innermost,
+``hybridfit.testing.frames_arguments``) and on C-ordered copies.
 """
 
 from __future__ import annotations
@@ -73,17 +77,21 @@ class FreeFrames(FreeBind):
 
 def breakdown(data, budget: int, repeat: int) -> None:
     """Print the driver's share of a numpy objective's fit and the example's cost per call."""
-    from hybridfit.testing import hypotheses_innermost
+    from hybridfit.testing import frames_arguments, hypotheses_innermost
 
     built_in = dict(objective="clamped-confidence")
     for name, free in (("score_frames", FreeFrames()), ("bind", FreeBind())):
         (t_ref, _), (t, _) = measure(data, budget, repeat, built_in, dict(objective=free))
         print(f"nothing scored through {name:12s} {t:6.3f} ms per frame, {t / t_ref:.2f}x the built-in's "
               f"{t_ref:.3f} ms")
-    proposals, weights = data["proposals"][0], hybridfit.objective.normalise_confidences(data["confidences"][0])
-    loss = NumpyClamped().bind(proposals, weights)
+    scoring_breakdown(data, budget)
+    all_proposals = data["proposals"]
+    all_weights = hybridfit.objective.normalise_confidences(data["confidences"])
+    proposals, weights = all_proposals[0], all_weights[0]
+    objective = NumpyClamped()
+    loss = objective.bind(proposals, weights)
     rng = np.random.default_rng(0)
-    Q = len(proposals)
+    F, Q = all_proposals.shape[:2]
     for stage, n, m in (("palm", 28, 6), ("finger", 19, 3), ("refinement", 29, Q)):
         points = proposals[None, :, 0] + rng.normal(0.0, 20.0, size=(n, Q, 3))
         subset = np.sort(rng.choice(Q, m, replace=False)).astype(np.int64)
@@ -91,6 +99,46 @@ def breakdown(data, budget: int, repeat: int) -> None:
               for p in (hypotheses_innermost(points), points)]
         print(f"bound loss per call, {stage:10s} ({n} x {m:2d} points): {us[0]:6.1f} us on the driver's view, "
               f"{us[1]:6.1f} us on a C-ordered copy")
+        frames = all_proposals[:, None, :, 0] + rng.normal(0.0, 20.0, size=(F, n, Q, 3))
+        laid_out = frames_arguments(frames, subset, all_proposals, all_weights)
+        c_ordered = [np.ascontiguousarray(a) for a in laid_out]
+        us = [1e6 * min(timeit.repeat(lambda a=a: objective.score_frames(*a), number=20, repeat=5)) / 20
+              for a in (laid_out, c_ordered)]
+        print(f"score_frames per call, {stage:10s} ({F} frames x {n} x {m:2d} points): {us[0]:7.1f} us on the "
+              f"driver's layout, {us[1]:7.1f} us on C-ordered arrays")
+
+
+def scoring_breakdown(data, budget: int) -> None:
+    """Print one refinement generation's scoring (all parameters move, all points scored, 29
+    hypotheses per frame, every frame at once) as the driver's scorers run it: the
+    kinematics alone, the kinematics with the points written out for ``score_frames``
+    (``evaluator.subset_points``), and the built-in's kinematics with its compiled kernel
+    (``evaluator.kernel_frames``)."""
+    from hybridfit.fitting import driver, evaluator
+
+    model, objective = hybridfit.create("model", "hand26"), hybridfit.create("objective", "clamped-confidence")
+    fitter = driver.Driver(model, objective, hybridfit.create("optimizer", "stepwise-pso"), data["joint_names"],
+                           budget, 0)
+    chunk = fitter.prepare(range(len(data["proposals"])), data["proposals"], data["confidences"])
+    F, P, Q, n = len(chunk.kept), model.n_params, len(fitter.names), 29
+    every, points = np.arange(P), np.arange(Q)
+    X = chunk.x0[:, None] + np.random.default_rng(1).normal(0.0, 0.02, size=(F, n, P))
+    stage = evaluator.block_setup(*fitter.tree, *fitter.point_map, chunk.x0, every, points, points, n)
+    out, losses = np.empty((3, n, Q, F)), np.empty((F, n))
+    kernel = (evaluator.as_cfunc(fitter.kernel[0]), fitter.kernel[1])
+    proposals, weights = np.ascontiguousarray(chunk.proposals), np.ascontiguousarray(chunk.weights)
+    calls = {
+        "kinematics alone": lambda: evaluator.subset_points(
+            *fitter.tree, *fitter.point_map, *stage, X, points[:0], out),
+        "kinematics + points written for score_frames": lambda: evaluator.subset_points(
+            *fitter.tree, *fitter.point_map, *stage, X, points, out),
+        "kinematics + compiled kernel (built-in)": lambda: evaluator.kernel_frames()(
+            kernel[0], kernel[1], proposals, weights, *fitter.tree, *fitter.point_map, *stage, X, points, losses),
+    }
+    for name, call in calls.items():
+        call()
+        us = 1e6 * min(timeit.repeat(call, number=10, repeat=9)) / 10
+        print(f"one refinement generation ({F} frames x {n} x {Q} points), {name:45s} {us:7.1f} us")
 
 
 def measure(data, budget: int, repeat: int, *plugins: dict) -> list[tuple[float, float]]:

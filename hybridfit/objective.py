@@ -132,10 +132,18 @@ class Objective(Plugin, abc.ABC):
 
     def score_frames(self, points: np.ndarray, subset: np.ndarray, proposals: np.ndarray,
                      weights: np.ndarray) -> np.ndarray | None:
-        """Capability: the losses of many frames at once, plain numpy allowed. points
-        (F, N, Q, 3) mm (any strided view), subset (m,) int64, proposals (F, Q, K, 3) mm, weights
-        (F, Q, K) normalised -> (F, N) float64, row f equal to ``bind(proposals[f], weights[f])(points[f],
-        subset)``. None (the default): not offered."""
+        """Capability: the losses of many frames at once, plain numpy allowed, given only the
+        scored points: points (F, N, m, 3) mm, the points ``subset`` (m,) int64 of F frames' N
+        hypotheses, and proposals (F, m, K, 3) mm and weights (F, m, K) (normalised) of the
+        same m points -> (F, N) float64, row f equal to ``bind(P[f], W[f])(X[f], subset)`` for
+        the frame's whole proposals P, weights W and any points X whose rows ``subset`` are
+        points[f]. The driver hands views with the frame axis innermost in memory, then the
+        point axis (not C-contiguous; any strides must work): numpy's elementwise operations
+        between points and proposals then run in long contiguous loops, and arrays made by
+        them or by ``np.empty_like`` keep that layout. F >= 2 (a single frame is scored beside a
+        copy of itself: numpy sums over one frame's points pairwise, over several frames' one
+        by one), and row f must not depend on the other frames, bit for bit. None (the
+        default): not offered."""
         return None
 
     def casadi_loss(self, points: Any, proposals: np.ndarray, weights: np.ndarray, subset: np.ndarray) -> Any:

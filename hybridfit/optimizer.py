@@ -196,7 +196,9 @@ class BatchSteps(NamedTuple):
     The driver asks ``m = min(batch, evaluations left)`` rows each time, so the budget is spent
     exactly. Frame f's random numbers must come from ``keys[f]`` only (see
     :mod:`hybridfit.fitting.streams`), so a frame's result does not depend on the frames beside
-    it. When all three are numba ``njit`` functions, the driver may run compiled.
+    it. When all three are numba ``njit`` functions, the driver may run compiled. ``X`` may be
+    any strided view (numpy steps run fastest on state kept with the frame axis last, see
+    ``uniforms(..., frames_last=True)`` and the ``numpy-pso`` example).
     """
 
     init: Callable

@@ -31,6 +31,7 @@ from pydantic import Field
 from . import registry
 from .errors import HybridfitError
 from .fitting.angles import PARAMETER_NAME
+from .fitting.evaluator import frames_innermost
 from .model.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
 from .model.base import ANGLES, HandModel, Stage
 from .objective import Objective, capability, compiled_kernel_of, normalise_confidences
@@ -407,16 +408,56 @@ def check_objective_capabilities(objective: Objective) -> None:
             np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9,
                                        err_msg=f"{_label(objective)}: compiled_kernel disagrees with bind")
         if score_frames is not None:
-            got = np.asarray(score_frames(points.copy(), subset, proposals, weights))
+            got = _scored_frames(objective, score_frames, *frames_arguments(points, subset, proposals, weights))
             _require(got.shape == want.shape, f"{_label(objective)}: score_frames returned shape {got.shape}, "
                      f"expected {want.shape}")
             np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9,
                                        err_msg=f"{_label(objective)}: score_frames disagrees with bind")
 
 
+def check_objective_frames_independent(objective: Objective) -> None:
+    """``score_frames`` (when the core would use it) gives each frame's losses bit for bit the
+    same beside any other frames (groups of two or more, as the driver hands them), so a
+    frame's fit does not depend on the frames fitted beside it, the chunking or ``--jobs``."""
+    score_frames = capability(objective, "score_frames")
+    if objective.observes_depth or score_frames is None:
+        return
+    frames = [_objective_frame(seed, Q=10) for seed in (21, 22, 23)]  # 10 points: numpy sums them pairwise
+    proposals, weights, points = (np.stack([f[i] for f in frames]) for i in range(3))
+    every = np.arange(proposals.shape[1], dtype=np.int64)
+    together = _scored_frames(objective, score_frames, *frames_arguments(points, every, proposals, weights))
+    for group in ([0, 1], [1, 2], [2, 0]):
+        got = _scored_frames(objective, score_frames,
+                             *frames_arguments(points[group], every, proposals[group], weights[group]))
+        for row, f in enumerate(group):
+            _require(np.array_equal(got[row], together[f]), f"{_label(objective)}: score_frames gives frame {f} "
+                     f"other losses beside frames {group} than beside [0, 1, 2]: a frame's fit would depend on "
+                     f"the frames fitted beside it")
+
+
+def frames_arguments(points: np.ndarray, subset: np.ndarray, proposals: np.ndarray, weights: np.ndarray):
+    """What the driver hands ``score_frames`` for frames' points (F, N, Q, 3), proposals
+    (F, Q, K, 3) and weights (F, Q, K) scored over ``subset`` (m,): (points (F, N, m, 3),
+    subset, proposals (F, m, K, 3), weights (F, m, K)), the points' rows and the proposals cut
+    to ``subset``, each laid out with the frame innermost in memory (views, not C-contiguous;
+    :func:`hybridfit.fitting.evaluator.frames_innermost`)."""
+    return (frames_innermost(np.asarray(points)[:, :, subset], 2), subset,
+            frames_innermost(np.asarray(proposals)[:, subset], 1), frames_innermost(np.asarray(weights)[:, subset], 1))
+
+
+def _scored_frames(objective: Objective, score_frames, points, subset, proposals, weights) -> np.ndarray:
+    """score_frames' result; its failure on the driver's arguments is the check's failure."""
+    try:
+        return np.asarray(score_frames(points, subset, proposals, weights))
+    except Exception as err:
+        raise AssertionError(f"{_label(objective)}: score_frames fails on the driver's arguments (the points in "
+                             f"subset only, proposals and weights cut to them, the frame innermost in memory): "
+                             f"{type(err).__name__}: {err}") from err
+
+
 def hypotheses_innermost(points: np.ndarray) -> np.ndarray:
-    """The same points (..., N, Q, 3), laid out as the driver hands them to ``bind``'s loss and
-    ``score_frames``: a view of a (..., Q, 3, N) array, the hypothesis innermost in memory."""
+    """The same points (..., N, Q, 3), laid out as the driver hands them to ``bind``'s loss: a
+    view of a (..., Q, 3, N) array, the hypothesis innermost in memory."""
     points = np.asarray(points, dtype=np.float64)
     axes = tuple(range(points.ndim - 3))
     n = points.ndim
@@ -425,9 +466,11 @@ def hypotheses_innermost(points: np.ndarray) -> np.ndarray:
 
 
 def check_objective_strided_points(objective: Objective) -> None:
-    """``bind``'s loss (and ``score_frames``, when the core would use it) score points laid out
-    as the driver hands them (:func:`hypotheses_innermost`, not C-contiguous) as they score a
-    C-contiguous copy: numpy code is layout-agnostic, code that assumes C order is not."""
+    """``bind``'s loss scores points laid out as the driver hands them (:func:`hypotheses_innermost`,
+    not C-contiguous) as it scores a C-contiguous copy, and ``score_frames`` (when the core
+    would use it) scores the driver's arguments (:func:`frames_arguments`, the frame innermost)
+    as it scores C-contiguous copies: numpy code is layout-agnostic, code that assumes C order
+    is not."""
     if objective.observes_depth:
         return
     proposals, weights, points = _objective_frame(5)
@@ -443,11 +486,14 @@ def check_objective_strided_points(objective: Objective) -> None:
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12, err_msg=f"{_label(objective)}: its loss "
                                    f"differs on points that are not C-contiguous (the driver's layout)")
         if score_frames is not None:
-            frames = hypotheses_innermost(np.stack([points, points[::-1]]))
-            got = np.asarray(score_frames(frames, subset, np.stack([proposals] * 2), np.stack([weights] * 2)))
-            np.testing.assert_allclose(got, np.stack([want, want[::-1]]), rtol=1e-9, atol=1e-9,
-                                       err_msg=f"{_label(objective)}: score_frames differs on points that are not "
-                                       f"C-contiguous (the driver's layout)")
+            frames = (np.stack([points, points[::-1]]), subset, np.stack([proposals] * 2), np.stack([weights] * 2))
+            driver_args = frames_arguments(*frames)
+            c_ordered = [np.ascontiguousarray(a) for a in driver_args]
+            want_frames = np.asarray(score_frames(*c_ordered))
+            got = _scored_frames(objective, score_frames, *driver_args)
+            np.testing.assert_allclose(got, want_frames, rtol=1e-12, atol=1e-12,
+                                       err_msg=f"{_label(objective)}: score_frames differs on the driver's layout "
+                                       f"(the frame innermost) from C-contiguous arrays")
 
 
 def check_objective_observed(objective: Objective) -> None:
@@ -665,7 +711,8 @@ _CHECKS: dict[str, tuple[Callable, ...]] = {
                         check_model_joint_subset, check_model_stage_parameters),
     "objective": _COMMON + (check_objective_shapes, check_objective_batching, check_objective_sum_over_points,
                             check_objective_lower_bound, check_objective_deterministic, check_objective_capabilities,
-                            check_objective_strided_points, check_objective_observed),
+                            check_objective_frames_independent, check_objective_strided_points,
+                            check_objective_observed),
     "optimizer": _COMMON + (check_optimizer_budget, check_optimizer_deterministic, check_optimizer_bounds,
                             check_optimizer_subset, check_optimizer_min_budget, check_optimizer_improves,
                             check_optimizer_batch_steps),

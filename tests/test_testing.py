@@ -279,8 +279,9 @@ class _ShiftedScores(Objective):
 
         return loss
 
-    def score_frames(self, points, subset, proposals, weights):
-        return np.stack([self.bind(p, w)(x, subset) for x, p, w in zip(points, proposals, weights)]) + 1.0
+    def score_frames(self, points, subset, proposals, weights):  # all arrays cut to the subset's points
+        every = np.arange(len(subset))
+        return np.stack([self.bind(p, w)(x, every) for x, p, w in zip(points, proposals, weights)]) + 1.0
 
 
 def test_a_frame_scorer_that_disagrees_with_bind_fails_its_check():
@@ -288,6 +289,53 @@ def test_a_frame_scorer_that_disagrees_with_bind_fails_its_check():
         testing.check_objective_capabilities(_ShiftedScores())
     fixed = type("Agreeing", (_ShiftedScores,), {"score_frames": lambda self, *a: _ShiftedScores.score_frames(self, *a) - 1.0})
     testing.check_objective_capabilities(fixed())
+    testing.check_objective_strided_points(fixed())
+
+
+def test_a_frame_scorer_that_cuts_the_subset_again_fails_its_check():
+    """score_frames gets the subset's points and proposals only: cutting them to ``subset``
+    again (as bind's loss does with all Q points) is caught."""
+
+    class CutsAgain(_ShiftedScores):
+        def score_frames(self, points, subset, proposals, weights):
+            return np.stack([self.bind(p, w)(x, subset) for x, p, w in zip(points, proposals, weights)])
+
+    with pytest.raises(AssertionError, match="score_frames fails on the driver's arguments"):
+        testing.check_objective_capabilities(CutsAgain())
+
+
+def test_a_frame_scorer_whose_frames_depend_on_each_other_fails_its_check():
+    agreeing = type("Agreeing", (_ShiftedScores,), {"score_frames": lambda self, *a: _ShiftedScores.score_frames(self, *a) - 1.0})
+    testing.check_objective_frames_independent(agreeing())
+
+    class BatchCentred(agreeing):
+        def score_frames(self, points, subset, proposals, weights):  # shifted by a statistic of the whole batch
+            return agreeing.score_frames(self, points, subset, proposals, weights) + 1e-9 * points.mean()
+
+    with pytest.raises(AssertionError, match="a frame's fit would depend on the frames fitted beside it"):
+        testing.check_objective_frames_independent(BatchCentred())
+
+
+def test_a_frame_scorer_that_assumes_c_order_fails_its_check():
+    class COrdered(_ShiftedScores):
+        def score_frames(self, points, subset, proposals, weights):
+            if not points.flags.c_contiguous:
+                raise ValueError("needs C-contiguous points")
+            return _ShiftedScores.score_frames(self, points, subset, proposals, weights) - 1.0
+
+    with pytest.raises(AssertionError, match="score_frames fails on the driver's arguments"):
+        testing.check_objective_strided_points(COrdered())
+
+
+def test_the_frames_arguments_are_the_subsets_rows_with_the_frame_innermost():
+    rng = np.random.default_rng(1)
+    points, proposals, weights = rng.normal(size=(4, 5, 6, 3)), rng.normal(size=(4, 6, 3, 3)), rng.random((4, 6, 3))
+    subset = np.array([1, 4], dtype=np.int64)
+    got = testing.frames_arguments(points, subset, proposals, weights)
+    for a, want in zip(got, (points[:, :, subset], subset, proposals[:, subset], weights[:, subset])):
+        assert np.array_equal(a, want)
+    for a in (got[0], got[2], got[3]):
+        assert a.strides[0] == 8 and not a.flags.c_contiguous  # the frame innermost in memory
 
 
 def test_a_kernel_that_disagrees_with_bind_fails_its_check():

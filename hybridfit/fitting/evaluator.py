@@ -11,8 +11,11 @@ hypotheses (the parameters outside the stage at ``base``) scored over ``points``
   per generation for all frames of a group.
 - :class:`NumpyScorer`: a kinematic tree's points by the same numba kinematics (or, for a model
   without a kinematic tree, its ``forward``), scored by the objective's ``score_frames`` (one
-  call per generation for all frames) or ``bind`` (one call per frame). The points are handed
-  over as a view of the kinematics' buffer, the hypothesis innermost in memory (no copy).
+  call per generation for all frames) or ``bind`` (one call per frame). Neither copies the
+  points: ``score_frames`` gets the scored points only, in the frame-batched layout
+  (:func:`frames_innermost`, with the proposals and weights cut to the same points once per
+  point set, and at least two frames: a single frame is scored beside a copy of itself);
+  ``bind``'s loss gets a view of an (F, Q, 3, n) buffer, the hypothesis innermost.
 """
 
 from __future__ import annotations
@@ -74,6 +77,48 @@ def frame_points(parents, offsets, rest, rest_identity, axes, axis_params, mirro
             block_points(m, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out[f], (f - f0) * m)
 
 
+@nb.njit(cache=True, nogil=True)
+def _sum_points(m, G, WpB, pm_ptr, pm_joint, pm_weight, subset, out, f0):
+    """out[c, i, t, f0 + g] = sum_j point_map[subset[t], j] WpB[j, c, g m + i] for the G frames'
+    m hypotheses (the block's columns), summed in the order :func:`block_points` sums."""
+    for t in range(subset.shape[0]):
+        q = subset[t]
+        e0 = pm_ptr[q]
+        j0, w0 = pm_joint[e0], pm_weight[e0]
+        for c in range(3):
+            for i in range(m):
+                for g in range(G):
+                    out[c, i, t, f0 + g] = w0 * WpB[j0, c, g * m + i]
+        for e in range(e0 + 1, pm_ptr[q + 1]):
+            j, w = pm_joint[e], pm_weight[e]
+            for c in range(3):
+                for i in range(m):
+                    for g in range(G):
+                        out[c, i, t, f0 + g] += w * WpB[j, c, g * m + i]
+
+
+@nb.njit(cache=True, nogil=True, fastmath=True)
+def subset_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
+                  ints, floats, X, subset, out):
+    """out (3, n >= m, >= len(subset), F) mm, the frame innermost: out[c, i, t, f] coordinate c
+    of point subset[t] of frame f's hypothesis X[f, i] (X (F, m, d))."""
+    F, m = X.shape[0], X.shape[1]
+    G = ints[9]
+    WpB = block_views(ints, floats)[9]
+    for f0 in range(0, F, G):
+        f1 = min(F, f0 + G)
+        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X)
+        _sum_points(m, f1 - f0, WpB, pm_ptr, pm_joint, pm_weight, subset, out, f0)
+
+
+def frames_innermost(a: np.ndarray, point_axis: int) -> np.ndarray:
+    """The same array (F, ...), laid out as the driver hands ``score_frames`` its arrays: a view
+    of a C-contiguous copy whose last two axes are ``point_axis`` and the frame axis 0, so each
+    coordinate (and proposal) of each hypothesis is one contiguous (points, frames) block."""
+    inner = np.ascontiguousarray(np.moveaxis(np.asarray(a, dtype=np.float64), (point_axis, 0), (-2, -1)))
+    return np.moveaxis(inner, (-2, -1), (point_axis, 0))
+
+
 @functools.cache
 def as_cfunc(kernel):
     """A numba kernel (a dispatcher of :data:`~hybridfit.objective.KERNEL_SIGNATURE`) as a C
@@ -111,47 +156,91 @@ class NumpyScorer:
 
     tree: as :class:`KernelScorer`'s, or None (then the model's ``forward`` gives the joints);
     point_map, point_matrix: the (Q, J) point matrix in CSR form and dense (None: the model's
-    joints); score_frames: the objective's valid capability or None, then ``losses`` (one bound
-    loss per frame) are called one frame at a time. ``objective`` is named in errors."""
+    joints); proposals (F, Q, K, 3) mm, weights (F, Q, K); score_frames: the objective's valid
+    capability or None, then ``losses`` (one bound loss per frame) are called one frame at a
+    time. ``objective`` is named in errors."""
 
     def __init__(self, model, tree, point_map, point_matrix, proposals, weights, score_frames=None, losses=None,
                  objective=None) -> None:
         self.model, self.tree, self.point_map, self.point_matrix = model, tree, point_map, point_matrix
+        # score_frames scores at least two frames: over a single frame numpy orders some loops
+        # otherwise (a sum over the points becomes a pairwise sum), so a frame scored alone would
+        # differ in the last bits from the same frame scored beside others; one is scored twice
+        self.twin = score_frames is not None and len(proposals) == 1
+        if self.twin:
+            proposals, weights = np.concatenate([proposals, proposals]), np.concatenate([weights, weights])
         self.proposals, self.weights = proposals, weights
         self.score_frames, self.losses, self.objective = score_frames, losses, objective
         self.Q = len(point_map[0]) - 1
+        self._cuts: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
     def prepare(self, base, pidx, subset, owned, n):
+        if self.twin:
+            base = np.concatenate([base, base])
+        F, n = len(base), max(n, 1)
+        if self.score_frames is not None:  # the frame innermost; the part handed over is always written
+            buffer = np.empty((3, n, self.Q, F))
+        elif self.tree is not None:  # the hypothesis innermost; points outside the subset stay 0
+            buffer = np.zeros((F, self.Q, 3, n))
+        else:
+            buffer = None
         if self.tree is not None:
-            stage = block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n)
-            return stage, np.zeros((len(base), self.Q, 3, max(n, 1)))
-        return (base.copy(), pidx), None
+            return block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n), buffer
+        return (base.copy(), pidx), buffer
 
-    def points(self, stage, X, subset):
-        """(F, m, Q, 3) points of hypotheses X (F, m, d) (those in ``subset`` guaranteed). From
-        the kinematic tree they are a view of an (F, Q, 3, n) buffer, the hypothesis innermost
-        in memory as the kinematics compute them: no copy, and numpy's elementwise operations
-        on them run along the hypotheses (the objective's contract allows any strides)."""
-        stage, buffer = stage
-        F, m = X.shape[:2]
-        if self.tree is not None:
-            frame_points(*self.tree, *self.point_map, *stage, X, subset, buffer)
-            return buffer[..., :m].transpose(0, 3, 1, 2)
+    def cut(self, subset):
+        """(proposals (F, m, K, 3), weights (F, m, K)) of the points ``subset`` (m,), laid out
+        as :func:`frames_innermost` (computed once per point set)."""
+        key = subset.tobytes()
+        if key not in self._cuts:
+            self._cuts[key] = (frames_innermost(self.proposals[:, subset], 1),
+                               frames_innermost(self.weights[:, subset], 1))
+        return self._cuts[key]
+
+    def _forward_points(self, stage, X):
+        """(F, m, Q, 3) points of hypotheses X (F, m, d) by the model's ``forward``."""
         base, pidx = stage
+        F, m = X.shape[:2]
         full = np.repeat(base[:, None], m, axis=1)
         full[:, :, pidx] = X
         joints = self.model.forward(full.reshape(F * m, -1)).reshape(F, m, -1, 3)
         return joints if self.point_matrix is None else np.einsum("qj,fnjc->fnqc", self.point_matrix, joints)
 
+    def subset_points(self, stage, X, subset):
+        """(F, m, len(subset), 3) the points ``subset`` of hypotheses X (F, m, d): a view of the
+        (3, n, Q, F) buffer, the frame innermost (:func:`frames_innermost`'s layout, no copy)."""
+        stage, buffer = stage
+        m, s = X.shape[1], len(subset)
+        if self.tree is not None:
+            subset_points(*self.tree, *self.point_map, *stage, X, subset, buffer)
+        else:
+            buffer[:, :m, :s] = self._forward_points(stage, X)[:, :, subset].transpose(3, 1, 2, 0)
+        return buffer[:, :m, :s].transpose(3, 1, 2, 0)
+
+    def points(self, stage, X, subset):
+        """(F, m, Q, 3) points of hypotheses X (F, m, d) (those in ``subset`` guaranteed). From
+        the kinematic tree they are a view of the (F, Q, 3, n) buffer, the hypothesis innermost
+        in memory as the kinematics compute them: no copy, and numpy's elementwise operations
+        on them run along the hypotheses (the objective's contract allows any strides)."""
+        stage, buffer = stage
+        if self.tree is not None:
+            frame_points(*self.tree, *self.point_map, *stage, X, subset, buffer)
+            return buffer[..., :X.shape[1]].transpose(0, 3, 1, 2)
+        return self._forward_points(stage, X)
+
     def score(self, stage, X, subset, losses):
         m = X.shape[1]
-        points = self.points(stage, X, subset)
         if self.score_frames is not None:
-            out = np.asarray(self.score_frames(points, subset, self.proposals, self.weights), dtype=np.float64)
+            if self.twin:
+                X = np.concatenate([X, X])
+            proposals, weights = self.cut(subset)
+            out = np.asarray(self.score_frames(self.subset_points(stage, X, subset), subset, proposals, weights),
+                             dtype=np.float64)
             if out.shape != (len(X), m):
                 raise PluginError(f"{objective_label(self.objective)}: score_frames returned shape {out.shape}, "
                                   f"expected {(len(X), m)}")
-            losses[:, :m] = out
+            losses[:, :m] = out[:len(losses)]
             return
+        points = self.points(stage, X, subset)
         for f, loss in enumerate(self.losses):
             losses[f, :m] = checked_losses(loss(points[f], subset), m, self.objective)

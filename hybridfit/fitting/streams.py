@@ -17,6 +17,8 @@ stream of the same key.
 
 from __future__ import annotations
 
+import math
+
 import numba as nb
 import numpy as np
 
@@ -93,6 +95,27 @@ def _fill(pair, key, start, out):
         out[n - 1] = pair(key, (start + n - 1) >> 1)[0]
 
 
+@nb.njit(cache=True, inline="always")
+def _fill_frames_last(pair, keys, start, out):
+    """out (n, F): column f = numbers start, start + 1, ... of stream ``keys[f]``, as
+    :func:`_fill` computes them, written row by row (the loop over frames innermost)."""
+    n, F = out.shape
+    if n == 0:
+        return
+    first = start & 1
+    if first:
+        for f in range(F):
+            out[0, f] = pair(keys[f], start >> 1)[1]
+    pairs = (n - first) // 2
+    p0 = (start + first) >> 1
+    for p in range(pairs):
+        for f in range(F):
+            out[first + 2 * p, f], out[first + 2 * p + 1, f] = pair(keys[f], p0 + p)
+    if first + 2 * pairs < n:
+        for f in range(F):
+            out[n - 1, f] = pair(keys[f], (start + n - 1) >> 1)[0]
+
+
 @nb.njit(cache=True)
 def fill_uniform(key, start, out):
     """out (n,) = uniform numbers start, start + 1, ... of stream ``key`` (one hash per pair)."""
@@ -146,18 +169,35 @@ def _normals(keys, start, out):
         fill_normal(keys[f], start, out[f])
 
 
-def uniforms(keys: np.ndarray, start: int, shape) -> np.ndarray:
+@nb.njit(cache=True)
+def _uniforms_last(keys, start, out):
+    _fill_frames_last(uniform_pair, keys, start, out)
+
+
+@nb.njit(cache=True)
+def _normals_last(keys, start, out):
+    _fill_frames_last(normal_pair, keys, start, out)
+
+
+def uniforms(keys: np.ndarray, start: int, shape, frames_last: bool = False) -> np.ndarray:
     """(F, *shape) uniform numbers in [0, 1): per frame f the numbers start, start + 1, ... of
-    stream ``keys[f]`` in C order (for numpy optimisers)."""
-    keys = np.ascontiguousarray(keys, dtype=np.uint64)
-    out = np.empty((len(keys), int(np.prod(shape))))
-    _uniforms(keys, int(start), out)
-    return out.reshape((len(keys), *shape))
+    stream ``keys[f]`` in C order of ``shape`` (for numpy optimisers). frames_last: the same
+    numbers as a C-contiguous (*shape, F) array, frame f's at ``[..., f]``."""
+    return _draw(_uniforms_last if frames_last else _uniforms, keys, start, shape, frames_last)
 
 
-def normals(keys: np.ndarray, start: int, shape) -> np.ndarray:
+def normals(keys: np.ndarray, start: int, shape, frames_last: bool = False) -> np.ndarray:
     """(F, *shape) standard normal numbers, as :func:`uniforms`."""
+    return _draw(_normals_last if frames_last else _normals, keys, start, shape, frames_last)
+
+
+def _draw(fill, keys, start, shape, frames_last):
     keys = np.ascontiguousarray(keys, dtype=np.uint64)
-    out = np.empty((len(keys), int(np.prod(shape))))
-    _normals(keys, int(start), out)
+    size = math.prod(shape)
+    if frames_last:
+        out = np.empty((size, len(keys)))
+        fill(keys, int(start), out)
+        return out.reshape((*shape, len(keys)))
+    out = np.empty((len(keys), size))
+    fill(keys, int(start), out)
     return out.reshape((len(keys), *shape))

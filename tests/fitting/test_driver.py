@@ -16,19 +16,34 @@ from hybridfit.optimizer import Task
 from hybridfit.problem import Problem
 
 
+def _frames_clamped():
+    """clamped-confidence with a frame-batched ``score_frames``: its bound loss per frame on
+    the driver's arguments (the subset's points and proposals only)."""
+    from hybridfit_plugins.objectives.clamped_confidence import ClampedConfidence
+
+    class FramesClamped(ClampedConfidence):
+        def score_frames(self, points, subset, proposals, weights):
+            every = np.arange(len(subset))
+            return np.stack([self.bind(p, w)(x, every) for x, p, w in zip(points, proposals, weights)])
+
+    return FramesClamped()
+
+
 def driver_path(data, optimizer, budget, seed, frames, names=None, threads=1, model=None, scorer="kernel",
                 objective=None):
     """(params (F, P), loss (F,), evaluations (F,)) fitted by the driver, scoring with the
-    objective's compiled kernel, its ``bind`` per frame ("bind"), or bind on a model without a
-    kinematic tree ("forward")."""
+    objective's compiled kernel, its ``bind`` per frame ("bind"), bind on a model without a
+    kinematic tree ("forward"), or a frame-batched ``score_frames`` ("frames", "frames-forward")."""
     model = model or hybridfit.create("model", "hand26")
-    objective = objective or hybridfit.create("objective", "clamped-confidence")
+    objective = objective or (_frames_clamped() if scorer.startswith("frames") else
+                              hybridfit.create("objective", "clamped-confidence"))
     problem = Problem(model, objective, data["proposals"][0], data["confidences"][0], names or data["joint_names"])
     assert driver.supports(model, objective, optimizer, problem, budget)
     fitter = driver.Driver(model, objective, optimizer, names or data["joint_names"], budget, seed)
+    assert (fitter.score_frames is not None) == scorer.startswith("frames")
     if scorer != "kernel":
         fitter.kernel = None
-    if scorer == "forward":
+    if scorer.endswith("forward"):
         fitter.tree = None
     items = fitter.fit_chunk(list(frames), data["proposals"][frames], data["confidences"][frames], threads)
     assert [item[0] for item in items] == list(frames)
@@ -72,7 +87,7 @@ def test_every_scorer_gives_the_same_fits_and_the_losses_add_up(partial, name, b
     frames = np.arange(6)
     params, loss, used = driver_path(partial, optimizer, budget, 7, frames)
     assert used.tolist() == [budget] * 6
-    for scorer in ("bind", "forward"):
+    for scorer in ("bind", "forward", "frames", "frames-forward"):
         other_params, other_loss, _ = driver_path(partial, optimizer, budget, 7, frames, scorer=scorer)
         np.testing.assert_allclose(other_params, params, rtol=0, atol=1e-9)
         np.testing.assert_allclose(other_loss, loss, rtol=0, atol=1e-9)
@@ -84,7 +99,7 @@ def test_derived_points_are_scored_alike_by_every_scorer():
     names = ["palm_centre"] + list(data["joint_names"][1:])  # the wrist replaced by the palm centre
     optimizer = hybridfit.create("optimizer", "stepwise-pso")
     params, loss, _ = driver_path(data, optimizer, 700, 1, np.arange(3), names)
-    for scorer in ("bind", "forward"):
+    for scorer in ("bind", "forward", "frames", "frames-forward"):
         ref_params, ref_loss, _ = driver_path(data, optimizer, 700, 1, np.arange(3), names, scorer=scorer)
         np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
         np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)
@@ -96,9 +111,10 @@ def test_a_left_hand_with_other_bones_is_scored_alike_by_every_scorer():
     data = dict(hybridfit.synthetic_proposals(3, k=3, seed=8, model=model))
     optimizer = hybridfit.create("optimizer", "stepwise-pso")
     params, loss, _ = driver_path(data, optimizer, 500, 2, np.arange(3), model=model)
-    ref_params, ref_loss, _ = driver_path(data, optimizer, 500, 2, np.arange(3), model=model, scorer="forward")
-    np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)
+    for scorer in ("forward", "frames"):
+        ref_params, ref_loss, _ = driver_path(data, optimizer, 500, 2, np.arange(3), model=model, scorer=scorer)
+        np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)
 
 
 def test_a_frame_does_not_depend_on_its_batch_or_threads(frames):
@@ -254,3 +270,32 @@ def test_a_frame_scorer_of_the_wrong_shape_is_a_plugin_error_naming_the_objectiv
     with pytest.raises(PluginError, match=r"objective OneColumnShort: score_frames returned shape \(2, \d+\), "
                                           r"expected \(2, \d+\)"):
         hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], objective=OneColumnShort(), budget=300)
+
+
+def test_a_frame_scored_by_score_frames_alone_or_beside_others_gets_the_same_losses_bit_for_bit():
+    """A sum over the points of arrays in the frame-batched layout is a pairwise sum over one
+    frame and a running sum over several: the scorer never hands score_frames a single frame."""
+    data = hybridfit.synthetic_proposals(3, k=3, seed=6)
+    model, objective = hybridfit.create("model", "hand26"), _frames_clamped()
+    fitter = driver.Driver(model, objective, hybridfit.create("optimizer", "stepwise-pso"), data["joint_names"], 900, 0)
+    chunk = fitter.prepare(range(3), data["proposals"], data["confidences"])
+    P, Q, n = model.n_params, len(data["joint_names"]), 29
+    every, points = np.arange(P), np.arange(Q)
+    X = chunk.x0[:, None] + np.random.default_rng(2).normal(0.0, 0.05, size=(3, n, P))
+
+    def distance_sums(points, subset, proposals, weights):  # (F, N): summed over the m >= 8 points
+        d2 = np.square(points[..., 0] - proposals[:, None, :, 0, 0])
+        d2 += np.square(points[..., 1] - proposals[:, None, :, 0, 1])
+        return d2.sum(axis=-1)
+
+    def scored(frames):
+        scorer = NumpyScorer(model, fitter.tree, fitter.point_map, fitter.point_matrix, chunk.proposals[frames],
+                             chunk.weights[frames], score_frames=distance_sums)
+        out = np.empty((len(frames), n))
+        scorer.score(scorer.prepare(chunk.x0[frames], every, points, points, n), X[frames], points, out)
+        return out
+
+    together = scored([0, 1, 2])
+    for f in range(3):
+        assert np.array_equal(scored([f])[0], together[f])
+        assert np.array_equal(scored([f, (f + 1) % 3])[0], together[f])

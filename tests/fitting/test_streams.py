@@ -40,6 +40,15 @@ def test_numpy_helpers_read_the_streams_of_their_keys():
         assert np.array_equal(z[f], want)
 
 
+def test_numpy_helpers_with_frames_last_give_the_same_numbers_frame_last():
+    keys = np.array([5, 9, 11], dtype=np.uint64)
+    for draw in (uniforms, normals):
+        for start in (0, 3):
+            last = draw(keys, start, (2, 5), frames_last=True)
+            assert last.shape == (2, 5, 3) and last.flags.c_contiguous
+            assert np.array_equal(np.moveaxis(last, -1, 0), draw(keys, start, (2, 5)))
+
+
 def test_a_number_depends_only_on_its_key_and_counter():
     whole = np.empty(100)
     fill_uniform(np.uint64(12345), 0, whole)

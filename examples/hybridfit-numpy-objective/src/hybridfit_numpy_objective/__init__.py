@@ -4,8 +4,9 @@
 
 The loss is -E (optimisers minimise). ``bind`` is the contract: it scores N hypotheses of one
 frame. ``score_frames`` is the optional frame-batched capability: the same loss for F frames
-x N hypotheses in one call, so hybridfit's driver scores a whole chunk of frames per
-generation with one Python call. ``hybridfit.testing`` checks that the two agree.
+x N hypotheses in one call, given only the scored points and their proposals, so hybridfit's
+driver scores a whole chunk of frames per generation with one Python call.
+``hybridfit.testing`` checks that the two agree.
 """
 
 from __future__ import annotations
@@ -21,24 +22,34 @@ class NumpyClampedSettings(Settings):
     d_max_mm: float = Field(40.0, gt=0, description="clamping distance d_max in millimetres")
 
 
-def clamped_loss(points, subset, proposals, weights, d_max_mm):
-    """points (..., N, Q, 3) mm, subset (m,), proposals (..., Q, K, 3) mm, weights (..., Q, K)
-    -> (..., N) losses -E over the points in ``subset``.
+def clamped_loss(points, proposals, weights, d_max_mm):
+    """points (F, N, m, 3) mm, proposals (F, m, K, 3) mm, weights (F, m, K) of the same m points
+    -> (F, N) losses -E over those points.
 
-    One proposal at a time, on (..., N, m) arrays (K is small): fewer and smaller temporaries
-    than one (..., N, m, K, 3) difference array. w (1 - d^2) = w - (w / d_max^2) ||p - h||^2,
-    and the clamp at 0 is the running maximum's start."""
-    h = points[..., subset, :]  # (..., N, m, 3)
-    hx, hy, hz = h[..., 0], h[..., 1], h[..., 2]
-    p = proposals[..., None, subset, :, :]  # (..., 1, m, K, 3)
-    w = weights[..., None, subset, :]  # (..., 1, m, K)
+    One proposal at a time, on (F, N, m) arrays (K is small), in place in two scratch arrays:
+    fewer and smaller temporaries than one (F, N, m, K, 3) difference array.
+    w (1 - d^2) = w - (w / d_max^2) ||p - h||^2, and the clamp at 0 is the running maximum's
+    start. ``np.empty_like`` and the elementwise operations keep the layout the driver hands
+    (the frame innermost), so the operations with a proposal, broadcast over the hypotheses,
+    run in long contiguous loops."""
+    hx, hy, hz = points[..., 0], points[..., 1], points[..., 2]  # (F, N, m)
+    p = proposals[:, None]  # (F, 1, m, K, 3)
+    w = weights[:, None]  # (F, 1, m, K)
     ws = w / d_max_mm**2
-    best = np.zeros(hx.shape)
+    best = np.zeros_like(hx)
+    d2, t = np.empty_like(hx), np.empty_like(hx)
     for k in range(p.shape[-2]):
-        d2 = np.square(hx - p[..., k, 0])
-        d2 += np.square(hy - p[..., k, 1])
-        d2 += np.square(hz - p[..., k, 2])
-        np.maximum(best, w[..., k] - ws[..., k] * d2, out=best)
+        np.subtract(hx, p[..., k, 0], out=d2)
+        d2 *= d2
+        np.subtract(hy, p[..., k, 1], out=t)
+        t *= t
+        d2 += t
+        np.subtract(hz, p[..., k, 2], out=t)
+        t *= t
+        d2 += t
+        d2 *= ws[..., k]
+        np.subtract(w[..., k], d2, out=d2)
+        np.maximum(best, d2, out=best)
     return -best.sum(axis=-1)
 
 
@@ -52,12 +63,13 @@ def bound_clamped_loss(proposals, weights, d_max_mm):
         key = subset.tobytes()
         if key not in cut:
             w = weights[subset]
-            cut[key] = (proposals[subset], w, w * scale)
-        p, w, ws = cut[key]
+            cut[key] = (proposals[subset], -w, w * scale)
+        p, neg_w, ws = cut[key]
         diff = points[:, subset, None, :] - p  # (N, m, K, 3)
-        d2 = np.einsum("nmkc,nmkc->nmk", diff, diff)
-        terms = w - ws * d2  # w (1 - d^2 / d_max^2); the maximum's initial 0 is the clamp
-        return -terms.max(axis=-1, initial=0.0).sum(axis=-1)
+        terms = np.einsum("nmkc,nmkc->nmk", diff, diff)
+        terms *= ws
+        terms += neg_w  # -w (1 - d^2 / d_max^2); the minimum's initial 0 is the clamp
+        return terms.min(axis=-1, initial=0.0).sum(axis=-1)
 
     return loss
 
@@ -71,8 +83,9 @@ class NumpyClamped(Objective):
         return bound_clamped_loss(np.asarray(proposals, float), np.asarray(weights, float), self.settings.d_max_mm)
 
     def score_frames(self, points, subset, proposals, weights):
-        """points (F, N, Q, 3), proposals (F, Q, K, 3), weights (F, Q, K) -> (F, N)."""
-        return clamped_loss(points, subset, proposals, weights, self.settings.d_max_mm)
+        """points (F, N, m, 3), proposals (F, m, K, 3), weights (F, m, K) of the points
+        ``subset`` -> (F, N)."""
+        return clamped_loss(points, proposals, weights, self.settings.d_max_mm)
 
     def lower_bound(self, weights):
         return -float(np.max(weights, axis=-1).sum())

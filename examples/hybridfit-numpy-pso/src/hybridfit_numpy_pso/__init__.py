@@ -7,6 +7,13 @@ losses. hybridfit's driver calls them once per generation for a whole chunk of f
 scores the hypotheses itself and keeps the budget, so ``minimize``, stepwise schedules and
 the budget come for free. Frame f's random numbers come only from its key ``keys[f]``
 (``hybridfit.fitting.streams``), so a frame's fit does not depend on the frames beside it.
+
+The swarm keeps the frame axis last ((n, d, F) arrays, C order): a frame's bounds (d, F)
+then broadcast over the particles, and numpy's operations run over long contiguous (d, F)
+rows even when a stage moves few parameters. The updates work in place, in the state's
+arrays and one scratch array allocated by ``init`` (fresh arrays of this size every
+generation cost page faults). ``ask`` hands the driver an (F, m, d) view of the swarm (no
+copy).
 """
 
 from __future__ import annotations
@@ -29,46 +36,57 @@ class NumpyPSOSettings(Settings):
 
 
 def init(start, lower, upper, keys, budget, settings):
-    """settings: (c1, c2, chi, init_sigma, max_velocity, near, particles)."""
+    """start, lower, upper (F, d); settings: (c1, c2, chi, init_sigma, max_velocity, near, particles)."""
     F, d = start.shape
     n = min(int(settings[6]), budget)
     near = min(int(settings[5]), n)
+    start, lower, upper = start.T, lower.T.copy(), upper.T.copy()  # (d, F)
     span = upper - lower
-    x = lower[:, None] + span[:, None] * uniforms(keys, 0, (n, d))
+    x = lower + span * uniforms(keys, 0, (n, d), frames_last=True)  # (n, d, F)
     if near:
-        x[:, :near] = start[:, None] + settings[3] * normals(keys, 0, (near, d)) * span[:, None]
-        x[:, 0] = start
-    x = np.clip(x, lower[:, None], upper[:, None])
-    return {"x": x, "v": np.zeros_like(x), "pbest_x": x.copy(), "pbest_f": np.full((F, n), np.inf),
-            "lower": lower[:, None], "upper": upper[:, None], "vmax": settings[4] * span[:, None], "keys": keys,
-            "settings": settings, "counter": n * d, "first": True}
+        x[:near] = start + settings[3] * normals(keys, 0, (near, d), frames_last=True) * span
+        x[0] = start
+    np.maximum(x, lower, out=x)
+    np.minimum(x, upper, out=x)
+    return {"x": x, "v": np.zeros_like(x), "pbest_x": x.copy(), "pbest_f": np.full((n, F), np.inf),
+            "scratch": np.empty_like(x), "lower": lower, "upper": upper, "vmax": settings[4] * span,
+            "min_v": -settings[4] * span, "keys": keys, "settings": settings, "counter": n * d, "first": True}
 
 
 def ask(state, m):
     x = state["x"]
     if state["first"]:
-        return x[:, :m]
+        return x[:m].transpose(2, 0, 1)
     c1, c2, chi = state["settings"][:3]
-    F, n, d = x.shape
-    r = uniforms(state["keys"], state["counter"], (2, m, d))
+    n, d, F = x.shape
+    r = uniforms(state["keys"], state["counter"], (2, m, d), frames_last=True)  # (2, m, d, F)
     state["counter"] += 2 * m * d
-    best = state["pbest_x"][np.arange(F), state["pbest_f"].argmin(axis=1)][:, None]  # (F, 1, d)
-    xs, vs, ps = x[:, :m], state["v"][:, :m], state["pbest_x"][:, :m]
-    v = chi * (vs + c1 * r[:, 0] * (ps - xs) + c2 * r[:, 1] * (best - xs))
-    v = np.clip(v, -state["vmax"], state["vmax"])
-    moved = xs + v
-    clipped = np.clip(moved, state["lower"], state["upper"])
-    vs[:] = np.where(clipped == moved, v, 0.0)  # a particle that hits a bound stops there
-    xs[:] = clipped
-    return xs
+    best = state["pbest_x"][state["pbest_f"].argmin(axis=0), :, np.arange(F)].T  # (d, F)
+    xs, vs, scratch = x[:m], state["v"][:m], state["scratch"][:m]
+    # v = chi (v + c1 r1 (pbest - x) + c2 r2 (best - x)), clipped to +-vmax
+    r[0] *= c1
+    r[0] *= np.subtract(state["pbest_x"][:m], xs, out=scratch)
+    r[1] *= c2
+    r[1] *= np.subtract(best, xs, out=scratch)
+    vs += r[0]
+    vs += r[1]
+    vs *= chi
+    np.maximum(vs, state["min_v"], out=vs)
+    np.minimum(vs, state["vmax"], out=vs)
+    moved = np.add(xs, vs, out=scratch)
+    np.maximum(moved, state["lower"], out=xs)
+    np.minimum(xs, state["upper"], out=xs)
+    np.copyto(vs, 0.0, where=xs != moved)  # a particle that hits a bound stops there
+    return xs.transpose(2, 0, 1)
 
 
 def tell(state, X, losses):
     state["first"] = False
     m = X.shape[1]
-    better = losses < state["pbest_f"][:, :m]
-    state["pbest_f"][:, :m] = np.where(better, losses, state["pbest_f"][:, :m])
-    state["pbest_x"][:, :m] = np.where(better[..., None], X, state["pbest_x"][:, :m])
+    losses = losses.T  # (m, F)
+    better = losses < state["pbest_f"][:m]
+    np.copyto(state["pbest_f"][:m], losses, where=better)
+    np.copyto(state["pbest_x"][:m], X.transpose(1, 2, 0), where=better[:, None])
 
 
 STEPS = BatchSteps(init, ask, tell)
