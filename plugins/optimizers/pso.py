@@ -85,54 +85,44 @@ def pso_init(start, lower, upper, keys, budget, settings):
     pbest_f = np.full((F, n), np.inf)
     best = np.zeros(F, dtype=np.int64)
     counters = np.array([n * d, 1])  # the next uniform number; 1 while the first swarm is unscored
-    # one frame's r1, r2 of a generation, then its swarm best repeated for every particle
-    draws = np.empty(3 * n * d)
-    # the bounds and velocity limits repeated for every particle: pso_ask runs one flat loop
-    # over a frame's (particle, coordinate) pairs, which vectorises
-    bounds = np.empty((F, 3, n * d))
-    for f in range(F):
-        for i in range(n):
-            for k in range(d):
-                bounds[f, 0, i * d + k] = lower[f, k]
-                bounds[f, 1, i * d + k] = upper[f, k]
-                bounds[f, 2, i * d + k] = settings[VMAX] * span[f, k]
-    return x, v, pbest_x, pbest_f, best, bounds, keys.copy(), settings.copy(), counters, draws
+    draws = np.empty(2 * n * d)  # one frame's r1, r2 of a generation
+    return x, v, pbest_x, pbest_f, best, lower.copy(), upper.copy(), settings[VMAX] * span, keys.copy(), \
+        settings.copy(), counters, draws
 
 
 @nb.njit(cache=True, nogil=True, fastmath=True)
 def pso_ask(state, m):
     """The first m particles of every frame after one constricted update (the first call: the
     initial swarm) -> (F, m, d)."""
-    x, v, pbest_x, pbest_f, best, bounds, keys, settings, counters, draws = state
+    x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters, draws = state
     if counters[1]:
         return x[:, :m]
     F, n, d = x.shape
     c1, c2, chi = settings[C1], settings[C2], settings[CHI]
     at = counters[0]
-    e = m * d
-    r1, r2, g = draws[:e], draws[e:2 * e], draws[2 * e:3 * e]
     for f in range(F):
-        fill_uniform(keys[f], at, draws[:2 * e])
+        key = keys[f]
+        g = best[f]
+        fill_uniform(key, at, draws[:2 * m * d])
         for i in range(m):
             for k in range(d):
-                g[i * d + k] = pbest_x[f, best[f], k]
-        xf, vf, pf = x[f].reshape(n * d), v[f].reshape(n * d), pbest_x[f].reshape(n * d)
-        lo, hi, vmax = bounds[f, 0], bounds[f, 1], bounds[f, 2]
-        for c in range(e):  # particle c // d, coordinate c % d
-            vk = chi * (vf[c] + c1 * r1[c] * (pf[c] - xf[c]) + c2 * r2[c] * (g[c] - xf[c]))
-            vk = min(max(vk, -vmax[c]), vmax[c])
-            xk = xf[c] + vk
-            xc = min(max(xk, lo[c]), hi[c])  # a particle that hits a bound stops there
-            xf[c] = xc
-            vf[c] = vk if xc == xk else 0.0
-    counters[0] = at + 2 * e
+                r1 = draws[i * d + k]
+                r2 = draws[(m + i) * d + k]
+                vk = chi * (v[f, i, k] + c1 * r1 * (pbest_x[f, i, k] - x[f, i, k])
+                            + c2 * r2 * (pbest_x[f, g, k] - x[f, i, k]))
+                vk = min(max(vk, -vmax[f, k]), vmax[f, k])
+                xk = x[f, i, k] + vk
+                xc = min(max(xk, lower[f, k]), upper[f, k])  # a particle that hits a bound stops there
+                x[f, i, k] = xc
+                v[f, i, k] = vk if xc == xk else 0.0
+    counters[0] = at + 2 * m * d
     return x[:, :m]
 
 
 @nb.njit(cache=True, nogil=True)
 def pso_tell(state, X, losses):
     """Personal and swarm bests of every frame after scoring the batch (losses (F, m))."""
-    x, v, pbest_x, pbest_f, best, bounds, keys, settings, counters, draws = state
+    x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters, draws = state
     F, m = losses.shape
     d = x.shape[2]
     counters[1] = 0
