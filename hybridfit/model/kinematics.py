@@ -300,11 +300,15 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
         if read[j] and not listed[j]:
             fixed[n_fixed] = j
             n_fixed += 1
-    reads_param = np.zeros(P, dtype=np.bool_)  # parameters the listed joints read
+    # parameters the listed joints read: a joint's angles turn only its own frame, so those of a
+    # joint whose rotation nothing reads (a point's joint at the end of a chain) are not read
+    reads_param = np.zeros(P, dtype=np.bool_)
     if count and parents[order[0]] < 0:
         for k in range(GLOBAL_PARAMS):
             reads_param[k] = True
     for c in range(count):
+        if not oriented[order[c]]:
+            continue
         for a in range(A):
             if axes[order[c], a] >= 0:
                 reads_param[axis_params[order[c], a]] = True
