@@ -50,7 +50,7 @@ def ask(state, m):
         return x[:, :m]
     c1, c2, chi = state["settings"][:3]
     F, n, d = x.shape
-    r = uniforms(state["keys"], state["counter"], (2, m, d))
+    r = uniforms(state["keys"], state["counter"], (2, d, m)).transpose(0, 1, 3, 2)  # coordinate by coordinate, as pso
     state["counter"] += 2 * m * d
     best = state["pbest_x"][np.arange(F), state["pbest_f"].argmin(axis=1)][:, None]  # (F, 1, d)
     xs, vs, ps = x[:, :m], state["v"][:, :m], state["pbest_x"][:, :m]
