@@ -107,18 +107,33 @@ def frame_points(parents, offsets, rest, rest_identity, axes, axis_params, mirro
             block_points(m, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out[f], (f - f0) * m)
 
 
+class _KernelAddress:
+    """A C callback of a known signature as numba's first-class function protocol sees it
+    (``__wrapper_address__``), with its numba type made once (``_numba_type_``): typing a
+    numba ``cfunc`` argument builds its type on every call (about 16 us, once per generation)."""
+
+    def __init__(self, callback, signature) -> None:
+        self.callback = callback  # keeps the compiled code alive
+        self.address = int(callback.address)
+        self._numba_type_ = T.FunctionType(signature)
+
+    def __wrapper_address__(self) -> int:
+        return self.address
+
+
 @functools.cache
 def as_cfunc(kernel, signature=KERNEL_SIGNATURE):
     """A numba kernel (a dispatcher of ``signature``: :data:`~hybridfit.objective.KERNEL_SIGNATURE`
     or :data:`~hybridfit.objective.FRAMES_KERNEL_SIGNATURE`) as a C callback with the same
-    compiler options (cached on disk where numba can): passing it to :func:`kernel_frames`
-    costs a fraction of passing the dispatcher, once per generation."""
+    compiler options (cached on disk where numba can), typed once (:class:`_KernelAddress`):
+    passing it to :func:`kernel_frames` costs a fraction of passing the dispatcher, once per
+    generation."""
     if not isinstance(kernel, Dispatcher):
         return kernel
     options = {k: v for k, v in kernel.targetoptions.items() if k in ("fastmath", "error_model", "boundscheck")}
     with warnings.catch_warnings():  # a kernel defined in a closure cannot be cached: compiled per process
         warnings.simplefilter("ignore", NumbaWarning)
-        return nb.cfunc(signature, cache=True, **options)(kernel.py_func)
+        return _KernelAddress(nb.cfunc(signature, cache=True, **options)(kernel.py_func), signature)
 
 
 def joints_are_points(tree, point_map) -> bool:
