@@ -36,6 +36,16 @@ from .plugin import Plugin, defining_class
 KERNEL_SIGNATURE = nb.types.void(nb.types.float64[:, :, ::1], nb.types.int64[::1], nb.types.float64[:, :, ::1],
                                  nb.types.float64[:, ::1], nb.types.float64[::1], nb.types.float64[::1])
 
+#: an objective's compiled frames kernel: the same loss for the hypotheses of several frames
+#: side by side, in one call: (points (Q, 3, C) mm, the hypothesis innermost, subset (m,),
+#: proposals (F, Q, K, 3) mm, weights (F, Q, K), constants (c,), f0, f1, n, out (F, >= n))
+#: -> None; writes out[f, i] for f0 <= f < f1 and i < n, the loss of frame f's hypothesis in
+#: column (f - f0) n + i over the points in ``subset`` against frame f's proposals.
+FRAMES_KERNEL_SIGNATURE = nb.types.void(nb.types.float64[:, :, ::1], nb.types.int64[::1],
+                                        nb.types.float64[:, :, :, ::1], nb.types.float64[:, :, ::1],
+                                        nb.types.float64[::1], nb.types.int64, nb.types.int64, nb.types.int64,
+                                        nb.types.float64[:, ::1])
+
 #: loss(points (N, Q, 3) mm, subset (m,) int64 point indices) -> (N,) float64 losses; points
 #: may be any strided view (the driver's has the hypothesis innermost in memory)
 Loss = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -93,8 +103,8 @@ def dataset_observations(ds, indices, where: str = "data") -> list[Observation |
 class Objective(Plugin, abc.ABC):
     """Scores hypotheses' points against a frame's proposals; lower is better.
 
-    ``bind`` is the contract. ``compiled_kernel``, ``score_frames`` and ``casadi_loss`` are
-    optional capabilities (faster or symbolic forms of the same loss), used by the core only
+    ``bind`` is the contract. ``compiled_kernel``, ``compiled_frames_kernel``, ``score_frames``
+    and ``casadi_loss`` are optional capabilities (faster or symbolic forms of the same loss), used by the core only
     through :func:`capability`; ``hybridfit.testing`` checks that they agree with ``bind``.
     """
 
@@ -130,6 +140,13 @@ class Objective(Plugin, abc.ABC):
         :data:`KERNEL_SIGNATURE` scoring exactly as ``bind`` does; None (the default): none."""
         return None
 
+    def compiled_frames_kernel(self) -> tuple[Callable, np.ndarray] | None:
+        """Capability: (kernel, constants (c,) float64), a numba function of
+        :data:`FRAMES_KERNEL_SIGNATURE` scoring several frames' hypotheses in one call exactly
+        as ``bind`` does (the driver calls it once per block of frames instead of a
+        ``compiled_kernel`` once per frame); None (the default): none."""
+        return None
+
     def score_frames(self, points: np.ndarray, subset: np.ndarray, proposals: np.ndarray,
                      weights: np.ndarray) -> np.ndarray | None:
         """Capability: the losses of many frames at once, plain numpy allowed, given only the
@@ -153,7 +170,7 @@ class Objective(Plugin, abc.ABC):
 
 
 #: the optional capabilities of :class:`Objective` (each overrides a base method returning None)
-CAPABILITIES = ("compiled_kernel", "score_frames", "casadi_loss")
+CAPABILITIES = ("compiled_kernel", "compiled_frames_kernel", "score_frames", "casadi_loss")
 
 
 def capability(objective: Any, name: str) -> Callable | None:
@@ -177,9 +194,10 @@ def capability(objective: Any, name: str) -> Callable | None:
     return getattr(objective, name)
 
 
-def compiled_kernel_of(objective: Any) -> tuple[Callable, np.ndarray] | None:
-    """The objective's valid compiled kernel and constants (see :func:`capability`), or None."""
-    method = capability(objective, "compiled_kernel")
+def compiled_kernel_of(objective: Any, name: str = "compiled_kernel") -> tuple[Callable, np.ndarray] | None:
+    """The objective's valid compiled kernel (``name``: ``compiled_kernel`` or
+    ``compiled_frames_kernel``) and constants (see :func:`capability`), or None."""
+    method = capability(objective, name)
     found = None if method is None or objective.observes_depth else method()
     if found is None:
         return None

@@ -385,12 +385,14 @@ def check_objective_deterministic(objective: Objective) -> None:
 
 
 def check_objective_capabilities(objective: Objective) -> None:
-    """A compiled kernel and a frame-batched scorer (``score_frames``) that the core would use
+    """A compiled kernel, a compiled frames kernel and a frame-batched scorer (``score_frames``)
+    that the core would use
     (:func:`hybridfit.objective.capability`) give ``bind``'s losses on random points, on the
     whole frame and on a subset of points, for several frames at once."""
     kernel = compiled_kernel_of(objective)
+    frames_kernel = compiled_kernel_of(objective, "compiled_frames_kernel")
     score_frames = capability(objective, "score_frames")
-    if objective.observes_depth or (kernel is None and score_frames is None):
+    if objective.observes_depth or (kernel is None and frames_kernel is None and score_frames is None):
         return
     frames = [_objective_frame(seed) for seed in (11, 12, 13)]
     proposals = np.stack([f[0] for f in frames])
@@ -407,6 +409,17 @@ def check_objective_capabilities(objective: Objective) -> None:
                          np.ascontiguousarray(weights[f]), consts, got[f])
             np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9,
                                        err_msg=f"{_label(objective)}: compiled_kernel disagrees with bind")
+        if frames_kernel is not None:  # frames 1.. side by side, then frame 0 alone, into a wider output
+            function, consts = frames_kernel
+            F, N = want.shape
+            got = np.full((F, N + 3), np.nan)
+            for f0, f1 in ((1, F), (0, 1)):
+                columns = np.ascontiguousarray(np.concatenate([points[f].transpose(1, 2, 0) for f in range(f0, f1)],
+                                                              axis=-1))
+                function(columns, subset, np.ascontiguousarray(proposals), np.ascontiguousarray(weights), consts, f0,
+                         f1, N, got)
+            np.testing.assert_allclose(got[:, :N], want, rtol=1e-9, atol=1e-9,
+                                       err_msg=f"{_label(objective)}: compiled_frames_kernel disagrees with bind")
         if score_frames is not None:
             got = _scored_frames(objective, score_frames, *frames_arguments(points, subset, proposals, weights))
             _require(got.shape == want.shape, f"{_label(objective)}: score_frames returned shape {got.shape}, "

@@ -356,6 +356,27 @@ def test_a_kernel_that_disagrees_with_bind_fails_its_check():
     testing.check_objective_capabilities(clamped)
 
 
+def test_a_frames_kernel_that_disagrees_with_bind_fails_its_check():
+    import numba as nb
+
+    from hybridfit.objective import FRAMES_KERNEL_SIGNATURE
+
+    clamped = registry.create("objective", "clamped-confidence")
+    kernel, consts = clamped.compiled_frames_kernel()
+
+    @nb.njit(FRAMES_KERNEL_SIGNATURE)
+    def wrong_after_frame_0(points, subset, proposals, weights, consts, f0, f1, n, out):
+        kernel(points, subset, proposals, weights, consts, f0, f1, n, out)
+        for f in range(max(f0, 1), f1):
+            for i in range(n):
+                out[f, i] *= 2.0
+
+    broken = type("Doubled", (type(clamped),), {"compiled_frames_kernel": lambda self: (wrong_after_frame_0, consts)})()
+    with pytest.raises(AssertionError, match="compiled_frames_kernel disagrees with bind"):
+        testing.check_objective_capabilities(broken)
+    testing.check_objective_capabilities(clamped)
+
+
 def test_a_capability_is_not_used_below_a_subclass_that_overrides_bind():
     clamped = registry.create("objective", "clamped-confidence")
     assert capability(clamped, "compiled_kernel") is not None

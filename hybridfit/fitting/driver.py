@@ -249,6 +249,7 @@ class Driver:
                 self.tree = (_require(tree.parents, np.int64), _require(tree.offsets, np.float64),
                              _require(tree.rest, np.float64), _require(tree.rest_is_identity, np.bool_),
                              _require(tree.axes, np.int64), _require(tree.axis_params, np.int64), float(tree.mirror))
+        self.frames_kernel = compiled_kernel_of(objective, "compiled_frames_kernel") if self.tree is not None else None
         self.kernel = compiled_kernel_of(objective) if self.tree is not None else None
         self.score_frames = capability(objective, "score_frames")
         self._layouts: dict[bytes, Layout | None] = {}
@@ -323,7 +324,9 @@ class Driver:
 
     def _run_group(self, lay: Layout, chunk: Chunk, sel, keys, out_params, out_loss) -> None:
         proposals, weights = _require(chunk.proposals[sel], np.float64), _require(chunk.weights[sel], np.float64)
-        if self.kernel is not None:
+        if self.frames_kernel is not None:
+            scorer = KernelScorer(self.tree, self.point_map, self.frames_kernel, proposals, weights, frames=True)
+        elif self.kernel is not None:
             scorer = KernelScorer(self.tree, self.point_map, self.kernel, proposals, weights)
         else:
             losses = None if self.score_frames is not None else [self.objective.bind(p, w)

@@ -7,8 +7,9 @@ parameters (d,), points (m,), owned (o,), batch) -> stage`` once per stage, and 
 X (F, m, d), points, losses (F, >= m))`` per generation: ``losses[:, :m]`` = each frame's
 hypotheses (the parameters outside the stage at ``base``) scored over ``points``.
 
-- :class:`KernelScorer`: a kinematic tree and an objective's compiled kernel: one numba call
-  per generation for all frames of a group.
+- :class:`KernelScorer`: a kinematic tree and an objective's compiled frames kernel (one kernel
+  call per block of frames) or compiled kernel (one per frame): one numba call per generation
+  for all frames of a group.
 - :class:`NumpyScorer`: a kinematic tree's points by the same numba kinematics (or, for a model
   without a kinematic tree, its ``forward``), scored by the objective's ``score_frames`` (one
   call per generation for all frames) or ``bind`` (one call per frame). Neither copies the
@@ -30,7 +31,7 @@ from numba.core.errors import NumbaWarning
 import numpy as np
 
 from ..errors import PluginError
-from ..objective import KERNEL_SIGNATURE
+from ..objective import FRAMES_KERNEL_SIGNATURE, KERNEL_SIGNATURE
 from ..problem import checked_losses, objective_label
 from ..model.kinematics import block_kinematics, block_points, block_setup, block_views
 
@@ -54,6 +55,38 @@ _KERNEL_FRAMES = T.void(
     T.int64[::1], T.float64[:, ::1], T.float64[:, :, ::1], T.boolean[::1], T.int64[:, ::1], T.int64[:, ::1], T.float64,
     T.int64[::1], T.int64[::1], T.float64[::1], T.int64[::1], T.float64[::1], T.float64[:, :, :], T.int64[::1],
     T.float64[:, ::1])
+
+
+def _frames_kernel_blocks(kernel, consts, proposals, weights, parents, offsets, rest, rest_identity, axes,
+                          axis_params, mirror, pm_ptr, pm_joint, pm_weight, joints_are_points, ints, floats, X,
+                          subset, losses):
+    """losses[f, :m] as :func:`_kernel_frames`, by a frames kernel: one call per block of frames.
+    With ``joints_are_points`` (the point map is the identity) the kernel reads the joints'
+    block buffer itself, else the block's points are gathered first."""
+    F, m = X.shape[0], X.shape[1]
+    G = ints[9]
+    WpB, pts = block_views(ints, floats)[9], block_views(ints, floats)[11]
+    for f0 in range(0, F, G):
+        f1 = min(F, f0 + G)
+        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X)
+        if joints_are_points:
+            kernel(WpB, subset, proposals, weights, consts, f0, f1, m, losses)
+        else:
+            block_points((f1 - f0) * m, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], pts)
+            kernel(pts, subset, proposals, weights, consts, f0, f1, m, losses)
+
+
+_FRAMES_KERNEL_BLOCKS = T.void(
+    T.FunctionType(FRAMES_KERNEL_SIGNATURE), T.float64[::1], T.float64[:, :, :, ::1], T.float64[:, :, ::1],
+    T.int64[::1], T.float64[:, ::1], T.float64[:, :, ::1], T.boolean[::1], T.int64[:, ::1], T.int64[:, ::1], T.float64,
+    T.int64[::1], T.int64[::1], T.float64[::1], T.boolean, T.int64[::1], T.float64[::1], T.float64[:, :, :],
+    T.int64[::1], T.float64[:, ::1])
+
+
+@functools.cache
+def frames_kernel_blocks():
+    """:func:`_frames_kernel_blocks` compiled for :data:`FRAMES_KERNEL_SIGNATURE` kernels (on first use)."""
+    return nb.njit(_FRAMES_KERNEL_BLOCKS, cache=True, nogil=True)(_frames_kernel_blocks)
 
 
 @functools.cache
@@ -119,36 +152,68 @@ def frames_innermost(a: np.ndarray, point_axis: int) -> np.ndarray:
     return np.moveaxis(inner, (-2, -1), (point_axis, 0))
 
 
+class _KernelAddress:
+    """A C callback of a known signature as numba's first-class function protocol sees it
+    (``__wrapper_address__``), with its numba type made once (``_numba_type_``): typing a
+    numba ``cfunc`` argument builds its type on every call (about 16 us, once per generation)."""
+
+    def __init__(self, callback, signature) -> None:
+        self.callback = callback  # keeps the compiled code alive
+        self.address = int(callback.address)
+        self._numba_type_ = T.FunctionType(signature)
+
+    def __wrapper_address__(self) -> int:
+        return self.address
+
+
 @functools.cache
-def as_cfunc(kernel):
-    """A numba kernel (a dispatcher of :data:`~hybridfit.objective.KERNEL_SIGNATURE`) as a C
-    callback with the same compiler options (cached on disk where numba can): passing it to
-    :func:`kernel_frames` costs a fraction of passing the dispatcher, once per generation."""
+def as_cfunc(kernel, signature=KERNEL_SIGNATURE):
+    """A numba kernel (a dispatcher of ``signature``: :data:`~hybridfit.objective.KERNEL_SIGNATURE`
+    or :data:`~hybridfit.objective.FRAMES_KERNEL_SIGNATURE`) as a C callback with the same
+    compiler options (cached on disk where numba can), typed once (:class:`_KernelAddress`):
+    passing it to :func:`kernel_frames` costs a fraction of passing the dispatcher, once per
+    generation."""
     if not isinstance(kernel, Dispatcher):
         return kernel
     options = {k: v for k, v in kernel.targetoptions.items() if k in ("fastmath", "error_model", "boundscheck")}
     with warnings.catch_warnings():  # a kernel defined in a closure cannot be cached: compiled per process
         warnings.simplefilter("ignore", NumbaWarning)
-        return nb.cfunc(KERNEL_SIGNATURE, cache=True, **options)(kernel.py_func)
+        return _KernelAddress(nb.cfunc(signature, cache=True, **options)(kernel.py_func), signature)
+
+
+def joints_are_points(tree, point_map) -> bool:
+    """Whether the point map (pm_ptr, pm_joint, pm_weight) is the identity of the tree's joints."""
+    J = len(tree[0])
+    pm_ptr, pm_joint, pm_weight = point_map
+    return (len(pm_ptr) == J + 1 and np.array_equal(pm_ptr, np.arange(J + 1))
+            and np.array_equal(pm_joint, np.arange(J)) and bool(np.all(pm_weight == 1.0)))
 
 
 class KernelScorer:
     """Scores by an objective's compiled kernel on a kinematic tree (see the module doc).
     tree: (parents, offsets, rest, rest_identity, axes, axis_params, mirror); point_map:
     (pm_ptr, pm_joint, pm_weight), the (Q, J) point matrix in CSR form; kernel: (function,
-    constants); proposals (F, Q, K, 3) mm, weights (F, Q, K)."""
+    constants), a compiled kernel, or with ``frames`` a compiled frames kernel (one call per
+    block of frames); proposals (F, Q, K, 3) mm, weights (F, Q, K)."""
 
-    def __init__(self, tree, point_map, kernel, proposals, weights) -> None:
-        self.tree, self.point_map, self.kernel = tree, point_map, (as_cfunc(kernel[0]), kernel[1])
+    def __init__(self, tree, point_map, kernel, proposals, weights, frames: bool = False) -> None:
+        signature = FRAMES_KERNEL_SIGNATURE if frames else KERNEL_SIGNATURE
+        self.tree, self.point_map, self.kernel = tree, point_map, (as_cfunc(kernel[0], signature), kernel[1])
         self.proposals, self.weights = proposals, weights
-        self._run = kernel_frames()
+        self.frames = frames
+        self.identity = joints_are_points(tree, point_map)
+        self._run = frames_kernel_blocks() if frames else kernel_frames()
 
     def prepare(self, base, pidx, subset, owned, n):
         return block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n)
 
     def score(self, stage, X, subset, losses):
-        self._run(self.kernel[0], self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map, *stage,
-                  X, subset, losses)
+        if self.frames:
+            self._run(self.kernel[0], self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map,
+                      self.identity, *stage, X, subset, losses)
+        else:
+            self._run(self.kernel[0], self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map,
+                      *stage, X, subset, losses)
 
 
 class NumpyScorer:

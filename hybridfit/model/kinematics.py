@@ -300,11 +300,15 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
         if read[j] and not listed[j]:
             fixed[n_fixed] = j
             n_fixed += 1
-    reads_param = np.zeros(P, dtype=np.bool_)  # parameters the listed joints read
+    # parameters the listed joints read: a joint's angles turn only its own frame, so those of a
+    # joint whose rotation nothing reads (a point's joint at the end of a chain) are not read
+    reads_param = np.zeros(P, dtype=np.bool_)
     if count and parents[order[0]] < 0:
         for k in range(GLOBAL_PARAMS):
             reads_param[k] = True
     for c in range(count):
+        if not oriented[order[c]]:
+            continue
         for a in range(A):
             if axes[order[c], a] >= 0:
                 reads_param[axis_params[order[c], a]] = True
@@ -321,7 +325,7 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
     G = max(1, min(F, COLUMNS // n))
     ints[4], ints[5], ints[6], ints[7], ints[8], ints[9] = n, F, P, J, Q, G
     C = G * n
-    floats = np.empty(3 * F * P + 12 * F * J + 3 * P * C + 12 * J * C + 9 * C + 3 * Q * n)
+    floats = np.empty(3 * F * P + 12 * F * J + 3 * P * C + 12 * J * C + 9 * C + 3 * Q * C)
     (b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = block_views(ints, floats)
     b[:] = base
     every = np.arange(J)
@@ -351,8 +355,8 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
 def block_views(ints, floats):
     """The arrays of a stage's floats: base, bsin, bcos (F, P); W0 (F, J, 3, 3), Wp0 (F, J, 3)
     the frames' joints at base; block buffers pB, sinB, cosB (P, C), WB (J, 3, 3, C), WpB
-    (J, 3, C), GB (3, 3, C) with C = G n columns (frame g's hypothesis i in column g n + i),
-    and one frame's points pts (Q, 3, n)."""
+    (J, 3, C), GB (3, 3, C) and points pts (Q, 3, C) with C = G n columns (frame g's
+    hypothesis i in column g n + i)."""
     n, F, P, J, Q = ints[4], ints[5], ints[6], ints[7], ints[8]
     C = ints[9] * n
     a = 0
@@ -378,7 +382,7 @@ def block_views(ints, floats):
     a += J * 3 * C
     GB = floats[a:a + 9 * C].reshape((3, 3, C))
     a += 9 * C
-    pts = floats[a:a + Q * 3 * n].reshape((Q, 3, n))
+    pts = floats[a:a + Q * 3 * C].reshape((Q, 3, C))
     return b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts
 
 

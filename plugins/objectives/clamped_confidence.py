@@ -11,8 +11,9 @@ synthetic proposals (``benchmarks/bench_dmax.py``; figures: the docs' results pa
 twice the typical proposal error and half a finger's length, so a proposal on a neighbouring
 finger still pulls while outliers further than d_max are ignored.
 
-Offers a compiled kernel (``compiled_kernel``), which ``bind`` itself runs, so the two agree
-by construction.
+Offers a compiled kernel (``compiled_kernel``), which ``bind`` itself runs, and a compiled
+frames kernel (``compiled_frames_kernel``, many frames in one call); the three share one
+loop (``_score_columns``), so they agree by construction.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numba as nb
 import numpy as np
 from pydantic import Field
 
-from hybridfit.objective import KERNEL_SIGNATURE, Objective, kernel_loss
+from hybridfit.objective import FRAMES_KERNEL_SIGNATURE, KERNEL_SIGNATURE, Objective, kernel_loss
 from hybridfit.plugin import Settings
 
 
@@ -29,20 +30,18 @@ class ClampedConfidenceSettings(Settings):
     d_max_mm: float = Field(40.0, gt=0, description="clamping distance d_max in millimetres")
 
 
-@nb.njit(KERNEL_SIGNATURE, cache=True, fastmath=True)
-def clamped_confidence_kernel(points, subset, proposals, weights, consts, out):
-    """points (Q, 3, N) mm (the hypothesis innermost), subset (m,), proposals (Q, K, 3),
-    weights (Q, K), consts (1/d_max^2,) -> out (n,) -E of the first n hypotheses over the
-    subset's points."""
+@nb.njit(cache=True, fastmath=True, inline="always")
+def _score_columns(points, subset, proposals, weights, inv_d_max_sq, first, out):
+    """out (n,) = -E of the hypotheses in columns first, ..., first + n - 1 of points (Q, 3,
+    C) mm over the subset's points, against one frame's proposals (Q, K, 3) and weights (Q, K)."""
     N = out.shape[0]
     K = proposals.shape[1]
-    inv_d_max_sq = consts[0]
     for n in range(N):
         out[n] = 0.0
     if K <= 3:  # up to three proposals per point: one loop per point (a short swarm pays per loop)
         for jj in range(subset.shape[0]):
             j = subset[jj]
-            x, y, z = points[j, 0], points[j, 1], points[j, 2]
+            x, y, z = points[j, 0, first:first + N], points[j, 1, first:first + N], points[j, 2, first:first + N]
             # a missing proposal weighs 0 and so gives 0, as a weight of 0 does
             w0 = weights[j, 0] if K > 0 else 0.0
             w1 = weights[j, 1] if K > 1 else 0.0
@@ -62,7 +61,7 @@ def clamped_confidence_kernel(points, subset, proposals, weights, consts, out):
     best = np.empty(N)
     for jj in range(subset.shape[0]):  # hypotheses innermost and contiguous: the loops vectorise
         j = subset[jj]
-        x, y, z = points[j, 0], points[j, 1], points[j, 2]
+        x, y, z = points[j, 0, first:first + N], points[j, 1, first:first + N], points[j, 2, first:first + N]
         for n in range(N):
             best[n] = 0.0
         for r in range(K):  # branch-free: a weight of 0 or a distance beyond d_max gives 0
@@ -76,6 +75,23 @@ def clamped_confidence_kernel(points, subset, proposals, weights, consts, out):
                 best[n] = max(best[n], w * max(1.0 - d2, 0.0))
         for n in range(N):
             out[n] -= best[n]
+
+
+@nb.njit(KERNEL_SIGNATURE, cache=True, fastmath=True)
+def clamped_confidence_kernel(points, subset, proposals, weights, consts, out):
+    """points (Q, 3, N) mm (the hypothesis innermost), subset (m,), proposals (Q, K, 3),
+    weights (Q, K), consts (1/d_max^2,) -> out (n,) -E of the first n hypotheses over the
+    subset's points."""
+    _score_columns(points, subset, proposals, weights, consts[0], 0, out)
+
+
+@nb.njit(FRAMES_KERNEL_SIGNATURE, cache=True, fastmath=True)
+def clamped_confidence_frames_kernel(points, subset, proposals, weights, consts, f0, f1, n, out):
+    """points (Q, 3, C) mm, frame f's hypothesis i in column (f - f0) n + i, subset (m,),
+    proposals (F, Q, K, 3), weights (F, Q, K), consts (1/d_max^2,) -> out[f, :n] for f0 <= f < f1:
+    the kernel's losses, frame by frame in one call."""
+    for f in range(f0, f1):
+        _score_columns(points, subset, proposals[f], weights[f], consts[0], (f - f0) * n, out[f, :n])
 
 
 @nb.njit(cache=True)
@@ -104,6 +120,9 @@ class ClampedConfidence(Objective):
 
     def compiled_kernel(self):
         return clamped_confidence_kernel, np.array([1.0 / self.settings.d_max_mm**2])
+
+    def compiled_frames_kernel(self):
+        return clamped_confidence_frames_kernel, np.array([1.0 / self.settings.d_max_mm**2])
 
     def lower_bound(self, weights):
         return -float(np.max(weights, axis=-1).sum())

@@ -16,7 +16,9 @@ the core's driver runs it for many frames in lockstep, compiled together with a 
 objective. Frame f's random numbers: particle i's coordinate k of the initial swarm is
 number c = i * d + k of its stage key (``keys[f]``, :mod:`hybridfit.fitting.streams`): of
 the key's normal stream for the particles near the start, of its uniform stream for the
-others; then the uniform numbers r1, r2 of each generation follow in order.
+others; then each generation of m particles takes the next 2 m d uniform numbers: r1 of
+particle i's coordinate k is number k m + i of them, r2 number (d + k) m + i (coordinate by
+coordinate, as the update runs along the particles).
 """
 
 from __future__ import annotations
@@ -56,36 +58,35 @@ def pso_init(start, lower, upper, keys, budget, settings):
     """The swarm state of F frames: start, lower, upper (F, d), keys (F,) uint64; settings
     (c1, c2, chi, init_sigma, max_velocity, particles near the start); the swarm size is
     min(particles, budget) with particles = settings' batch (row count of ``start``'s swarm,
-    see :meth:`PSO.batch_settings`) -> state."""
+    see :meth:`PSO.batch_settings`) -> state. Positions, velocities and personal bests are
+    kept (F, d, n), the particle innermost: the update runs along the particles (it
+    vectorises), and so does the scorer's copy of the asked hypotheses."""
     F, d = start.shape
     n = int(settings[6])
     n = min(n, budget)
     near = min(int(settings[NEAR]), n)
-    x = np.empty((F, n, d))
+    x = np.empty((F, d, n))
     span = upper - lower
     z = np.empty(n * d)  # one frame's numbers i * d + k: normal for the near particles, then uniform
     for f in range(F):
         key = keys[f]
         fill_normal(key, 0, z[:near * d])
         fill_uniform(key, near * d, z[near * d:])
-        for i in range(near):
-            for k in range(d):
-                x[f, i, k] = start[f, k] + (settings[SIGMA] * z[i * d + k]) * span[f, k]
-        for i in range(near, n):
-            for k in range(d):
-                x[f, i, k] = lower[f, k] + span[f, k] * z[i * d + k]
-        if near:
-            for k in range(d):
-                x[f, 0, k] = start[f, k]
-        for i in range(n):
-            for k in range(d):
-                x[f, i, k] = min(max(x[f, i, k], lower[f, k]), upper[f, k])
-    v = np.zeros((F, n, d))
+        for k in range(d):
+            for i in range(near):
+                x[f, k, i] = start[f, k] + (settings[SIGMA] * z[i * d + k]) * span[f, k]
+            for i in range(near, n):
+                x[f, k, i] = lower[f, k] + span[f, k] * z[i * d + k]
+            if near:
+                x[f, k, 0] = start[f, k]
+            for i in range(n):
+                x[f, k, i] = min(max(x[f, k, i], lower[f, k]), upper[f, k])
+    v = np.zeros((F, d, n))
     pbest_x = x.copy()
     pbest_f = np.full((F, n), np.inf)
     best = np.zeros(F, dtype=np.int64)
     counters = np.array([n * d, 1])  # the next uniform number; 1 while the first swarm is unscored
-    draws = np.empty(2 * n * d)  # one frame's r1, r2 of a generation
+    draws = np.empty(2 * n * d)  # one frame's r1, r2 of a generation, coordinate by coordinate
     return x, v, pbest_x, pbest_f, best, lower.copy(), upper.copy(), settings[VMAX] * span, keys.copy(), \
         settings.copy(), counters, draws
 
@@ -93,30 +94,30 @@ def pso_init(start, lower, upper, keys, budget, settings):
 @nb.njit(cache=True, nogil=True, fastmath=True)
 def pso_ask(state, m):
     """The first m particles of every frame after one constricted update (the first call: the
-    initial swarm) -> (F, m, d)."""
+    initial swarm) -> (F, m, d), a view of the state (the particle innermost in memory)."""
     x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters, draws = state
     if counters[1]:
-        return x[:, :m]
-    F, n, d = x.shape
+        return x[:, :, :m].transpose(0, 2, 1)
+    F, d, n = x.shape
     c1, c2, chi = settings[C1], settings[C2], settings[CHI]
     at = counters[0]
     for f in range(F):
         key = keys[f]
-        g = best[f]
         fill_uniform(key, at, draws[:2 * m * d])
-        for i in range(m):
-            for k in range(d):
-                r1 = draws[i * d + k]
-                r2 = draws[(m + i) * d + k]
-                vk = chi * (v[f, i, k] + c1 * r1 * (pbest_x[f, i, k] - x[f, i, k])
-                            + c2 * r2 * (pbest_x[f, g, k] - x[f, i, k]))
-                vk = min(max(vk, -vmax[f, k]), vmax[f, k])
-                xk = x[f, i, k] + vk
-                xc = min(max(xk, lower[f, k]), upper[f, k])  # a particle that hits a bound stops there
-                x[f, i, k] = xc
-                v[f, i, k] = vk if xc == xk else 0.0
+        for k in range(d):
+            gk, lo, hi, vm = pbest_x[f, k, best[f]], lower[f, k], upper[f, k], vmax[f, k]
+            xf, vf, pf = x[f, k], v[f, k], pbest_x[f, k]
+            for i in range(m):
+                r1 = draws[k * m + i]
+                r2 = draws[(d + k) * m + i]
+                vk = chi * (vf[i] + c1 * r1 * (pf[i] - xf[i]) + c2 * r2 * (gk - xf[i]))
+                vk = min(max(vk, -vm), vm)
+                xk = xf[i] + vk
+                xc = min(max(xk, lo), hi)  # a particle that hits a bound stops there
+                xf[i] = xc
+                vf[i] = vk if xc == xk else 0.0
     counters[0] = at + 2 * m * d
-    return x[:, :m]
+    return x[:, :, :m].transpose(0, 2, 1)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -124,14 +125,14 @@ def pso_tell(state, X, losses):
     """Personal and swarm bests of every frame after scoring the batch (losses (F, m))."""
     x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters, draws = state
     F, m = losses.shape
-    d = x.shape[2]
+    d = x.shape[1]
     counters[1] = 0
     for f in range(F):
         for i in range(m):
             if losses[f, i] < pbest_f[f, i]:
                 pbest_f[f, i] = losses[f, i]
                 for k in range(d):
-                    pbest_x[f, i, k] = X[f, i, k]
+                    pbest_x[f, k, i] = X[f, i, k]
         best[f] = np.argmin(pbest_f[f])
 
 

@@ -29,19 +29,23 @@ def _frames_clamped():
     return FramesClamped()
 
 
-def driver_path(data, optimizer, budget, seed, frames, names=None, threads=1, model=None, scorer="kernel",
+def driver_path(data, optimizer, budget, seed, frames, names=None, threads=1, model=None, scorer="frames-kernel",
                 objective=None):
     """(params (F, P), loss (F,), evaluations (F,)) fitted by the driver, scoring with the
-    objective's compiled kernel, its ``bind`` per frame ("bind"), bind on a model without a
-    kinematic tree ("forward"), or a frame-batched ``score_frames`` ("frames", "frames-forward")."""
+    objective's compiled frames kernel ("frames-kernel"), its compiled kernel ("kernel"), its
+    ``bind`` per frame ("bind"), bind on a model without a kinematic tree ("forward"), or a
+    frame-batched numpy ``score_frames`` ("frames", "frames-forward")."""
     model = model or hybridfit.create("model", "hand26")
-    objective = objective or (_frames_clamped() if scorer.startswith("frames") else
+    numpy_frames = scorer in ("frames", "frames-forward")
+    objective = objective or (_frames_clamped() if numpy_frames else
                               hybridfit.create("objective", "clamped-confidence"))
     problem = Problem(model, objective, data["proposals"][0], data["confidences"][0], names or data["joint_names"])
     assert driver.supports(model, objective, optimizer, problem, budget)
     fitter = driver.Driver(model, objective, optimizer, names or data["joint_names"], budget, seed)
-    assert (fitter.score_frames is not None) == scorer.startswith("frames")
-    if scorer != "kernel":
+    assert (fitter.score_frames is not None) == numpy_frames
+    if scorer != "frames-kernel":
+        fitter.frames_kernel = None
+    if scorer not in ("frames-kernel", "kernel"):
         fitter.kernel = None
     if scorer.endswith("forward"):
         fitter.tree = None
@@ -87,7 +91,7 @@ def test_every_scorer_gives_the_same_fits_and_the_losses_add_up(partial, name, b
     frames = np.arange(6)
     params, loss, used = driver_path(partial, optimizer, budget, 7, frames)
     assert used.tolist() == [budget] * 6
-    for scorer in ("bind", "forward", "frames", "frames-forward"):
+    for scorer in ("kernel", "bind", "forward", "frames", "frames-forward"):
         other_params, other_loss, _ = driver_path(partial, optimizer, budget, 7, frames, scorer=scorer)
         np.testing.assert_allclose(other_params, params, rtol=0, atol=1e-9)
         np.testing.assert_allclose(other_loss, loss, rtol=0, atol=1e-9)
@@ -99,7 +103,7 @@ def test_derived_points_are_scored_alike_by_every_scorer():
     names = ["palm_centre"] + list(data["joint_names"][1:])  # the wrist replaced by the palm centre
     optimizer = hybridfit.create("optimizer", "stepwise-pso")
     params, loss, _ = driver_path(data, optimizer, 700, 1, np.arange(3), names)
-    for scorer in ("bind", "forward", "frames", "frames-forward"):
+    for scorer in ("kernel", "bind", "forward", "frames", "frames-forward"):
         ref_params, ref_loss, _ = driver_path(data, optimizer, 700, 1, np.arange(3), names, scorer=scorer)
         np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
         np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)

@@ -59,7 +59,8 @@ def ask(state, m):
         return x[:m].transpose(2, 0, 1)
     c1, c2, chi = state["settings"][:3]
     n, d, F = x.shape
-    r = uniforms(state["keys"], state["counter"], (2, m, d), frames_last=True)  # (2, m, d, F)
+    # (2, m, d, F), numbered coordinate by coordinate as pso numbers them
+    r = uniforms(state["keys"], state["counter"], (2, d, m), frames_last=True).transpose(0, 2, 1, 3)
     state["counter"] += 2 * m * d
     best = state["pbest_x"][state["pbest_f"].argmin(axis=0), :, np.arange(F)].T  # (d, F)
     xs, vs, scratch = x[:m], state["v"][:m], state["scratch"][:m]
