@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import signal
+
 import pytest
 
 import hybridfit
@@ -10,6 +12,16 @@ import hybridfit
 def pytest_addoption(parser):
     parser.addoption("--fuzz-examples", type=int, default=None,
                      help="generated bad inputs per fuzz test (tests/cli/test_fuzz.py; default: a few, for CI)")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def ctrl_c_raises():
+    """Python's own Ctrl-C handler, in this process and the commands tests start: a process
+    started in the background by a non-interactive shell inherits SIGINT ignored, Python then
+    installs no handler, and the tests of stop signals would see Ctrl-C do nothing."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
 
 
 @pytest.fixture(scope="session")
