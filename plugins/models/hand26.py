@@ -26,8 +26,15 @@ lengths after Buchholz, Armstrong & Goldstein, "Anthropometric data for describi
 kinematics of the human hand", Ergonomics 1992 (ratios of hand length), rounded to mm.
 
 Calibratable geometry (``geometry()`` / ``with_geometry()``): the 15 bone lengths, the 15
-coordinates of the five finger base positions (mm) and the weights of the derived points
-in the ``derived_points`` setting. Prior: the proportions above (Buchholz et al. 1992 for
+coordinates of the five finger base positions (mm), the 30 bone offsets (mm) and the
+weights of the derived points in the ``derived_points`` setting. A bone's offset moves its
+end joint across the bone, in the bone's frame (x along the flexion axis, z palmar), off
+the straight line along its rest direction: where a dataset's annotated points sit off
+the joint centres (surface labels, another hand model's joints), as marker offsets do.
+For a tip it is exactly a marker offset; for an inner joint the joints beyond it move
+with it, so the joint's axes pass through the annotated point. The prior holds each offset
+at 0 with a standard deviation of ``PRIOR_OFFSET_MM`` (at scale 1), within
++-``OFFSET_MAX_MM``. Prior: the proportions above (Buchholz et al. 1992 for
 the bones), for a free whole-hand scale, with a standard deviation of ``PRIOR_BONE_REL``
 of each length and ``PRIOR_BASE_MM`` per base coordinate (at scale 1). A derived point
 whose weights are a convex combination (all >= 0, sum 1) keeps them so: each weight of its
@@ -144,6 +151,11 @@ GRID_ARTICULATIONS_DEG = {
 #: calibration prior: std of each bone length as a fraction of it, std of base coordinates (mm, scale 1)
 PRIOR_BONE_REL = 0.2
 PRIOR_BASE_MM = 10.0
+#: calibration prior of a bone's offset across the bone: std and bound of each coordinate (mm, scale 1)
+PRIOR_OFFSET_MM = 3.0
+OFFSET_MAX_MM = 15.0
+#: the bone frame's axes a bone offset moves its end joint along (x: flexion axis, z: palmar)
+OFFSET_AXES = ("x", "z")
 #: std of a derived point's weights in the prior; the bound of an offset point's weights
 PRIOR_WEIGHT = 0.15
 OFFSET_WEIGHT_MAX = 0.6
@@ -175,6 +187,11 @@ class Hand26Settings(Settings):
     base_positions: dict[str, tuple[float, float, float]] = Field(
         default_factory=dict, description="per-finger base joint position relative to the wrist (hand frame, mm)"
     )
+    bone_offsets: dict[str, tuple[float, float]] = Field(
+        default_factory=dict,
+        description="per-bone offset (x, z) of its end joint across the bone in mm before scaling, in the bone's "
+        "frame (x along the flexion axis, z palmar), e.g. {'thumb_distal': [1.5, -2]}; default 0",
+    )
     limits_deg: dict[str, tuple[float, float]] = Field(
         default_factory=dict, description="per-angle limit overrides in degrees, e.g. {'index_mcp_flexion': [-10, 90]}"
     )
@@ -193,6 +210,14 @@ class Hand26Settings(Settings):
                 raise ValueError(f"unknown bone {name!r} (bones: {', '.join(BONE_NAMES)})")
             if not length > 0:
                 raise ValueError(f"bone {name!r} must have a positive length, got {length}")
+        return v
+
+    @field_validator("bone_offsets")
+    @classmethod
+    def _offsets(cls, v):
+        for name in v:
+            if name not in BONE_NAMES:
+                raise ValueError(f"unknown bone {name!r} (bones: {', '.join(BONE_NAMES)})")
         return v
 
     @field_validator("base_positions")
@@ -279,7 +304,8 @@ class Hand26(TreeHandModel):
             parents[base], offsets[base], rest[base] = 0, bases[f], self.rest_frames[finger]
             for k in range(3):
                 j = base + 1 + k
-                parents[j], offsets[j] = j - 1, (0.0, lengths[f, k], 0.0)
+                across = s.scale * np.asarray(s.bone_offsets.get(f"{finger}_{SEGMENTS[finger][k]}", (0.0, 0.0)), float)
+                parents[j], offsets[j] = j - 1, (across[0], lengths[f, k], across[1])
             for k, rotations in enumerate(self.joint_axes[finger]):
                 for a, (axis, angle) in enumerate(rotations):
                     axes[base + k, a], axis_params[base + k, a] = axis, index[f"{finger}_{angle}"]
@@ -326,6 +352,13 @@ class Hand26(TreeHandModel):
                 mu = BASE_POSITIONS[f][c]
                 add(f"{f}_base_{axis}", base[c], mu, PRIOR_BASE_MM, mu - 150.0, mu + 150.0, True,
                     ("wrist", f"{f}_{FINGER_JOINTS[f][0]}"))
+        for f in FINGERS:
+            chain = [f"{f}_{j}" for j in FINGER_JOINTS[f]]
+            for k, seg in enumerate(SEGMENTS[f]):
+                across = s.scale * np.asarray(s.bone_offsets.get(f"{f}_{seg}", (0.0, 0.0)), float)
+                for c, axis in enumerate(OFFSET_AXES):
+                    add(f"{f}_{seg}_offset_{axis}", across[c], 0.0, PRIOR_OFFSET_MM, -OFFSET_MAX_MM, OFFSET_MAX_MM,
+                        True, (chain[k], chain[k + 1]))
         for point, weights in s.derived_points.items():
             support, anchor = _weight_support(weights)
             convex = anchor is None
@@ -346,7 +379,9 @@ class Hand26(TreeHandModel):
         out["scale"] = 1.0
         out["bone_lengths"] = {b: float(v) for b, v in zip(BONE_NAMES, values[:15])}
         out["base_positions"] = {f: [float(c) for c in values[15 + 3 * i: 18 + 3 * i]] for i, f in enumerate(FINGERS)}
-        k = 30
+        out["bone_offsets"] = {b: [float(c) for c in values[30 + 2 * i: 32 + 2 * i]] for i, b in enumerate(BONE_NAMES)
+                               if values[30 + 2 * i: 32 + 2 * i].any()}
+        k = 60
         derived = {}
         for point, weights in s.derived_points.items():
             support, anchor = _weight_support(weights)
