@@ -154,7 +154,8 @@ PRIOR_BASE_MM = 10.0
 #: calibration prior of a bone's offset across the bone: std and bound of each coordinate (mm, scale 1)
 PRIOR_OFFSET_MM = 3.0
 OFFSET_MAX_MM = 15.0
-#: the bone frame's axes a bone offset moves its end joint along (x: flexion axis, z: palmar)
+#: the bone offset's coordinates (x: along the flexion axis, z: palmar, in the bone's frame) and
+#: those calibration may change
 OFFSET_AXES = ("x", "z")
 #: std of a derived point's weights in the prior; the bound of an offset point's weights
 PRIOR_WEIGHT = 0.15
@@ -284,6 +285,8 @@ class Hand26(TreeHandModel):
     default_pose_deg: ClassVar[dict[str, tuple[float, ...]]] = DEFAULT_POSE_DEG
     #: each finger's (3, 3) rest frame of its base joint in the hand frame
     rest_frames: ClassVar[dict[str, np.ndarray]] = _REST_FRAMES
+    #: the bone offsets' coordinates that are calibratable geometry (of OFFSET_AXES)
+    calibrated_offset_axes: ClassVar[tuple[str, ...]] = OFFSET_AXES
 
     def kinematic_tree(self) -> KinematicTree:
         """Wrist (root) -> each finger's base joint -> two further joints -> tip."""
@@ -356,7 +359,8 @@ class Hand26(TreeHandModel):
             chain = [f"{f}_{j}" for j in FINGER_JOINTS[f]]
             for k, seg in enumerate(SEGMENTS[f]):
                 across = s.scale * np.asarray(s.bone_offsets.get(f"{f}_{seg}", (0.0, 0.0)), float)
-                for c, axis in enumerate(OFFSET_AXES):
+                for axis in self.calibrated_offset_axes:
+                    c = OFFSET_AXES.index(axis)
                     add(f"{f}_{seg}_offset_{axis}", across[c], 0.0, PRIOR_OFFSET_MM, -OFFSET_MAX_MM, OFFSET_MAX_MM,
                         True, (chain[k], chain[k + 1]))
         for point, weights in s.derived_points.items():
@@ -379,9 +383,12 @@ class Hand26(TreeHandModel):
         out["scale"] = 1.0
         out["bone_lengths"] = {b: float(v) for b, v in zip(BONE_NAMES, values[:15])}
         out["base_positions"] = {f: [float(c) for c in values[15 + 3 * i: 18 + 3 * i]] for i, f in enumerate(FINGERS)}
-        out["bone_offsets"] = {b: [float(c) for c in values[30 + 2 * i: 32 + 2 * i]] for i, b in enumerate(BONE_NAMES)
-                               if values[30 + 2 * i: 32 + 2 * i].any()}
-        k = 60
+        axes = [OFFSET_AXES.index(a) for a in self.calibrated_offset_axes]
+        k = 30 + len(BONE_NAMES) * len(axes)
+        offsets = {b: np.array(s.bone_offsets.get(b, (0.0, 0.0)), float) * s.scale for b in BONE_NAMES}
+        for i, b in enumerate(BONE_NAMES):
+            offsets[b][axes] = values[30 + len(axes) * i: 30 + len(axes) * (i + 1)]
+        out["bone_offsets"] = {b: [float(c) for c in v] for b, v in offsets.items() if v.any()}
         derived = {}
         for point, weights in s.derived_points.items():
             support, anchor = _weight_support(weights)
