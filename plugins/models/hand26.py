@@ -32,8 +32,10 @@ end joint across the bone, in the bone's frame (x along the flexion axis, z palm
 the straight line along its rest direction: where a dataset's annotated points sit off
 the joint centres (surface labels, another hand model's joints), as marker offsets do.
 For a tip it is exactly a marker offset; for an inner joint the joints beyond it move
-with it, so the joint's axes pass through the annotated point. The prior holds each offset
-at 0 with a standard deviation of ``PRIOR_OFFSET_MM`` (at scale 1), within
+with it, so the joint's axes pass through the annotated point. An offset towards the palm
+(z) acts on the points as a constant shift of the flexion angles would (the flexion axes
+are parallel along a finger); the angles stay within their limits. The prior holds each
+offset at 0 with a standard deviation of ``PRIOR_OFFSET_MM`` (at scale 1), within
 +-``OFFSET_MAX_MM``. Prior: the proportions above (Buchholz et al. 1992 for
 the bones), for a free whole-hand scale, with a standard deviation of ``PRIOR_BONE_REL``
 of each length and ``PRIOR_BASE_MM`` per base coordinate (at scale 1). A derived point
@@ -328,7 +330,8 @@ class Hand26(TreeHandModel):
         return {**builtin, **self.settings.derived_points}
 
     def bone_lengths(self) -> dict[str, float]:
-        """Each bone's length in mm (scale applied), by bone name."""
+        """Each bone's length in mm (scale applied), by bone name: along the bone's rest
+        direction (its offset, if any, lies across it)."""
         lengths = self._lengths()
         return {f"{f}_{seg}": float(lengths[i, k]) for i, f in enumerate(FINGERS) for k, seg in enumerate(SEGMENTS[f])}
 
