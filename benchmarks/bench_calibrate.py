@@ -37,8 +37,9 @@ def annotations(dataset: str, frames: int, seed: int):
     true = g.values * np.where(g.scaled, 1.05, 1.0)
     true[:15] *= 1 + rng.uniform(-0.08, 0.08, 15)
     true[15:30] += rng.uniform(-4, 4, 15)
-    weights = slice(30, None)
-    true[weights] = np.clip(true[weights] + rng.uniform(-0.05, 0.05, len(g) - 30), g.lower[weights], g.upper[weights])
+    weights = ~g.scaled  # the derived points' weights (lengths, base coordinates and bone offsets scale)
+    true[weights] = np.clip(true[weights] + rng.uniform(-0.05, 0.05, int(weights.sum())), g.lower[weights],
+                            g.upper[weights])
     settings = base.with_geometry(true)
     model = hybridfit.create("model", "hand26", {**settings, "mirror": True})
     poses = random_poses(model, frames, rng)

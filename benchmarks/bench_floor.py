@@ -2,6 +2,7 @@
 
     python benchmarks/bench_floor.py [--real icvl nyu] [--stress icvl nyu nyu36 msra mediapipe mano]
                                      [--pool 0:100] [--frames 200] [--jobs 1] [--model hand26]
+                                     [--subset START:STOP:STEP]
 
 Per dataset (real: ICVL's test annotations, NYU actor 2's, from ../shared/data; stress: a
 ``stress_proposals`` subject per skeleton, seed 3), ``hybridfit.fitting.calibrate`` with its
@@ -23,6 +24,11 @@ held-out frames), it then measures (mean 3D error, mm):
   floor).
 
 Calibration's in-sample and held-out errors are printed beside them.
+
+``--subset`` keeps only those frames of the annotations before anything else (frame
+numbers, ``--pool`` included, then count within the subset): the tuning data, ICVL frames
+0-99 (``--subset 0:100 --pool 0:100``: measured on calibration's 20 held-out frames) and
+every 20th NYU actor-2 frame (``--subset 0:5812:20 --pool 0:291``).
 """
 
 from __future__ import annotations
@@ -67,10 +73,11 @@ def fit_error(truth, proposals, confidences, names, model_name, settings, jobs) 
     return err(r.joints), err(polished), polished
 
 
-def evaluate(kind: str, dataset: str, pool: slice, frames: int, jobs: int, model_name: str) -> list:
+def evaluate(kind: str, dataset: str, pool: slice, frames: int, jobs: int, model_name: str,
+             subset: slice = slice(None)) -> list:
     sk = skeleton(dataset)
     names = sk.model_names
-    truth = annotations(kind, dataset)
+    truth = annotations(kind, dataset)[subset]
     inside = np.arange(len(truth))[pool]
     outside = np.setdiff1d(np.arange(len(truth)), inside)
     t = time.perf_counter()
@@ -110,12 +117,14 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=200, help="evaluation frames outside the pool")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--model", default="hand26", help="hand model plugin (default: hand26)")
+    ap.add_argument("--subset", default="::", help="keep only these annotated frames START:STOP:STEP (default: all)")
     a = ap.parse_args()
     start, stop = (int(v) for v in a.pool.split(":"))
+    subset = slice(*(int(v) if v else None for v in a.subset.split(":")))
     rows = []
     for kind, datasets in (("real", a.real), ("stress", a.stress)):
         for dataset in datasets:
-            rows.append(evaluate(kind, dataset, slice(start, stop), a.frames, a.jobs, a.model))
+            rows.append(evaluate(kind, dataset, slice(start, stop), a.frames, a.jobs, a.model, subset))
             print(" | ".join(map(str, rows[-1])), flush=True)
     print(table(["data", "skeleton", "pool", "frames", "calibration in-sample", "held out (frames)", "ratio",
                  "floor (fit only)", "predictor", "refined (fit only)", "cost", "cost: fit / model",

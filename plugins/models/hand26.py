@@ -26,8 +26,17 @@ lengths after Buchholz, Armstrong & Goldstein, "Anthropometric data for describi
 kinematics of the human hand", Ergonomics 1992 (ratios of hand length), rounded to mm.
 
 Calibratable geometry (``geometry()`` / ``with_geometry()``): the 15 bone lengths, the 15
-coordinates of the five finger base positions (mm) and the weights of the derived points
-in the ``derived_points`` setting. Prior: the proportions above (Buchholz et al. 1992 for
+coordinates of the five finger base positions (mm), the 30 bone offsets (mm) and the
+weights of the derived points in the ``derived_points`` setting. A bone's offset moves its
+end joint across the bone, in the bone's frame (x along the flexion axis, z palmar), off
+the straight line along its rest direction: where a dataset's annotated points sit off
+the joint centres (surface labels, another hand model's joints), as marker offsets do.
+For a tip it is exactly a marker offset; for an inner joint the joints beyond it move
+with it, so the joint's axes pass through the annotated point. An offset towards the palm
+(z) acts on the points as a constant shift of the flexion angles would (the flexion axes
+are parallel along a finger); the angles stay within their limits. The prior holds each
+offset at 0 with a standard deviation of ``PRIOR_OFFSET_MM`` (at scale 1), within
++-``OFFSET_MAX_MM``. Prior: the proportions above (Buchholz et al. 1992 for
 the bones), for a free whole-hand scale, with a standard deviation of ``PRIOR_BONE_REL``
 of each length and ``PRIOR_BASE_MM`` per base coordinate (at scale 1). A derived point
 whose weights are a convex combination (all >= 0, sum 1) keeps them so: each weight of its
@@ -144,6 +153,12 @@ GRID_ARTICULATIONS_DEG = {
 #: calibration prior: std of each bone length as a fraction of it, std of base coordinates (mm, scale 1)
 PRIOR_BONE_REL = 0.2
 PRIOR_BASE_MM = 10.0
+#: calibration prior of a bone's offset across the bone: std and bound of each coordinate (mm, scale 1)
+PRIOR_OFFSET_MM = 3.0
+OFFSET_MAX_MM = 15.0
+#: the bone offset's coordinates (x: along the flexion axis, z: palmar, in the bone's frame) and
+#: those calibration may change
+OFFSET_AXES = ("x", "z")
 #: std of a derived point's weights in the prior; the bound of an offset point's weights
 PRIOR_WEIGHT = 0.15
 OFFSET_WEIGHT_MAX = 0.6
@@ -175,6 +190,11 @@ class Hand26Settings(Settings):
     base_positions: dict[str, tuple[float, float, float]] = Field(
         default_factory=dict, description="per-finger base joint position relative to the wrist (hand frame, mm)"
     )
+    bone_offsets: dict[str, tuple[float, float]] = Field(
+        default_factory=dict,
+        description="per-bone offset (x, z) of its end joint across the bone in mm before scaling, in the bone's "
+        "frame (x along the flexion axis, z palmar), e.g. {'thumb_distal': [1.5, -2]}; default 0",
+    )
     limits_deg: dict[str, tuple[float, float]] = Field(
         default_factory=dict, description="per-angle limit overrides in degrees, e.g. {'index_mcp_flexion': [-10, 90]}"
     )
@@ -193,6 +213,14 @@ class Hand26Settings(Settings):
                 raise ValueError(f"unknown bone {name!r} (bones: {', '.join(BONE_NAMES)})")
             if not length > 0:
                 raise ValueError(f"bone {name!r} must have a positive length, got {length}")
+        return v
+
+    @field_validator("bone_offsets")
+    @classmethod
+    def _offsets(cls, v):
+        for name in v:
+            if name not in BONE_NAMES:
+                raise ValueError(f"unknown bone {name!r} (bones: {', '.join(BONE_NAMES)})")
         return v
 
     @field_validator("base_positions")
@@ -259,6 +287,8 @@ class Hand26(TreeHandModel):
     default_pose_deg: ClassVar[dict[str, tuple[float, ...]]] = DEFAULT_POSE_DEG
     #: each finger's (3, 3) rest frame of its base joint in the hand frame
     rest_frames: ClassVar[dict[str, np.ndarray]] = _REST_FRAMES
+    #: the bone offsets' coordinates that are calibratable geometry (of OFFSET_AXES)
+    calibrated_offset_axes: ClassVar[tuple[str, ...]] = OFFSET_AXES
 
     def kinematic_tree(self) -> KinematicTree:
         """Wrist (root) -> each finger's base joint -> two further joints -> tip."""
@@ -279,7 +309,8 @@ class Hand26(TreeHandModel):
             parents[base], offsets[base], rest[base] = 0, bases[f], self.rest_frames[finger]
             for k in range(3):
                 j = base + 1 + k
-                parents[j], offsets[j] = j - 1, (0.0, lengths[f, k], 0.0)
+                across = s.scale * np.asarray(s.bone_offsets.get(f"{finger}_{SEGMENTS[finger][k]}", (0.0, 0.0)), float)
+                parents[j], offsets[j] = j - 1, (across[0], lengths[f, k], across[1])
             for k, rotations in enumerate(self.joint_axes[finger]):
                 for a, (axis, angle) in enumerate(rotations):
                     axes[base + k, a], axis_params[base + k, a] = axis, index[f"{finger}_{angle}"]
@@ -299,7 +330,8 @@ class Hand26(TreeHandModel):
         return {**builtin, **self.settings.derived_points}
 
     def bone_lengths(self) -> dict[str, float]:
-        """Each bone's length in mm (scale applied), by bone name."""
+        """Each bone's length in mm (scale applied), by bone name: along the bone's rest
+        direction (its offset, if any, lies across it)."""
         lengths = self._lengths()
         return {f"{f}_{seg}": float(lengths[i, k]) for i, f in enumerate(FINGERS) for k, seg in enumerate(SEGMENTS[f])}
 
@@ -326,6 +358,14 @@ class Hand26(TreeHandModel):
                 mu = BASE_POSITIONS[f][c]
                 add(f"{f}_base_{axis}", base[c], mu, PRIOR_BASE_MM, mu - 150.0, mu + 150.0, True,
                     ("wrist", f"{f}_{FINGER_JOINTS[f][0]}"))
+        for f in FINGERS:
+            chain = [f"{f}_{j}" for j in FINGER_JOINTS[f]]
+            for k, seg in enumerate(SEGMENTS[f]):
+                across = s.scale * np.asarray(s.bone_offsets.get(f"{f}_{seg}", (0.0, 0.0)), float)
+                for axis in self.calibrated_offset_axes:
+                    c = OFFSET_AXES.index(axis)
+                    add(f"{f}_{seg}_offset_{axis}", across[c], 0.0, PRIOR_OFFSET_MM, -OFFSET_MAX_MM, OFFSET_MAX_MM,
+                        True, (chain[k], chain[k + 1]))
         for point, weights in s.derived_points.items():
             support, anchor = _weight_support(weights)
             convex = anchor is None
@@ -346,7 +386,12 @@ class Hand26(TreeHandModel):
         out["scale"] = 1.0
         out["bone_lengths"] = {b: float(v) for b, v in zip(BONE_NAMES, values[:15])}
         out["base_positions"] = {f: [float(c) for c in values[15 + 3 * i: 18 + 3 * i]] for i, f in enumerate(FINGERS)}
-        k = 30
+        axes = [OFFSET_AXES.index(a) for a in self.calibrated_offset_axes]
+        k = 30 + len(BONE_NAMES) * len(axes)
+        offsets = {b: np.array(s.bone_offsets.get(b, (0.0, 0.0)), float) * s.scale for b in BONE_NAMES}
+        for i, b in enumerate(BONE_NAMES):
+            offsets[b][axes] = values[30 + len(axes) * i: 30 + len(axes) * (i + 1)]
+        out["bone_offsets"] = {b: [float(c) for c in v] for b, v in offsets.items() if v.any()}
         derived = {}
         for point, weights in s.derived_points.items():
             support, anchor = _weight_support(weights)

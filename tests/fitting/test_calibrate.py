@@ -63,6 +63,20 @@ def test_calibration_recovers_bone_lengths(result):
     assert result.settings["bone_lengths"]["index_proximal"] == pytest.approx(48.0, abs=3.0)
 
 
+def test_calibration_recovers_marker_offsets_across_the_bones():
+    """Points off the joints' line, to the side of two tips (along the flexion axis: an offset
+    towards the palm is a constant flexion, which the poses absorb), are calibrated as bone
+    offsets; every other offset stays near its prior, 0."""
+    true = hybridfit.create("model", "hand26", {"bone_offsets": {"index_distal": [3.0, 0.0],
+                                                                 "thumb_distal": [-2.5, 0.0]}})
+    truth = true.points(_poses(true, 10, np.random.default_rng(1)), true.joint_names)
+    offsets = calibrate(truth, true.joint_names, mirror=False, rounds=1, budget=800, max_nfev=25,
+                        centre_rounds=0).settings["bone_offsets"]
+    assert offsets["index_distal"][0] == pytest.approx(3.0, abs=1.0)
+    assert offsets["thumb_distal"][0] == pytest.approx(-2.5, abs=1.0)
+    assert max(np.abs(v).max() for b, v in offsets.items() if b not in ("index_distal", "thumb_distal")) < 0.5
+
+
 def test_derived_point_weights_stay_near_their_support(result):
     """Truth lies outside what the weights may express: convex weights stay in [0, 1] and
     sum to 1; an offset point's weights stay within +-0.6 and keep their sum."""
@@ -141,6 +155,8 @@ def test_geometry_the_points_cannot_determine(dataset, drop, at_prior):
     model = hybridfit.create("model", "hand26", with_derived_points({}, dataset))
     geo = model.geometry()
     free = determined(model, geo, [n for n in skeleton(dataset).model_names if n not in drop])
+    bones = {n for n in at_prior if n.endswith(("metacarpal", "proximal", "middle", "distal"))}
+    at_prior = at_prior | {f"{b}_offset_{c}" for b in bones for c in "xz"}  # a bone's offsets go with its length
     assert {n for n, f in zip(geo.names, free) if not f} == at_prior
 
 

@@ -113,3 +113,21 @@ def test_the_polish_is_never_worse_than_the_fit_or_top1_on_stress_data(dataset):
     fitted = err(hybridfit.fit(z["proposals"], z["confidences"], **options).joints)
     polished = err(fit_and_refine(z["proposals"], z["confidences"], **options).joints)
     assert polished <= fitted and polished <= err(z["proposals"][:, :, 0]), (polished, fitted)
+
+
+def test_a_model_with_marker_offsets_stays_valid_under_the_polish():
+    """Bone offsets (markers off the joints' line) are the subject's bones: the polished
+    joints keep the angles within the limits and every bone within the tolerance of the
+    model's own length, offsets included."""
+    model = hybridfit.create("model", "hand26", {"bone_offsets": {"index_distal": [4.0, -3.0],
+                                                                  "thumb_proximal": [-2.0, 5.0]}})
+    start = _poses(model, 6, seed=8)
+    target = model.forward(start)[:, :, None] * 1.3 - 120.0  # a hand 30 % larger: every bone pulls
+    polished = refine(model, start, target, np.ones(target.shape[:3]), model.joint_names, bone_tolerance=0.15,
+                      bone_weight=0.01)
+    lower, upper = model.bounds()
+    assert (polished.params[:, 7:] >= lower[7:]).all() and (polished.params[:, 7:] <= upper[7:]).all()
+    parents = np.asarray(model.parents)
+    bone = lambda j: np.linalg.norm(j[:, 1:] - j[:, parents[1:]], axis=-1)  # noqa: E731
+    ratio = bone(polished.joints(model)) / bone(model.forward(start))
+    assert np.abs(ratio - 1).max() <= 0.15 + 1e-9 and np.abs(ratio - 1).max() > 0.1

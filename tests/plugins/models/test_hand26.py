@@ -133,7 +133,8 @@ DERIVED = {"palm": {"wrist": 0.4, "index_mcp": 0.3, "little_mcp": 0.3},
 
 def test_geometry_round_trips_through_with_geometry():
     model = hybridfit.create("model", "hand26", {"scale": 1.1, "mirror": True, "derived_points": DERIVED,
-                                                 "bone_lengths": {"ring_middle": 31.0}})
+                                                 "bone_lengths": {"ring_middle": 31.0},
+                                                 "bone_offsets": {"thumb_distal": [1.5, -2.0]}})
     geo = model.geometry()
     again = hybridfit.create("model", "hand26", model.with_geometry(geo.values))
     x = random_params(model, 5, np.random.default_rng(2))
@@ -142,13 +143,31 @@ def test_geometry_round_trips_through_with_geometry():
     np.testing.assert_allclose(again.points(x, names), model.points(x, names), atol=1e-9)
     np.testing.assert_allclose(again.geometry().values, geo.values, atol=1e-12)
     assert geo.values[geo.names.index("ring_middle")] == pytest.approx(1.1 * 31.0)
+    assert geo.values[geo.names.index("thumb_distal_offset_z")] == pytest.approx(1.1 * -2.0)
+
+
+def test_a_bone_offset_moves_its_end_joint_across_the_bone_in_the_bone_s_frame():
+    offset = hybridfit.create("model", "hand26", {"bone_offsets": {"index_distal": [2.0, -3.0],
+                                                                   "middle_proximal": [0.0, 1.0]}})
+    x = random_params(MODEL, 20, np.random.default_rng(4))
+    plain, moved = MODEL.forward(x), offset.forward(x)
+    tip, dip = MODEL.joint_names.index("index_tip"), MODEL.joint_names.index("index_dip")
+    changed = np.flatnonzero(np.abs(moved - plain).max(axis=(0, 2)) > 1e-9)
+    middle = [MODEL.joint_names.index(f"middle_{j}") for j in ("pip", "dip", "tip")]
+    assert list(changed) == sorted([tip, *middle])  # a tip's offset is a marker's; an inner joint carries its chain
+    np.testing.assert_allclose(np.linalg.norm(moved[:, tip] - plain[:, tip], axis=-1), np.hypot(2.0, 3.0))
+    # across the bone: the tip moved at right angles to the distal phalanx
+    bone = plain[:, tip] - plain[:, dip]
+    np.testing.assert_allclose(np.einsum("nc,nc->n", bone, moved[:, tip] - plain[:, tip]), 0.0, atol=1e-9)
 
 
 def test_geometry_declares_a_prior_bounds_and_model_points():
     geo = hybridfit.create("model", "hand26", {"derived_points": DERIVED}).geometry()
-    assert len(set(geo.names)) == len(geo) == 15 + 15 + 6 + 5  # bones, base coordinates, weights
+    assert len(set(geo.names)) == len(geo) == 15 + 15 + 30 + 6 + 5  # bones, base coordinates, offsets, weights
     assert np.all(geo.lower <= geo.prior_mean) and np.all(geo.prior_mean <= geo.upper)
-    assert geo.scaled.sum() == 30 and not geo.scaled[30:].any()  # lengths scale, weights do not
+    assert geo.scaled.sum() == 60 and not geo.scaled[60:].any()  # lengths scale, weights do not
+    offsets = [i for i, n in enumerate(geo.names) if "_offset_" in n]
+    assert len(offsets) == 30 and np.all(geo.prior_mean[offsets] == 0)  # marker offsets are held at 0
     points = set(MODEL.point_names) | set(DERIVED)
     assert all(a in points and b in points for a, b in geo.ends)
     i = geo.names.index("index_proximal")
@@ -160,7 +179,7 @@ def test_geometry_declares_a_prior_bounds_and_model_points():
 def test_with_geometry_keeps_convex_weights_convex_and_offsets_summed(w):
     model = hybridfit.create("model", "hand26", {"derived_points": DERIVED})
     values = model.geometry().values.copy()
-    values[30:] = w
+    values[60:] = w
     derived = model.with_geometry(values)["derived_points"]
     assert sum(derived["palm"].values()) == pytest.approx(1.0) and min(derived["palm"].values()) >= 0
     assert sum(derived["side"].values()) == pytest.approx(1.0)  # the anchor (wrist) keeps the sum
