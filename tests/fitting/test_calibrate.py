@@ -43,7 +43,9 @@ def _truth(frames=10, seed=1):
 
 @pytest.fixture(scope="module")
 def result():
-    return calibrate(_truth(), NAMES, model_config=START, rounds=1, budget=800, max_nfev=25)
+    # 60 least-squares evaluations: with the bone offsets free, 25 left the 0.6.0 fit at
+    # 4.7 mm for two of three PSO seeds (2.5 mm with 60, or with 25 and seed 1)
+    return calibrate(_truth(), NAMES, model_config=START, rounds=1, budget=800, max_nfev=60)
 
 
 def test_calibration_chooses_the_hand_and_reduces_the_error(result):
