@@ -26,16 +26,31 @@ def clamped_loss(points, proposals, weights, d_max_mm):
     """points (F, N, m, 3) mm, proposals (F, m, K, 3) mm, weights (F, m, K) of the same m points
     -> (F, N) losses -E over those points.
 
-    All K proposals in one broadcast (F, N, m, K, 3) difference, squared and summed over the
-    coordinates by one ``np.einsum``: a handful of numpy calls, each one pass over the data.
-    w (1 - d^2) = w - (w / d_max^2) ||p - h||^2, so the terms are -w (1 - d^2) and the clamp
-    at 0 is the minimum's initial 0. The elementwise operations and ``np.einsum`` keep the
-    layout the driver hands (the frame innermost), so every pass runs in long contiguous loops."""
-    diff = points[:, :, :, None, :] - proposals[:, None]  # (F, N, m, K, 3)
-    terms = np.einsum("fnmkc,fnmkc->fnmk", diff, diff)
-    terms *= (weights / d_max_mm**2)[:, None]
-    terms -= weights[:, None]
-    return np.add.reduce(np.minimum.reduce(terms, axis=-1, initial=0.0), axis=-1)
+    One proposal at a time, on (F, N, m) arrays (K is small), in place in two scratch arrays:
+    fewer and smaller temporaries than one (F, N, m, K, 3) difference array.
+    w (1 - d^2) = w - (w / d_max^2) ||p - h||^2, and the clamp at 0 is the running maximum's
+    start. ``np.empty_like`` and the elementwise operations keep the layout the driver hands
+    (the frame innermost), so the operations with a proposal, broadcast over the hypotheses,
+    run in long contiguous loops."""
+    hx, hy, hz = points[..., 0], points[..., 1], points[..., 2]  # (F, N, m)
+    p = proposals[:, None]  # (F, 1, m, K, 3)
+    w = weights[:, None]  # (F, 1, m, K)
+    ws = w / d_max_mm**2
+    best = np.zeros_like(hx)
+    d2, t = np.empty_like(hx), np.empty_like(hx)
+    for k in range(p.shape[-2]):
+        np.subtract(hx, p[..., k, 0], out=d2)
+        d2 *= d2
+        np.subtract(hy, p[..., k, 1], out=t)
+        t *= t
+        d2 += t
+        np.subtract(hz, p[..., k, 2], out=t)
+        t *= t
+        d2 += t
+        d2 *= ws[..., k]
+        np.subtract(w[..., k], d2, out=d2)
+        np.maximum(best, d2, out=best)
+    return -best.sum(axis=-1)
 
 
 def bound_clamped_loss(proposals, weights, d_max_mm):
