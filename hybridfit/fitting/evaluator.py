@@ -41,7 +41,8 @@ def _kernel_frames(kernel, consts, proposals, weights, parents, offsets, rest, r
     """losses[f, :m] = the kernel's loss over ``subset`` of frame f's hypotheses X[f] (m, d)."""
     F, m = X.shape[0], X.shape[1]
     G = ints[9]
-    WpB, pts = block_views(ints, floats)[9], block_views(ints, floats)[11]
+    views = block_views(ints, floats)
+    WpB, pts = views[9], views[11]
     for f0 in range(0, F, G):
         f1 = min(F, f0 + G)
         block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X)
@@ -65,7 +66,8 @@ def _frames_kernel_blocks(kernel, consts, proposals, weights, parents, offsets, 
     block buffer itself, else the block's points are gathered first."""
     F, m = X.shape[0], X.shape[1]
     G = ints[9]
-    WpB, pts = block_views(ints, floats)[9], block_views(ints, floats)[11]
+    views = block_views(ints, floats)
+    WpB, pts = views[9], views[11]
     for f0 in range(0, F, G):
         f1 = min(F, f0 + G)
         block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X)

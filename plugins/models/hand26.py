@@ -177,6 +177,13 @@ JOINT_NAMES = ("wrist",) + tuple(f"{f}_{j}" for f in FINGERS for j in FINGER_JOI
 BONE_NAMES = tuple(f"{f}_{s}" for f in FINGERS for s in SEGMENTS[f])
 
 
+def _known(names, known, kind: str) -> None:
+    """Raise ValueError naming the first of ``names`` not in ``known`` (a settings check)."""
+    for name in names:
+        if name not in known:
+            raise ValueError(f"unknown {kind} {name!r} ({kind}s: {', '.join(known)})")
+
+
 class Hand26Settings(Settings):
     """Geometry of the hand26 model. Lengths in millimetres, angles in degrees."""
 
@@ -208,9 +215,8 @@ class Hand26Settings(Settings):
     @field_validator("bone_lengths")
     @classmethod
     def _bones(cls, v):
+        _known(v, BONE_NAMES, "bone")
         for name, length in v.items():
-            if name not in BONE_NAMES:
-                raise ValueError(f"unknown bone {name!r} (bones: {', '.join(BONE_NAMES)})")
             if not length > 0:
                 raise ValueError(f"bone {name!r} must have a positive length, got {length}")
         return v
@@ -218,25 +224,20 @@ class Hand26Settings(Settings):
     @field_validator("bone_offsets")
     @classmethod
     def _offsets(cls, v):
-        for name in v:
-            if name not in BONE_NAMES:
-                raise ValueError(f"unknown bone {name!r} (bones: {', '.join(BONE_NAMES)})")
+        _known(v, BONE_NAMES, "bone")
         return v
 
     @field_validator("base_positions")
     @classmethod
     def _bases(cls, v):
-        for name in v:
-            if name not in FINGERS:
-                raise ValueError(f"unknown finger {name!r} (fingers: {', '.join(FINGERS)})")
+        _known(v, FINGERS, "finger")
         return v
 
     @field_validator("limits_deg")
     @classmethod
     def _limits(cls, v):
+        _known(v, cls.angle_names, "angle")
         for name, (lo, hi) in v.items():
-            if name not in cls.angle_names:
-                raise ValueError(f"unknown angle {name!r} (angles: {', '.join(cls.angle_names)})")
             if not lo <= hi:
                 raise ValueError(f"limits of {name!r} must satisfy lower <= upper, got ({lo}, {hi})")
         return v
