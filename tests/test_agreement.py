@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hybridfit.agreement import agreement_confidences, own_variances
+from hybridfit.agreement import agreement_confidences, frame_weights, own_variances
 
 
 def _predictors(sd, shared=2.0, frames=4000, points=3, seed=0):
@@ -26,7 +26,26 @@ def test_a_predictor_s_rare_failures_do_not_make_it_the_least_trusted():
     truth, x = _predictors([2.0, 3.0, 4.0], shared=1.0)
     x[::50, :, 0] += 80.0  # the best predictor loses the hand in 2 % of the frames
     conf = agreement_confidences(x)
-    assert (conf[0, :, 0] > conf[0, :, 1]).all() and (conf[0, :, 1] > conf[0, :, 2]).all()
+    assert (conf[1, :, 0] > conf[1, :, 1]).all() and (conf[1, :, 1] > conf[1, :, 2]).all()
+    assert (conf[0, :, 0] < 0.2 * conf[1, :, 0]).all()  # ... but it is trusted less where it fails
+    assert (agreement_confidences(x, frame_reach=None)[0] == agreement_confidences(x, frame_reach=None)[1]).all()
+
+
+def test_a_predictor_far_from_the_others_in_a_frame_weighs_less_there():
+    truth, x = _predictors([2.0, 2.0, 2.0], shared=0.0, frames=400)
+    x[7, 1, 2] += 60.0
+    w = frame_weights(x)
+    assert w[7, 1, 2] < 0.2 and w.shape == x.shape[:3]
+    assert np.median(w) == 1.0 and (w > 0).all() and (w <= 1).all()
+    np.testing.assert_array_equal(frame_weights(x, reach=np.inf), 1.0)  # no reach: nothing is far
+
+
+def test_with_heavy_tailed_errors_frame_weights_beat_the_sequence_confidences():
+    rng = np.random.default_rng(1)
+    truth, x = _predictors([2.0, 3.0, 4.0], shared=1.0)
+    x += rng.normal(0.0, 1.0, x.shape) * (rng.random(x.shape[:3] + (1,)) < 0.05) * 30.0  # 5 % gross errors
+    err = lambda c: np.linalg.norm((x * (c / c.sum(-1, keepdims=True))[..., None]).sum(2) - truth, axis=-1).mean()  # noqa: E731
+    assert err(agreement_confidences(x)) < 0.8 * err(agreement_confidences(x, frame_reach=None))
 
 
 def test_the_weighted_mean_beats_the_best_predictor_and_the_plain_mean():
@@ -55,7 +74,9 @@ def test_confidences_are_finite_positive_and_at_most_one(frames, predictors, see
     x[0, 0] = x[0, 0, :1]  # the predictors agree exactly somewhere
     conf = agreement_confidences(x)
     assert np.isfinite(conf).all() and (conf > 0).all() and (conf <= 1.0).all()
-    assert conf.min() >= 0.05 - 1e-12 or predictors < 3
+    sequence = agreement_confidences(x, frame_reach=None)
+    assert sequence.min() >= 0.05 - 1e-12 or predictors < 3
+    assert (conf.max(-1) == 1.0).all()
 
 
 @pytest.mark.parametrize("predictors", [3, 4])
