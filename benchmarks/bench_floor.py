@@ -2,7 +2,7 @@
 
     python benchmarks/bench_floor.py [--real icvl nyu] [--stress icvl nyu nyu36 msra mediapipe mano]
                                      [--pool 0:100] [--frames 200] [--jobs 1] [--model hand26]
-                                     [--subset START:STOP:STEP]
+                                     [--subset START:STOP:STEP] [--design heavy gaussian]
 
 Per dataset (real: ICVL's test annotations, NYU actor 2's, from ../shared/data; stress: a
 ``stress_proposals`` subject per skeleton, seed 3), ``hybridfit.fitting.calibrate`` with its
@@ -15,9 +15,12 @@ held-out frames), it then measures (mean 3D error, mm):
   the least-squares polish with its default per-frame bone freedom, as
   ``fitting.refine.fit_and_refine`` and ``hybridfit fit`` do; the fit alone in brackets);
 - refining a strong predictor: three predictors at 4, 5 and 6 mm with errors correlated as
-  real ones are (``synthetic.predictors``, seed 0); the best alone fitted (k = 1), and the
-  three fused (k = 3, the confidences ``proposals from-results`` gives them: from their
-  agreement, ``hybridfit.agreement``) beside the best input and their per-point median;
+  real ones are (``synthetic.predictors``, seed 0), in each ``--design``: ``heavy`` (the
+  default: heavy tails, a profile per predictor) and ``gaussian`` (``tail_sd = profile_sd =
+  0``, the design of 0.6.0 and before); the best alone fitted (k = 1), and the three fused
+  (k = 3, the confidences ``proposals from-results`` gives them: from their agreement per
+  point and per frame, ``hybridfit.agreement``; beside it, with the sequence-level
+  confidences alone, ``frame_reach = None``) beside the best input and their per-point median;
 - the model's part of the cost: the same errors added to the floor's fitted points (a
   truth the model can represent) and refined; what the fit costs there is the fit's part,
   the rest of the cost is the model's (it cannot follow the annotations closer than the
@@ -73,8 +76,11 @@ def fit_error(truth, proposals, confidences, names, model_name, settings, jobs) 
     return err(r.joints), err(polished), polished
 
 
+DESIGNS = {"heavy": {}, "gaussian": {"tail_sd": 0.0, "profile_sd": 0.0}}
+
+
 def evaluate(kind: str, dataset: str, pool: slice, frames: int, jobs: int, model_name: str,
-             subset: slice = slice(None)) -> list:
+             subset: slice = slice(None), designs=("heavy",)) -> list[list]:
     sk = skeleton(dataset)
     names = sk.model_names
     truth = annotations(kind, dataset)[subset]
@@ -91,22 +97,28 @@ def evaluate(kind: str, dataset: str, pool: slice, frames: int, jobs: int, model
     ones = np.ones(gt.shape[:2] + (1,))
     floor = fit_error(gt, gt[:, :, None], ones, names, model_name, cal.settings, jobs)
     model = hybridfit.create("model", model_name, cal.settings)
-    errors = predictor_errors(model, names, len(test), np.random.default_rng(0))
-    preds = gt[None] + errors
-    single = fit_error(gt, preds[0][:, :, None], ones, names, model_name, cal.settings, jobs)
-    fused_in = preds.transpose(1, 2, 0, 3)
-    fused = fit_error(gt, fused_in, agreement_confidences(fused_in), names, model_name, cal.settings, jobs)
-    representable = floor[2]
-    fit_part = fit_error(representable, (representable + errors[0])[:, :, None], ones, names, model_name,
-                         cal.settings, jobs)[1] - float(np.linalg.norm(errors[0], axis=-1).mean())
     err = lambda joints: float(np.linalg.norm(joints - gt, axis=-1).mean())  # noqa: E731
-    inputs = [err(p) for p in preds]
-    median = err(np.median(preds, axis=0))
-    return [kind, dataset, f"{pool.start}:{pool.stop}", len(test), f"{cal.error_after:.2f}",
-            f"{cal.error_heldout:.2f} ({len(cal.heldout_frames)})", f"{cal.error_heldout / cal.error_after:.2f}",
-            f"{floor[1]:.2f} ({floor[0]:.2f})", f"{inputs[0]:.2f}", f"{single[1]:.2f} ({single[0]:.2f})",
-            f"{single[1] - inputs[0]:+.2f}", f"{fit_part:+.2f} / {single[1] - inputs[0] - fit_part:+.2f}",
-            f"{fused[1]:.2f} ({fused[0]:.2f})", f"{min(inputs):.2f}", f"{median:.2f}", f"{t:.0f}"]
+    rows = []
+    for design in designs:
+        errors = predictor_errors(model, names, len(test), np.random.default_rng(0), **DESIGNS[design])
+        preds = gt[None] + errors
+        single = fit_error(gt, preds[0][:, :, None], ones, names, model_name, cal.settings, jobs)
+        fused_in = preds.transpose(1, 2, 0, 3)
+        fused = fit_error(gt, fused_in, agreement_confidences(fused_in), names, model_name, cal.settings, jobs)
+        sequence = fit_error(gt, fused_in, agreement_confidences(fused_in, frame_reach=None), names, model_name,
+                             cal.settings, jobs)
+        representable = floor[2]
+        fit_part = fit_error(representable, (representable + errors[0])[:, :, None], ones, names, model_name,
+                             cal.settings, jobs)[1] - float(np.linalg.norm(errors[0], axis=-1).mean())
+        inputs = [err(p) for p in preds]
+        median = err(np.median(preds, axis=0))
+        rows.append([kind, dataset, f"{pool.start}:{pool.stop}", len(test), f"{cal.error_after:.2f}",
+                     f"{cal.error_heldout:.2f} ({len(cal.heldout_frames)})",
+                     f"{cal.error_heldout / cal.error_after:.2f}", f"{floor[1]:.2f} ({floor[0]:.2f})", design,
+                     f"{inputs[0]:.2f}", f"{single[1]:.2f} ({single[0]:.2f})", f"{single[1] - inputs[0]:+.2f}",
+                     f"{fit_part:+.2f} / {single[1] - inputs[0] - fit_part:+.2f}", f"{fused[1]:.2f} ({fused[0]:.2f})",
+                     f"{sequence[1]:.2f}", f"{min(inputs):.2f}", f"{median:.2f}", f"{t:.0f}"])
+    return rows
 
 
 def main() -> None:
@@ -118,17 +130,20 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--model", default="hand26", help="hand model plugin (default: hand26)")
     ap.add_argument("--subset", default="::", help="keep only these annotated frames START:STOP:STEP (default: all)")
+    ap.add_argument("--design", nargs="+", default=["heavy"], choices=sorted(DESIGNS),
+                    help="stress predictors' design(s) (default: heavy)")
     a = ap.parse_args()
     start, stop = (int(v) for v in a.pool.split(":"))
     subset = slice(*(int(v) if v else None for v in a.subset.split(":")))
     rows = []
     for kind, datasets in (("real", a.real), ("stress", a.stress)):
         for dataset in datasets:
-            rows.append(evaluate(kind, dataset, slice(start, stop), a.frames, a.jobs, a.model, subset))
-            print(" | ".join(map(str, rows[-1])), flush=True)
+            for row in evaluate(kind, dataset, slice(start, stop), a.frames, a.jobs, a.model, subset, a.design):
+                rows.append(row)
+                print(" | ".join(map(str, row)), flush=True)
     print(table(["data", "skeleton", "pool", "frames", "calibration in-sample", "held out (frames)", "ratio",
-                 "floor (fit only)", "predictor", "refined (fit only)", "cost", "cost: fit / model",
-                 "fused (fit only)", "best input",
+                 "floor (fit only)", "design", "predictor", "refined (fit only)", "cost", "cost: fit / model",
+                 "fused (fit only)", "fused, sequence confidences", "best input",
                  "median", "calibration time (s)"], rows))
 
 

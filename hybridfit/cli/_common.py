@@ -52,13 +52,31 @@ def load_toml(path: str | None) -> dict[str, Any]:
 
 #: the plugins a command uses when none is named
 DEFAULT_PLUGINS = {"model": "hand26", "objective": "clamped-confidence", "optimizer": "stepwise-pso"}
+#: the key of a model settings file that names the model it is for (``hybridfit calibrate`` writes it)
+MODEL_KEY = "model"
+
+
+def load_model_toml(path: str | None, model: str | None) -> tuple[str | None, dict[str, Any]]:
+    """A model settings file -> (the model: ``model`` if given, else the one the file names
+    under ``MODEL_KEY``, else None; the settings without that key). A file that names
+    another model than ``model`` is a user error naming the file and both models."""
+    config = load_toml(path)
+    named = config.pop(MODEL_KEY, None)
+    if named is not None and not isinstance(named, str):
+        raise HybridfitError(f"{path}: {MODEL_KEY} must be a model plugin's name, got {named!r}")
+    if named is not None and model is not None and named != model:
+        raise HybridfitError(f"{path}: settings of model {named!r} (its {MODEL_KEY} key), not of --model {model}; "
+                             f"leave --model out or calibrate {model}")
+    return model or named, config
 
 
 def add_plugin_options(parser: argparse.ArgumentParser) -> None:
     """--model/--objective/--optimizer with their --*-config TOML settings files."""
     g = parser.add_argument_group("plugins")
-    g.add_argument("--model", default="hand26", help="hand model plugin (default: hand26)")
-    g.add_argument("--model-config", metavar="TOML", help="hand model settings file")
+    g.add_argument("--model", help="hand model plugin (default: the one --model-config names, as `hybridfit "
+                   "calibrate` writes it, else hand26)")
+    g.add_argument("--model-config", metavar="TOML", help="hand model settings file (`hybridfit calibrate` writes one "
+                   "that names its model)")
     g.add_argument("--objective", help="objective plugin (default: clamped-confidence; for proposals made from "
                    "results files, the objective the file names: gaussian-mixture)")
     g.add_argument("--objective-config", metavar="TOML", help="objective settings file")
@@ -81,7 +99,11 @@ def plugin_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     out = {}
     for kind in ("model", "objective", "optimizer"):
         path = getattr(args, f"{kind}_config")
-        out[kind], out[f"{kind}_config"] = getattr(args, kind) or DEFAULT_PLUGINS[kind], load_toml(path)
+        if kind == "model":
+            name, config = load_model_toml(path, args.model)
+        else:
+            name, config = getattr(args, kind), load_toml(path)
+        out[kind], out[f"{kind}_config"] = name or DEFAULT_PLUGINS[kind], config
         check_plugin(kind, out[kind], out[f"{kind}_config"], path)
     return out
 

@@ -7,7 +7,7 @@ import sys
 
 from ..io import save_npz
 from ..synthetic.proposals import synthetic_proposals
-from ._common import declare_paths, load_toml, positive_int, seed_int, validate_settings
+from ._common import DEFAULT_PLUGINS, declare_paths, load_model_toml, load_toml, positive_int, seed_int, validate_settings
 
 
 def register(sub) -> None:
@@ -19,7 +19,7 @@ def register(sub) -> None:
     q.add_argument("-k", type=positive_int, default=3, help="proposals per joint (default 3)")
     q.add_argument("--noise", type=float, default=5.0, help="proposal noise, mm (default 5)")
     q.add_argument("--seed", type=seed_int, default=0, help="random seed, >= 0 (default 0)")
-    q.add_argument("--model", default="hand26")
+    q.add_argument("--model", help="hand model plugin (default: the one --model-config names, else hand26)")
     q.add_argument("--model-config", metavar="TOML")
     declare_paths(q, inputs=("--model-config",), outputs=("--out",))
     q.set_defaults(func=run_proposals)
@@ -41,8 +41,9 @@ def register(sub) -> None:
 
 
 def run_proposals(args) -> int:
+    model, config = load_model_toml(args.model_config, args.model)
     data = synthetic_proposals(args.frames, k=args.k, noise_mm=args.noise, seed=args.seed,
-                               model=args.model, model_config=load_toml(args.model_config))
+                               model=model or DEFAULT_PLUGINS["model"], model_config=config)
     save_npz(args.out, **data)
     print(f"wrote {args.frames} synthetic frames (k={args.k}) -> {args.out}")
     return 0
@@ -54,9 +55,10 @@ def _config(cls, args):
 
     base = load_toml(args.config)
     validate_settings(cls, base, args.config, f"synth {args.synth_command}")  # the file alone: its errors name it
+    model, settings = load_model_toml(args.model_config, args.model)
     options = {"seed": args.seed, "distance_mm": args.distance, "frames": getattr(args, "frames", None),
-               "noise": base.get("noise", {}) if args.noise else None, "model": args.model,
-               "model_settings": load_toml(args.model_config) if args.model_config else None}
+               "noise": base.get("noise", {}) if args.noise else None, "model": model,
+               "model_settings": settings if args.model_config else None}
     return parse_config(cls, base, **{k: v for k, v in options.items() if v is not None})
 
 

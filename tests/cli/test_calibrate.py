@@ -24,6 +24,28 @@ def test_calibrate_writes_a_usable_model_config(tmp_path, capsys):
     assert main(["fit", str(p), "--model-config", str(model), "--budget", "600", "--out", str(tmp_path / "f.npz")]) == 0
 
 
+def test_the_model_config_names_its_model_and_fit_uses_it(tmp_path, capsys):
+    """calibrate's default model is hand27 (tuned: docs/results.md, Real hands), the file it
+    writes names it, and fit takes the model from the file unless --model names another."""
+    import numpy as np
+
+    gt, _ = write_results(tmp_path, frames=4)
+    model, p, f = tmp_path / "model.toml", tmp_path / "p.npz", tmp_path / "f.npz"
+    assert main(["calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--out", str(model), "--rounds", "0",
+                 "--budget", "600", "--hand", "right"]) == 0
+    assert tomllib.loads(model.read_text())["model"] == "hand27" and model.read_text().startswith("# hand27 ")
+    assert main(["proposals", "from-results", "--dataset", "icvl", str(gt), "--out", str(p)]) == 0
+    assert main(["fit", str(p), "--model-config", str(model), "--budget", "600", "--out", str(f)]) == 0
+    assert np.load(f)["params"].shape[1] == 28  # hand27's parameters, not hand26's 27
+    capsys.readouterr()
+    assert main(["fit", str(p), "--model-config", str(model), "--model", "hand26", "--budget", "600",
+                 "--out", str(tmp_path / "g.npz")]) == 2
+    assert f"{model}: settings of model 'hand27' (its model key), not of --model hand26" in capsys.readouterr().err
+    assert not (tmp_path / "g.npz").exists()
+    assert main(["fit", str(p), "--budget", "600", "--out", str(f)]) == 0
+    assert np.load(f)["params"].shape[1] == 27  # without a calibration: hand26, the paper's
+
+
 def test_bad_frames_option(tmp_path, capsys):
     gt, _ = write_results(tmp_path, frames=3)
     assert main(["calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--frames", "5:9",

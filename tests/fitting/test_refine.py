@@ -7,9 +7,10 @@ from hybridfit.fitting.refine import fit_and_refine, proposal_weights, refine, s
 NAMES = None
 
 
-@pytest.fixture(scope="module")
-def model():
-    return hybridfit.create("model", "hand26")
+@pytest.fixture(scope="module", params=["hand26", "hand27"])
+def model(request):
+    """Both models: the paper's and the one `hybridfit calibrate` calibrates by default."""
+    return hybridfit.create("model", request.param)
 
 
 def _poses(model, frames, seed=0):
@@ -70,15 +71,15 @@ def test_fit_and_refine_is_fit_then_the_polish(model):
     truth = model.forward(_poses(model, 3, seed=5))
     proposals = truth[:, :, None] + np.random.default_rng(6).normal(0, 3.0, truth.shape)[:, :, None]
     conf = np.ones(proposals.shape[:3])
-    plain = hybridfit.fit(proposals, conf, budget=600)
-    rigid = fit_and_refine(proposals, conf, budget=600, bone_tolerance=0.0)
+    plain = hybridfit.fit(proposals, conf, budget=600, model=model.name)
+    rigid = fit_and_refine(proposals, conf, budget=600, bone_tolerance=0.0, model=model.name)
     np.testing.assert_allclose(rigid.params, refine(model, plain.params, proposals, conf, model.joint_names).params)
     np.testing.assert_allclose(rigid.joints, model.forward(rigid.params))
     assert (rigid.bone_factors == 1).all()
     err = lambda r: np.linalg.norm(r.joints - truth, axis=-1).mean()  # noqa: E731
     assert err(rigid) < err(plain)
     assert (rigid.objective < 0).all() and not np.allclose(rigid.objective, plain.objective)
-    free = fit_and_refine(proposals, conf, budget=600)  # the default: bones free within 15 %
+    free = fit_and_refine(proposals, conf, budget=600, model=model.name)  # the default: bones free within 15 %
     assert np.abs(free.bone_factors - 1).max() <= 0.15 + 1e-12 and np.abs(free.bone_factors - 1).max() > 0
     lower, upper = model.bounds()
     assert (free.params[:, 7:] >= lower[7:]).all() and (free.params[:, 7:] <= upper[7:]).all()
@@ -101,25 +102,27 @@ def test_bone_freedom_follows_a_hand_with_other_proportions(model):
     np.testing.assert_allclose(free.bone_factors[:, 1:], 1.08, atol=0.01)
 
 
+@pytest.mark.parametrize("name", ["hand26", "hand27"])
 @pytest.mark.parametrize("dataset", ["icvl", "nyu"])
-def test_the_polish_is_never_worse_than_the_fit_or_top1_on_stress_data(dataset):
+def test_the_polish_is_never_worse_than_the_fit_or_top1_on_stress_data(dataset, name):
     from hybridfit.datasets.skeletons import dataset_model_config
 
     z = hybridfit.stress_proposals(30, dataset=dataset, seed=101, scale_range=(1, 1), proportion_sd=0.0,
                                    weight_sd=0.0, offset_mm=2.0)
     names, truth = list(z["joint_names"]), z["ground_truth"]
-    options = dict(joint_names=names, budget=3400, seed=0, model_config=dataset_model_config("hand26", {}, dataset))
+    options = dict(joint_names=names, budget=3400, seed=0, model=name, model_config=dataset_model_config(name, {}, dataset))
     err = lambda j: np.nanmean(np.linalg.norm(j - truth, axis=-1))  # noqa: E731
     fitted = err(hybridfit.fit(z["proposals"], z["confidences"], **options).joints)
     polished = err(fit_and_refine(z["proposals"], z["confidences"], **options).joints)
     assert polished <= fitted and polished <= err(z["proposals"][:, :, 0]), (polished, fitted)
 
 
-def test_a_model_with_marker_offsets_stays_valid_under_the_polish():
+@pytest.mark.parametrize("name", ["hand26", "hand27"])
+def test_a_model_with_marker_offsets_stays_valid_under_the_polish(name):
     """Bone offsets (markers off the joints' line) are the subject's bones: the polished
     joints keep the angles within the limits and every bone within the tolerance of the
     model's own length, offsets included."""
-    model = hybridfit.create("model", "hand26", {"bone_offsets": {"index_distal": [4.0, -3.0],
+    model = hybridfit.create("model", name, {"bone_offsets": {"index_distal": [4.0, -3.0],
                                                                   "thumb_proximal": [-2.0, 5.0]}})
     start = _poses(model, 6, seed=8)
     target = model.forward(start)[:, :, None] * 1.3 - 120.0  # a hand 30 % larger: every bone pulls
