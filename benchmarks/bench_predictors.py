@@ -15,6 +15,12 @@ in both designs: heavy-tailed with per-predictor profiles (the default) and Gaus
   ratio of the two predictors' mean per-point errors, and its range.
 
 The stress predictors' ``TAIL_SD`` and ``PROFILE_SD`` are set from these figures.
+
+A second table fuses three predictors without a model (so without the model's floor): the
+real ones (LRF, the paper's top-1 and the paper's fit) and the stress ones at 4, 5 and 6
+mm, each design: the best input, their per-point median, and their mean weighted by the
+confidences of ``hybridfit.agreement`` (estimated on these frames) with the sequence-level
+confidences alone (``frame_reach = None``) and with the per-frame weights (the default).
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ import numpy as np
 import hybridfit
 from hybridfit.datasets.results import read_xyz
 from hybridfit.datasets.skeletons import dataset_model_config, skeleton
+from hybridfit.agreement import agreement_confidences
 from hybridfit.synthetic.predictors import predictor_errors
 
 from _util import table
@@ -45,6 +52,15 @@ def statistics(a: np.ndarray, b: np.ndarray) -> list[str]:
     return cells
 
 
+def fusion(x: np.ndarray, truth: np.ndarray) -> list[str]:
+    """Predictions x (F, Q, M, 3) and truth (F, Q, 3) mm -> mean 3D errors (mm): the best
+    input, the per-point median, the agreement-weighted means (sequence / per frame)."""
+    err = lambda p: np.linalg.norm(p - truth, axis=-1).mean()  # noqa: E731
+    mean = lambda c: (x * (c / c.sum(-1, keepdims=True))[..., None]).sum(2)  # noqa: E731
+    return [f"{min(err(x[:, :, m]) for m in range(x.shape[2])):.2f}", f"{err(np.median(x, axis=2)):.2f}",
+            f"{err(mean(agreement_confidences(x, frame_reach=None))):.2f}", f"{err(mean(agreement_confidences(x))):.2f}"]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", default="0:100", help="ICVL frames START:STOP (default 0:100, the tuning frames)")
@@ -55,13 +71,19 @@ def main() -> None:
     top1 = np.load(DATA / "poier2015_proposals.npz")["proposals"][frames, :, 0].astype(np.float64)
     model = hybridfit.create("model", "hand26", dataset_model_config("hand26", {}, "icvl"))
     names = skeleton("icvl").model_names
+    paper = np.load(DATA / "poier2015_proposals.npz")["optimized"][frames].astype(np.float64)
     rows = [["real: LRF / the paper's top-1", *statistics(lrf - truth, top1 - truth)]]
-    for label, tails in (("stress 4 / 5 mm, heavy tails and profiles (default)", {}),
-                         ("stress 4 / 5 mm, Gaussian", {"tail_sd": 0.0, "profile_sd": 0.0})):
+    fused = [["real: LRF, the paper's top-1, the paper's fit", *fusion(np.stack([lrf, top1, paper], 2), truth)]]
+    for label, tails in (("stress, heavy tails and profiles (default)", {}),
+                         ("stress, Gaussian", {"tail_sd": 0.0, "profile_sd": 0.0})):
         e = predictor_errors(model, names, len(truth), np.random.default_rng(0), **tails)
-        rows.append([label, *statistics(e[0], e[1])])
+        rows.append([f"{label}, 4 / 5 mm", *statistics(e[0], e[1])])
+        fused.append([f"{label}, 4 / 5 / 6 mm", *fusion((truth[None] + e).transpose(1, 2, 0, 3), truth)])
     print(table(["predictors", "correlation", "first: mean, mean/median / p95/median",
                  "second: mean, mean/median / p95/median", "sd of log per-point ratio (range)"], rows))
+    print()
+    print(table(["three predictors", "best input", "per-point median", "weighted mean, sequence confidences",
+                 "weighted mean, per-frame weights"], fused))
 
 
 if __name__ == "__main__":

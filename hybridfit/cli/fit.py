@@ -138,8 +138,8 @@ def check_hand_and_geometry(args, data: dict, names, plugins: dict, dataset: str
         sk = skeleton(dataset).dataset
         warnings.warn(f"the fit lies a median {found.best_mm:.1f} mm from the top proposals on {len(found.frames)} "
                       f"frames: the {plugins['model']} model's geometry does not match the {sk} annotations; "
-                      f"calibrate it first: hybridfit calibrate --dataset {dataset} --ground-truth LABELS --out "
-                      f"{sk}-{plugins['model']}.toml, then fit with --model-config {sk}-{plugins['model']}.toml")
+                      f"calibrate it first: hybridfit calibrate --dataset {dataset} --ground-truth LABELS --model "
+                      f"{plugins['model']} --out {sk}-{plugins['model']}.toml, then fit with --model-config {sk}-{plugins['model']}.toml")
     return config
 
 
