@@ -3,7 +3,9 @@
     python benchmarks/bench_icvl.py [--data ../shared/data/icvl] [--out bench_out/icvl] [--jobs 2]
                                     [--d-max 40] [--budget 3400]
 
-Runs exactly these commands (printed as they run) and prints the tables:
+Every step fits the model `hybridfit calibrate` calibrates by default (hand27 since 0.6.1;
+the model config names it, so every `fit` uses it). Runs exactly these commands (printed as
+they run) and prints the tables:
 (a) the model-fit floor: calibrate on frames 0:100 (the first 100 frames of sequence 1; the
     last 20 of them held out, their fit error printed beside the in-sample one), fit the
     ground truth of every other frame as k = 1 proposals;
@@ -12,8 +14,8 @@ Runs exactly these commands (printed as they run) and prints the tables:
 (d) LRF fused with the paper's top-1 proposals (written as a results file): `proposals
     from-results` of both, fitted with the objective the file names;
 (e) three estimates fused: LRF, the paper's top-1 and the paper's own fit (`optimized`),
-    with the confidences `proposals from-results` gives three files (from their agreement)
-    and, for comparison, equal ones (`--confidences 1 1 1`);
+    with the confidences `proposals from-results` gives three files (from their agreement,
+    per point and per frame) and, for comparison, equal ones (`--confidences 1 1 1`);
 with per-joint errors beside the paper's fitted model. Errors are over all 1596 frames
 (as in the data README) and over the 1496 frames not used for calibration.
 """
