@@ -67,6 +67,11 @@ def load_model_toml(path: str | None, model: str | None) -> tuple[str | None, di
     if named is not None and model is not None and named != model:
         raise HybridfitError(f"{path}: settings of model {named!r} (its {MODEL_KEY} key), not of --model {model}; "
                              f"leave --model out or calibrate {model}")
+    if named is not None and model is None:
+        try:
+            registry.get("model", named)
+        except HybridfitError as err:
+            raise HybridfitError(f"{path}: {MODEL_KEY}: {err}") from None
     return model or named, config
 
 

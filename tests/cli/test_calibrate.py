@@ -44,6 +44,11 @@ def test_the_model_config_names_its_model_and_fit_uses_it(tmp_path, capsys):
     assert not (tmp_path / "g.npz").exists()
     assert main(["fit", str(p), "--budget", "600", "--out", str(f)]) == 0
     assert np.load(f)["params"].shape[1] == 27  # without a calibration: hand26, the paper's
+    for text, said in (('model = "hand99"\n', "model: unknown model 'hand99'; did you mean"),
+                       ("model = 3\n", "model must be a model plugin's name, got 3")):
+        model.write_text(text)
+        assert main(["fit", str(p), "--model-config", str(model), "--budget", "600", "--out", str(tmp_path / "h.npz")]) == 2
+        assert f"{model}: {said}" in capsys.readouterr().err
 
 
 def test_bad_frames_option(tmp_path, capsys):
