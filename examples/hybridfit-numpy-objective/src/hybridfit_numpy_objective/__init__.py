@@ -22,25 +22,38 @@ class NumpyClampedSettings(Settings):
     d_max_mm: float = Field(40.0, gt=0, description="clamping distance d_max in millimetres")
 
 
+#: elements of :func:`clamped_loss`'s scratch array (at most, or one hypothesis's): 1 MiB, so it
+#: stays in a core's second-level cache beside the points
+SCRATCH_ELEMENTS = 1 << 17
+
+
 def clamped_loss(points, proposals, weights, d_max_mm):
     """points (F, N, m, 3) mm, proposals (F, m, K, 3) mm, weights (F, m, K) of the same m points
     -> (F, N) losses -E over those points.
 
-    Every proposal at once, in one (F, N, m, K, 3) scratch array laid out frames innermost (then
+    Every proposal at once, in one (F, n, m, K, 3) scratch array laid out frames innermost (then
     the points, hypotheses, proposals, coordinates), so each of the few numpy calls runs
     contiguous loops over (points, frames) blocks, the arguments broadcast along them:
     w (1 - d^2) = w - (w / d_max^2) ||p - h||^2, and the clamp at 0 is the maximum's initial
-    value. Few calls matter as much as few passes: a stage that moves one finger scores a few
-    thousand points per call."""
+    value. Few calls matter as much as few passes (a stage that moves one finger scores a few
+    thousand points per call); a large batch goes through in nearly equal runs of hypotheses
+    whose scratch fits :data:`SCRATCH_ELEMENTS`."""
     F, N, m, K = points.shape[0], points.shape[1], points.shape[2], proposals.shape[2]
-    diff = np.empty((3, K, N, m, F)).transpose(4, 2, 3, 1, 0)  # (F, N, m, K, 3)
-    np.subtract(points[:, :, :, None, :], proposals[:, None], out=diff)
-    np.square(diff, out=diff)
-    d2 = np.add(diff[..., 0], diff[..., 1], out=diff[..., 0])  # (F, N, m, K), in place
-    d2 += diff[..., 2]
-    d2 *= weights[:, None] / d_max_mm**2
-    np.subtract(weights[:, None], d2, out=d2)
-    return -np.maximum.reduce(d2, axis=-1, initial=0.0).sum(axis=-1)
+    step = -(-N // -(-3 * K * F * N * m // SCRATCH_ELEMENTS))  # hypotheses per run
+    scratch = np.empty((3, K, step, m, F)).transpose(4, 2, 3, 1, 0)  # (F, step, m, K, 3)
+    best = np.empty((N, m, F)).transpose(2, 0, 1)  # (F, N, m), frames innermost
+    ws = weights[:, None] / d_max_mm**2
+    for a in range(0, N, step):
+        h = points[:, a:a + step, :, None, :]
+        diff = scratch[:, :h.shape[1]]
+        np.subtract(h, proposals[:, None], out=diff)
+        np.square(diff, out=diff)
+        d2 = np.add(diff[..., 0], diff[..., 1], out=diff[..., 0])  # (F, n, m, K), in place
+        d2 += diff[..., 2]
+        d2 *= ws
+        np.subtract(weights[:, None], d2, out=d2)
+        np.maximum.reduce(d2, axis=-1, initial=0.0, out=best[:, a:a + step])
+    return -best.sum(axis=-1)
 
 
 def bound_clamped_loss(proposals, weights, d_max_mm):
