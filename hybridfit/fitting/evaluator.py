@@ -245,8 +245,8 @@ class NumpyScorer:
         if self.twin:
             base = np.concatenate([base, base])
         F, n = len(base), max(n, 1)
-        if self.score_frames is not None:  # the frame innermost; the part handed over is always written
-            buffer = np.empty((3, n, self.Q, F))
+        if self.score_frames is not None:  # (3, m, len(subset), F) at its start: see subset_points
+            buffer = np.empty(3 * n * self.Q * F)
         elif self.tree is not None:  # the hypothesis innermost; points outside the subset stay 0
             buffer = np.zeros((F, self.Q, 3, n))
         else:
@@ -274,15 +274,18 @@ class NumpyScorer:
         return joints if self.point_matrix is None else np.einsum("qj,fnjc->fnqc", self.point_matrix, joints)
 
     def subset_points(self, stage, X, subset):
-        """(F, m, len(subset), 3) the points ``subset`` of hypotheses X (F, m, d): a view of the
-        (3, n, Q, F) buffer, the frame innermost (:func:`frames_innermost`'s layout, no copy)."""
+        """(F, m, len(subset), 3) the points ``subset`` of hypotheses X (F, m, d): a view of a
+        C-contiguous (3, m, len(subset), F) array at the start of the stage's buffer, the frame
+        innermost (:func:`frames_innermost`'s layout, no copy): each coordinate of the scored
+        points is one contiguous block, whatever the subset and batch."""
         stage, buffer = stage
-        m, s = X.shape[1], len(subset)
+        F, m, s = X.shape[0], X.shape[1], len(subset)
+        out = buffer[:3 * m * s * F].reshape(3, m, s, F)
         if self.tree is not None:
-            subset_points(*self.tree, *self.point_map, *stage, X, subset, buffer)
+            subset_points(*self.tree, *self.point_map, *stage, X, subset, out)
         else:
-            buffer[:, :m, :s] = self._forward_points(stage, X)[:, :, subset].transpose(3, 1, 2, 0)
-        return buffer[:, :m, :s].transpose(3, 1, 2, 0)
+            out[...] = self._forward_points(stage, X)[:, :, subset].transpose(3, 1, 2, 0)
+        return out.transpose(3, 1, 2, 0)
 
     def points(self, stage, X, subset):
         """(F, m, Q, 3) points of hypotheses X (F, m, d) (those in ``subset`` guaranteed). From

@@ -22,34 +22,37 @@ class NumpyClampedSettings(Settings):
     d_max_mm: float = Field(40.0, gt=0, description="clamping distance d_max in millimetres")
 
 
+#: elements of :func:`clamped_loss`'s scratch array (at most, or one hypothesis's): 1 MiB, so it
+#: stays in a core's second-level cache beside the points
+SCRATCH_ELEMENTS = 1 << 17
+
+
 def clamped_loss(points, proposals, weights, d_max_mm):
     """points (F, N, m, 3) mm, proposals (F, m, K, 3) mm, weights (F, m, K) of the same m points
     -> (F, N) losses -E over those points.
 
-    One proposal at a time, on (F, N, m) arrays (K is small), in place in two scratch arrays:
-    fewer and smaller temporaries than one (F, N, m, K, 3) difference array.
-    w (1 - d^2) = w - (w / d_max^2) ||p - h||^2, and the clamp at 0 is the running maximum's
-    start. ``np.empty_like`` and the elementwise operations keep the layout the driver hands
-    (the frame innermost), so the operations with a proposal, broadcast over the hypotheses,
-    run in long contiguous loops."""
-    hx, hy, hz = points[..., 0], points[..., 1], points[..., 2]  # (F, N, m)
-    p = proposals[:, None]  # (F, 1, m, K, 3)
-    w = weights[:, None]  # (F, 1, m, K)
-    ws = w / d_max_mm**2
-    best = np.zeros_like(hx)
-    d2, t = np.empty_like(hx), np.empty_like(hx)
-    for k in range(p.shape[-2]):
-        np.subtract(hx, p[..., k, 0], out=d2)
-        d2 *= d2
-        np.subtract(hy, p[..., k, 1], out=t)
-        t *= t
-        d2 += t
-        np.subtract(hz, p[..., k, 2], out=t)
-        t *= t
-        d2 += t
-        d2 *= ws[..., k]
-        np.subtract(w[..., k], d2, out=d2)
-        np.maximum(best, d2, out=best)
+    Every proposal at once, in one (F, n, m, K, 3) scratch array laid out frames innermost (then
+    the points, hypotheses, proposals, coordinates), so each of the few numpy calls runs
+    contiguous loops over (points, frames) blocks, the arguments broadcast along them:
+    w (1 - d^2) = w - (w / d_max^2) ||p - h||^2, and the clamp at 0 is the maximum's initial
+    value. Few calls matter as much as few passes (a stage that moves one finger scores a few
+    thousand points per call); a large batch goes through in nearly equal runs of hypotheses
+    whose scratch fits :data:`SCRATCH_ELEMENTS`."""
+    F, N, m, K = points.shape[0], points.shape[1], points.shape[2], proposals.shape[2]
+    step = -(-N // -(-3 * K * F * N * m // SCRATCH_ELEMENTS))  # hypotheses per run
+    scratch = np.empty((3, K, step, m, F)).transpose(4, 2, 3, 1, 0)  # (F, step, m, K, 3)
+    best = np.empty((N, m, F)).transpose(2, 0, 1)  # (F, N, m), frames innermost
+    ws = weights[:, None] / d_max_mm**2
+    for a in range(0, N, step):
+        h = points[:, a:a + step, :, None, :]
+        diff = scratch[:, :h.shape[1]]
+        np.subtract(h, proposals[:, None], out=diff)
+        np.square(diff, out=diff)
+        d2 = np.add(diff[..., 0], diff[..., 1], out=diff[..., 0])  # (F, n, m, K), in place
+        d2 += diff[..., 2]
+        d2 *= ws
+        np.subtract(weights[:, None], d2, out=d2)
+        np.maximum.reduce(d2, axis=-1, initial=0.0, out=best[:, a:a + step])
     return -best.sum(axis=-1)
 
 
