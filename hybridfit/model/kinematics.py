@@ -245,9 +245,10 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
     for the points ``subset`` and ``owned`` (the point map (Q, J) in CSR form: pm_ptr,
     pm_joint, pm_weight), as (ints, floats): the joints to recompute per hypothesis (those the
     points need, :func:`mark_needed`, and the parameters move, parents first), the joints and
-    parameters read but fixed, the angles to take sines of, every frame's joints at ``base``,
-    and block buffers for G frames' batches of up to n hypotheses side by side (G = COLUMNS //
-    n, at least 1; see :func:`block_views`)."""
+    parameters read but fixed, the angles to take sines of, every frame's fixed joints at
+    ``base`` (the others' rows of W0, Wp0 are left unset), and block buffers for G frames'
+    batches of up to n hypotheses side by side (G = COLUMNS // n, at least 1; see
+    :func:`block_views`)."""
     F, P = base.shape
     J = parents.shape[0]
     Q = pm_ptr.shape[0] - 1
@@ -328,9 +329,16 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
     floats = np.empty(3 * F * P + 12 * F * J + 3 * P * C + 12 * J * C + 9 * C + 3 * Q * C)
     (b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = block_views(ints, floats)
     b[:] = base
-    every = np.arange(J)
+    # the frames' joints at base are read only for the fixed joints: those and their ancestors
+    at_base = np.zeros(J, dtype=np.bool_)
+    for t in range(n_fixed):
+        at_base[fixed[t]] = True
+    for j in range(J - 1, -1, -1):  # parents precede children: one pass up the tree
+        if at_base[j] and parents[j] >= 0:
+            at_base[parents[j]] = True
+    base_joints = np.flatnonzero(at_base)
     all_oriented = np.ones(J, dtype=np.int64)
-    for f0 in range(0, F, C):  # every frame's joints at base, C frames at once, by the same code as the hypotheses'
+    for f0 in range(0, F, C):  # the fixed joints at base, C frames at once, by the same code as the hypotheses'
         B = min(C, F - f0)
         for k in range(P):
             for i in range(B):
@@ -340,10 +348,10 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
                     sv, cv = sincos1(v)
                 pB[k, i], sinB[k, i], cosB[k, i] = v, sv, cv
                 bsin[f0 + i, k], bcos[f0 + i, k] = sv, cv
-        block_frames(B, pB, sinB, cosB, every, J, all_oriented, parents, offsets, rest, rest_identity, axes,
-                     axis_params, mirror, WB, WpB, GB)
+        block_frames(B, pB, sinB, cosB, base_joints, base_joints.shape[0], all_oriented, parents, offsets, rest,
+                     rest_identity, axes, axis_params, mirror, WB, WpB, GB)
         for i in range(B):
-            for j in range(J):
+            for j in base_joints:
                 for r in range(3):
                     Wp0[f0 + i, j, r] = WpB[j, r, i]
                     for c in range(3):
