@@ -423,23 +423,28 @@ def block_views(ints, floats):
 
 @nb.njit(cache=True, nogil=True, fastmath=True)
 def block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X,
-                     first=0, m=-1):
+                     first=0, m=-1, particles_last=False):
     """The joints of frames f0 <= f < f1 (at most G) with hypotheses X[f, first:first + m]
     (X (F, >= first + m, d); m < 0: the rest of X) into the block buffers WpB, WB: frame f's
-    hypothesis first + i in column (f - f0) m + i."""
+    hypothesis first + i in column (f - f0) m + i. With ``particles_last`` X is (F, d, >=
+    first + m), the hypotheses innermost (copied into the block along its rows)."""
     (base, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = block_views(ints, floats)
     J, P = ints[7], ints[6]
     order, oriented, fixed, rows, frows, stage_pos = block_lists(ints, J, P)
     if m < 0:
-        m = X.shape[1] - first
+        m = X.shape[2 if particles_last else 1] - first
     count, n_fixed, n_rows, n_frows = ints[0], ints[1], ints[2], ints[3]
     for f in range(f0, f1):
         at = (f - f0) * m
         for k in range(P):
             t = stage_pos[k]
             if t >= 0:
-                for i in range(m):
-                    pB[k, at + i] = X[f, first + i, t]
+                if particles_last:
+                    for i in range(m):
+                        pB[k, at + i] = X[f, t, first + i]
+                else:
+                    for i in range(m):
+                        pB[k, at + i] = X[f, first + i, t]
         for r in range(n_frows):
             k = frows[r]
             v, s, c = base[f, k], bsin[f, k], bcos[f, k]
