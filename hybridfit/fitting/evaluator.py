@@ -208,9 +208,13 @@ class KernelScorer:
         self.frames = frames
         self.identity = joints_are_points(tree, point_map)
         self._run = frames_kernel_blocks() if frames else kernel_frames()
+        self._work = None  # the stages' block buffers, one after the other (block_setup's work)
 
     def prepare(self, base, pidx, subset, owned, n):
-        return block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n)
+        ints, floats = block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n, self._work)
+        if self._work is None or floats.shape[0] > self._work.shape[0]:
+            self._work = floats
+        return ints, floats
 
     def score(self, stage, X, subset, losses):
         if self.frames:  # X (F, m, d) as (F, d, m), C-contiguous: an optimiser's swarm often is (PSO's is)

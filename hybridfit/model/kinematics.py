@@ -247,7 +247,7 @@ def block_lists(ints, J, P):
 
 @nb.njit(cache=True, nogil=True)
 def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
-                base, pidx, subset, owned, n):
+                base, pidx, subset, owned, n, work=None):
     """A block computation of F frames whose parameters ``pidx`` (d,) move from ``base`` (F, P),
     for the points ``subset`` and ``owned`` (the point map (Q, J) in CSR form: pm_ptr,
     pm_joint, pm_weight), as (ints, floats): the joints to recompute per hypothesis (those the
@@ -256,7 +256,9 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
     ``base`` and, for a recomputed joint whose parent is fixed (preset), its position and
     frame below its own rotations (the other joints' rows of W0, Wp0 are left unset), and
     block buffers for G frames' batches of up to n hypotheses side by side (G = COLUMNS // n,
-    at least 1; see :func:`block_views`)."""
+    at least 1; see :func:`block_views`). ``work``: a float64 buffer whose start becomes
+    ``floats`` where it is large enough (one buffer for a run's stages: a fresh one each stage
+    costs page faults), else a new one."""
     F, P = base.shape
     J = parents.shape[0]
     Q = pm_ptr.shape[0] - 1
@@ -342,7 +344,8 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
     G = max(1, min(F, COLUMNS // n))
     ints[4], ints[5], ints[6], ints[7], ints[8], ints[9] = n, F, P, J, Q, G
     C = G * n
-    floats = np.empty(3 * F * P + 12 * F * J + 3 * P * C + 12 * J * C + 9 * C + 3 * Q * C)
+    size = 3 * F * P + 12 * F * J + 3 * P * C + 12 * J * C + 9 * C + 3 * Q * C
+    floats = work[:size] if work is not None and work.shape[0] >= size else np.empty(size)
     (b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = block_views(ints, floats)
     b[:] = base
     # the frames' joints at base: the fixed joints copied, the preset joints' parents and
