@@ -238,8 +238,8 @@ def block_lists(ints, J, P):
     """The index lists of a block computation's ints (after its header): the joints to
     recompute in order, the joints whose rotation is read (bit 1) and the preset ones (bit 2,
     see :func:`block_frames`), the joints copied from base per frame (the fixed joints a point
-    reads and the preset joints) (J, each); the stage's angle rows, the fixed parameter rows read and each parameter's position
-    in the stage or -1 (P, each)."""
+    reads and the preset joints) (J, each); the stage's angle rows, the fixed parameter rows
+    read and each parameter's position in the stage or -1 (P, each)."""
     return (ints[_HEADER:_HEADER + J], ints[_HEADER + J:_HEADER + 2 * J], ints[_HEADER + 2 * J:_HEADER + 3 * J],
             ints[_HEADER + 3 * J:_HEADER + 3 * J + P], ints[_HEADER + 3 * J + P:_HEADER + 3 * J + 2 * P],
             ints[_HEADER + 3 * J + 2 * P:])
