@@ -141,9 +141,9 @@ def robust_alignment(source: np.ndarray, proposals: np.ndarray, weights: np.ndar
 def _weighted_kabsch(source, target, w, R, t, scratch):
     """Weighted least-squares rotation and translation of source (n, 3) onto target (n, 3),
     w (n,) >= 0 (not all 0), into R, t: Horn's closed form (J. Opt. Soc. Am. A 4(4), 1987),
-    the unit quaternion that is the top eigenvector of a symmetric 4 x 4 matrix (Jacobi
-    rotations here: a proper rotation always, and 20x faster than LAPACK's 3 x 3 SVD).
-    scratch: (4, 4, 4) working space."""
+    the unit quaternion that is the top eigenvector of a symmetric 4 x 4 matrix
+    (:func:`_top_eigenvector`; Jacobi rotations where its top eigenvalue is nearly repeated):
+    a proper rotation always. scratch: (4, 4, 4) working space."""
     n = source.shape[0]
     total = 0.0
     ms, mt, S, N, V = scratch[0, 0, :3], scratch[0, 1, :3], scratch[1, :3, :3], scratch[2], scratch[3]
@@ -172,17 +172,99 @@ def _weighted_kabsch(source, target, w, R, t, scratch):
     N[1, 2] = N[2, 1] = S[0, 1] + S[1, 0]
     N[1, 3] = N[3, 1] = S[2, 0] + S[0, 2]
     N[2, 3] = N[3, 2] = S[1, 2] + S[2, 1]
-    V[:] = 0.0
-    for a in range(4):
-        V[a, a] = 1.0
-    _jacobi_eigen(N, V)
-    top = 0
-    for c in range(1, 4):
-        if N[c, c] > N[top, top]:
-            top = c
-    quaternion_matrix(V[0, top], V[1, top], V[2, top], V[3, top], R)
+    spread = 0.0  # Horn's bound on the largest eigenvalue: (sum w |s - ms|^2 + sum w |t - mt|^2) / 2
+    for i in range(n):
+        for a in range(3):
+            spread += w[i] * ((source[i, a] - ms[a]) ** 2 + (target[i, a] - mt[a]) ** 2)
+    q = V[0]
+    if not _top_eigenvector(N, 0.5 * spread, q, scratch[1]):  # a (nearly) repeated top eigenvalue
+        V[:] = 0.0
+        for a in range(4):
+            V[a, a] = 1.0
+        _jacobi_eigen(N, V)
+        top = 0
+        for c in range(1, 4):
+            if N[c, c] > N[top, top]:
+                top = c
+        for a in range(4):
+            scratch[0, 2, a] = V[a, top]
+        q = scratch[0, 2]
+    quaternion_matrix(q[0], q[1], q[2], q[3], R)
     for a in range(3):
         t[a] = mt[a] - (R[a, 0] * ms[0] + R[a, 1] * ms[1] + R[a, 2] * ms[2])
+
+
+@nb.njit(cache=True, inline="always")
+def _det3(M, r0, r1, r2, c0, c1, c2):
+    return (M[r0, c0] * (M[r1, c1] * M[r2, c2] - M[r1, c2] * M[r2, c1])
+            - M[r0, c1] * (M[r1, c0] * M[r2, c2] - M[r1, c2] * M[r2, c0])
+            + M[r0, c2] * (M[r1, c0] * M[r2, c1] - M[r1, c1] * M[r2, c0]))
+
+
+#: for each of 4 indices the other three, in order
+_OTHERS = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]], dtype=np.int64)
+
+
+@nb.njit(cache=True)
+def _top_eigenvector(N, bound, v, M):
+    """v (4,) = a unit eigenvector of the largest eigenvalue of the symmetric, traceless N
+    (4, 4), whose eigenvalues are at most ``bound``: Newton's method on the characteristic
+    polynomial from an upper bound of the eigenvalues (it converges from above), then the
+    longest row of the adjugate of N - lambda I (Theobald, Acta Cryst. A 61, 2005). M: (4, 4)
+    scratch. False (v unspecified) when that eigenvalue is nearly repeated (every row is short
+    against the scale of N): the eigenvector is then ill-determined this way."""
+    sq, cube = 0.0, 0.0  # tr(N^2), tr(N^3)
+    for i in range(4):
+        for j in range(4):
+            sq += N[i, j] * N[i, j]
+            nn = 0.0
+            for k in range(4):
+                nn += N[i, k] * N[k, j]
+            cube += nn * N[j, i]
+    scale = np.sqrt(sq)  # Frobenius norm
+    if not scale > 0.0:
+        return False
+    c2 = -0.5 * sq  # det(N - l I) = l^4 + c2 l^2 + c1 l + c0 (N traceless)
+    c1 = -cube / 3.0
+    c0 = (_det2(N, 0, 1, 0, 1) * _det2(N, 2, 3, 2, 3) - _det2(N, 0, 1, 0, 2) * _det2(N, 2, 3, 1, 3)
+          + _det2(N, 0, 1, 0, 3) * _det2(N, 2, 3, 1, 2) + _det2(N, 0, 1, 1, 2) * _det2(N, 2, 3, 0, 3)
+          - _det2(N, 0, 1, 1, 3) * _det2(N, 2, 3, 0, 2) + _det2(N, 0, 1, 2, 3) * _det2(N, 2, 3, 0, 1))
+    lam = min(bound, 0.8660254037844387 * scale) * (1.0 + 1e-12)  # traceless: |l| <= sqrt(3/4) |N|
+    for _ in range(100):
+        dp = (4.0 * lam * lam + 2.0 * c2) * lam + c1
+        if not dp > 0.0:
+            break
+        step = (((lam * lam + c2) * lam + c1) * lam + c0) / dp
+        lam -= step
+        if abs(step) <= 1e-14 * abs(lam):
+            break
+    for a in range(4):  # M = N - l I: its adjugate's rows are parallel to the eigenvector
+        for b in range(4):
+            M[a, b] = N[a, b] - lam if a == b else N[a, b]
+    best_len = 0.0
+    for r in range(4):
+        cols = _OTHERS[r]
+        length = 0.0
+        for c in range(4):
+            rows = _OTHERS[c]
+            length += _det3(M, rows[0], rows[1], rows[2], cols[0], cols[1], cols[2]) ** 2
+        if length > best_len:
+            best_len = length
+            for c in range(4):
+                rows = _OTHERS[c]
+                cof = _det3(M, rows[0], rows[1], rows[2], cols[0], cols[1], cols[2])
+                v[c] = -cof if (r + c) & 1 else cof
+    if not best_len > (1e-6 * scale ** 3) ** 2:
+        return False
+    norm = np.sqrt(best_len)
+    for c in range(4):
+        v[c] /= norm
+    return True
+
+
+@nb.njit(cache=True, inline="always")
+def _det2(N, r0, r1, c0, c1):
+    return N[r0, c0] * N[r1, c1] - N[r0, c1] * N[r1, c0]
 
 
 @nb.njit(cache=True)

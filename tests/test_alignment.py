@@ -59,3 +59,48 @@ def test_horns_rotation_is_the_svd_kabsch_rotation():
         np.testing.assert_allclose(t, t_svd, atol=1e-6)
 
     check()
+
+
+def test_the_top_eigenvector_is_numpys_or_declined():
+    """Horn's quaternion by Newton's method and the adjugate: on random symmetric traceless
+    matrices it is numpy's top eigenvector (up to sign) wherever the top eigenvalue stands
+    apart, and it declines (the caller diagonalises) where the top eigenvalue is repeated."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from hybridfit.alignment import _top_eigenvector
+
+    @settings(max_examples=200, deadline=None)
+    @given(seed=st.integers(0, 2**32 - 1), log_scale=st.floats(-3, 6))
+    def check(seed, log_scale):
+        rng = np.random.default_rng(seed)
+        A = rng.normal(size=(4, 4)) * 10.0**log_scale
+        N = A + A.T
+        N -= np.eye(4) * np.trace(N) / 4
+        values, vectors = np.linalg.eigh(N)
+        bound = values[-1] * (1.0 + rng.uniform(0, 3))  # any upper bound
+        v = np.empty(4)
+        ok = _top_eigenvector(N.copy(), bound, v, np.empty((4, 4)))
+        spread = values[-1] - values[0]
+        if values[-1] - values[-2] > 1e-2 * spread:
+            assert ok
+        if ok:
+            np.testing.assert_allclose(abs(v @ vectors[:, -1]), 1.0, atol=1e-10)
+
+    check()
+    v = np.empty(4)
+    assert not _top_eigenvector(np.diag([2.0, 2.0, -1.0, -3.0]), 5.0, v, np.empty((4, 4)))
+
+
+def test_a_rotation_about_a_line_of_points_is_still_proper():
+    """Points on a line leave the rotation about it free: the top eigenvalue repeats, the
+    Jacobi rotations take over, and the result is still a proper rotation that aligns them."""
+    from hybridfit.alignment import _weighted_kabsch
+
+    source = np.outer(np.arange(5.0), [1.0, 2.0, 2.0]) * 10
+    target = source[:, [2, 0, 1]] + [5.0, -3.0, 400.0]
+    R, t = np.empty((3, 3)), np.empty(3)
+    _weighted_kabsch(source, target, np.ones(5), R, t, np.empty((4, 4, 4)))
+    assert abs(np.linalg.det(R) - 1.0) < 1e-9
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
+    np.testing.assert_allclose(source @ R.T + t, target, atol=1e-6)

@@ -67,10 +67,11 @@ def keep_best(X, losses, best_x, best_loss):
     """Each frame's best of the batch X (F, m, d) with losses (F, >= m) into best_x, best_loss."""
     F, m, d = X.shape
     for f in range(F):
-        i = 0
-        for r in range(1, m):
-            if losses[f, r] < losses[f, i]:
-                i = r
+        i, low = 0, losses[f, 0]
+        for r in range(1, m):  # the first lowest, branch-free (the losses' order is unpredictable)
+            lower = losses[f, r] < low
+            i = r if lower else i
+            low = losses[f, r] if lower else low
         if losses[f, i] < best_loss[f]:
             best_loss[f] = losses[f, i]
             for k in range(d):

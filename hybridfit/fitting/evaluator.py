@@ -60,17 +60,20 @@ _KERNEL_FRAMES = T.void(
 
 def _frames_kernel_blocks(kernel, consts, proposals, weights, parents, offsets, rest, rest_identity, axes,
                           axis_params, mirror, pm_ptr, pm_joint, pm_weight, joints_are_points, ints, floats, X,
-                          subset, losses):
+                          particles_last, subset, losses):
     """losses[f, :m] as :func:`_kernel_frames`, by a frames kernel: one call per block of frames.
-    With ``joints_are_points`` (the point map is the identity) the kernel reads the joints'
-    block buffer itself, else the block's points are gathered first."""
-    F, m = X.shape[0], X.shape[1]
+    X (F, m, d), or with ``particles_last`` X (F, d, m) C-contiguous, the hypotheses innermost
+    (copied into the kinematics' block along its rows, a loop that vectorises). With
+    ``joints_are_points`` (the point map is the identity) the kernel reads the joints' block
+    buffer itself, else the block's points are gathered first."""
+    F, m = X.shape[0], X.shape[2 if particles_last else 1]
     G = ints[9]
     views = block_views(ints, floats)
     WpB, pts = views[9], views[11]
     for f0 in range(0, F, G):
         f1 = min(F, f0 + G)
-        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X)
+        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X,
+                         0, m, particles_last)
         if joints_are_points:
             kernel(WpB, subset, proposals, weights, consts, f0, f1, m, losses)
         else:
@@ -78,16 +81,17 @@ def _frames_kernel_blocks(kernel, consts, proposals, weights, parents, offsets, 
             kernel(pts, subset, proposals, weights, consts, f0, f1, m, losses)
 
 
-_FRAMES_KERNEL_BLOCKS = T.void(
+_FRAMES_KERNEL_BLOCKS = [T.void(
     T.FunctionType(FRAMES_KERNEL_SIGNATURE), T.float64[::1], T.float64[:, :, :, ::1], T.float64[:, :, ::1],
     T.int64[::1], T.float64[:, ::1], T.float64[:, :, ::1], T.boolean[::1], T.int64[:, ::1], T.int64[:, ::1], T.float64,
-    T.int64[::1], T.int64[::1], T.float64[::1], T.boolean, T.int64[::1], T.float64[::1], T.float64[:, :, :],
-    T.int64[::1], T.float64[:, ::1])
+    T.int64[::1], T.int64[::1], T.float64[::1], T.boolean, T.int64[::1], T.float64[::1], hypotheses, T.boolean,
+    T.int64[::1], T.float64[:, ::1]) for hypotheses in (T.float64[:, :, ::1], T.float64[:, :, :])]
 
 
 @functools.cache
 def frames_kernel_blocks():
-    """:func:`_frames_kernel_blocks` compiled for :data:`FRAMES_KERNEL_SIGNATURE` kernels (on first use)."""
+    """:func:`_frames_kernel_blocks` compiled for :data:`FRAMES_KERNEL_SIGNATURE` kernels and
+    hypotheses C-contiguous (particles last) or of any strides (on first use)."""
     return nb.njit(_FRAMES_KERNEL_BLOCKS, cache=True, nogil=True)(_frames_kernel_blocks)
 
 
@@ -205,14 +209,20 @@ class KernelScorer:
         self.frames = frames
         self.identity = joints_are_points(tree, point_map)
         self._run = frames_kernel_blocks() if frames else kernel_frames()
+        self._work = None  # the stages' block buffers, one after the other (block_setup's work)
 
     def prepare(self, base, pidx, subset, owned, n):
-        return block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n)
+        ints, floats = block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n, self._work)
+        if self._work is None or floats.shape[0] > self._work.shape[0]:
+            self._work = floats
+        return ints, floats
 
     def score(self, stage, X, subset, losses):
-        if self.frames:
+        if self.frames:  # X (F, m, d) as (F, d, m) where that is C-contiguous (PSO's swarm is): no copy
+            XT = X.transpose(0, 2, 1)
+            rows = XT.flags.c_contiguous
             self._run(self.kernel[0], self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map,
-                      self.identity, *stage, X, subset, losses)
+                      self.identity, *stage, XT if rows else X, rows, subset, losses)
         else:
             self._run(self.kernel[0], self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map,
                       *stage, X, subset, losses)

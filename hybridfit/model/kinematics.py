@@ -106,10 +106,13 @@ def block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, r
     """Camera-frame rotations and positions of the joints ``joints[:count]`` (parents first)
     for the first m hypotheses at once, the hypothesis the innermost axis (every loop
     vectorises): parameters pB (P, n), their sines and cosines sinB, cosB (P, n) (needed for
-    the listed joints' angles), rotations WB (J, 3, 3, n) (mirror included; only where
-    ``oriented[j]``: the joints whose rotation a listed child reads) and positions WpB
-    (J, 3, n) mm. The entries of joints not listed are read as they are (fixed joints); GB
-    (3, 3, n) is scratch space for the global rotation, computed when the root is listed."""
+    the listed joints' angles), rotations WB (J, 3, 3, n) (mirror included; only where bit 1
+    of ``oriented[j]`` is set: the joints whose rotation a listed child reads) and positions
+    WpB (J, 3, n) mm. The entries of joints not listed are read as they are (fixed joints).
+    Bit 2 of ``oriented[j]`` marks a listed joint as *preset*: its position and its frame
+    before its own rotations are already in WpB, WB (a joint whose parent is fixed: they are
+    the same for every hypothesis of a frame), so only its rotations are applied. GB (3, 3, n)
+    is scratch space for the global rotation, computed when the root is listed."""
     if count and parents[joints[0]] < 0:  # the root moves: the global pose of each hypothesis
         for i in range(m):
             w, x, y, z = pB[3, i], pB[4, i], pB[5, i], pB[6, i]
@@ -130,11 +133,14 @@ def block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, r
         j = joints[c]
         par = parents[j]
         o0, o1, o2 = offsets[j, 0], offsets[j, 1], offsets[j, 2]
-        if par < 0:
+        if oriented[j] & 2:
+            if not oriented[j] & 1:
+                continue
+        elif par < 0:
             for r in range(3):
                 for i in range(m):
                     WpB[j, r, i] = GB[r, 0, i] * o0 + GB[r, 1, i] * o1 + GB[r, 2, i] * o2 + pB[r, i]
-            if not oriented[j]:
+            if not oriented[j] & 1:
                 continue
             for r in range(3):
                 for k in range(3):
@@ -145,7 +151,7 @@ def block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, r
             for r in range(3):
                 for i in range(m):
                     WpB[j, r, i] = WpB[par, r, i] + WB[par, r, 0, i] * o0 + WB[par, r, 1, i] * o1 + WB[par, r, 2, i] * o2
-            if not oriented[j]:
+            if not oriented[j] & 1:
                 continue
             if rest_identity[j]:
                 for r in range(3):
@@ -217,7 +223,7 @@ def mark_needed(parents, pm_ptr, pm_joint, points, needed):
 GLOBAL_PARAMS = 7
 
 
-#: header of a stage's integer array: counts of listed joints, fixed joints read, stage angle
+#: header of a stage's integer array: counts of listed joints, joints copied from base, stage angle
 #: rows, fixed parameter rows read; batch n, frames F, parameters P, joints J, points Q, frames
 #: per block G
 _HEADER = 10
@@ -230,9 +236,10 @@ COLUMNS = 256
 @nb.njit(cache=True, nogil=True, inline="always")
 def block_lists(ints, J, P):
     """The index lists of a block computation's ints (after its header): the joints to
-    recompute in order, the joints whose rotation is read (1/0), the fixed joints read (J,
-    each); the stage's angle rows, the fixed parameter rows read and each parameter's position
-    in the stage or -1 (P, each)."""
+    recompute in order, the joints whose rotation is read (bit 1) and the preset ones (bit 2,
+    see :func:`block_frames`), the joints copied from base per frame (the fixed joints a point
+    reads and the preset joints) (J, each); the stage's angle rows, the fixed parameter rows
+    read and each parameter's position in the stage or -1 (P, each)."""
     return (ints[_HEADER:_HEADER + J], ints[_HEADER + J:_HEADER + 2 * J], ints[_HEADER + 2 * J:_HEADER + 3 * J],
             ints[_HEADER + 3 * J:_HEADER + 3 * J + P], ints[_HEADER + 3 * J + P:_HEADER + 3 * J + 2 * P],
             ints[_HEADER + 3 * J + 2 * P:])
@@ -240,14 +247,18 @@ def block_lists(ints, J, P):
 
 @nb.njit(cache=True, nogil=True)
 def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
-                base, pidx, subset, owned, n):
+                base, pidx, subset, owned, n, work=None):
     """A block computation of F frames whose parameters ``pidx`` (d,) move from ``base`` (F, P),
     for the points ``subset`` and ``owned`` (the point map (Q, J) in CSR form: pm_ptr,
     pm_joint, pm_weight), as (ints, floats): the joints to recompute per hypothesis (those the
     points need, :func:`mark_needed`, and the parameters move, parents first), the joints and
-    parameters read but fixed, the angles to take sines of, every frame's joints at ``base``,
-    and block buffers for G frames' batches of up to n hypotheses side by side (G = COLUMNS //
-    n, at least 1; see :func:`block_views`)."""
+    parameters read but fixed, the angles to take sines of, every frame's fixed joints at
+    ``base`` and, for a recomputed joint whose parent is fixed (preset), its position and
+    frame below its own rotations (the other joints' rows of W0, Wp0 are left unset), and
+    block buffers for G frames' batches of up to n hypotheses side by side (G = COLUMNS // n,
+    at least 1; see :func:`block_views`). ``work``: a float64 buffer whose start becomes
+    ``floats`` where it is large enough (one buffer for a run's stages: a fresh one each stage
+    costs page faults), else a new one."""
     F, P = base.shape
     J = parents.shape[0]
     Q = pm_ptr.shape[0] - 1
@@ -285,10 +296,15 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
             order[count] = j
             listed[j] = True
             count += 1
-    read = np.zeros(J, dtype=np.bool_)  # fixed joints that a listed joint or a point reads
+    # a listed joint whose parent is fixed is preset: its position and frame before its own
+    # rotations are the same for all of a frame's hypotheses, copied per frame like a fixed
+    # joint's; its parent is then read only at base (unless a point reads it)
+    preset = np.zeros(J, dtype=np.bool_)
     for c in range(count):
-        if parents[order[c]] >= 0:
-            read[parents[order[c]]] = True
+        preset[order[c]] = parents[order[c]] >= 0 and not listed[parents[order[c]]]
+    read = np.zeros(J, dtype=np.bool_)  # fixed joints that a point reads, and the preset joints
+    for c in range(count):
+        read[order[c]] = preset[order[c]]
     for t in range(subset.shape[0]):
         for e in range(pm_ptr[subset[t]], pm_ptr[subset[t] + 1]):
             read[pm_joint[e]] = True
@@ -297,7 +313,7 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
             read[pm_joint[e]] = True
     n_fixed = 0
     for j in range(J):
-        if read[j] and not listed[j]:
+        if read[j] and (preset[j] or not listed[j]):
             fixed[n_fixed] = j
             n_fixed += 1
     # parameters the listed joints read: a joint's angles turn only its own frame, so those of a
@@ -307,7 +323,7 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
         for k in range(GLOBAL_PARAMS):
             reads_param[k] = True
     for c in range(count):
-        if not oriented[order[c]]:
+        if not oriented[order[c]] & 1:
             continue
         for a in range(A):
             if axes[order[c], a] >= 0:
@@ -321,16 +337,31 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
         elif stage_pos[k] < 0 and reads_param[k]:
             frows[n_frows] = k
             n_frows += 1
+    for j in range(J):
+        if preset[j]:
+            oriented[j] |= 2
     ints[0], ints[1], ints[2], ints[3] = count, n_fixed, n_rows, n_frows
     G = max(1, min(F, COLUMNS // n))
     ints[4], ints[5], ints[6], ints[7], ints[8], ints[9] = n, F, P, J, Q, G
     C = G * n
-    floats = np.empty(3 * F * P + 12 * F * J + 3 * P * C + 12 * J * C + 9 * C + 3 * Q * C)
+    size = 3 * F * P + 12 * F * J + 3 * P * C + 12 * J * C + 9 * C + 3 * Q * C
+    floats = work[:size] if work is not None and work.shape[0] >= size else np.empty(size)
     (b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = block_views(ints, floats)
     b[:] = base
-    every = np.arange(J)
+    # the frames' joints at base: the fixed joints copied, the preset joints' parents and
+    # their ancestors; then the preset joints with their own angles at 0
+    at_base = np.zeros(J, dtype=np.bool_)
+    for t in range(n_fixed):
+        j = fixed[t]
+        at_base[parents[j] if preset[j] else j] = True
+    for j in range(J - 1, -1, -1):  # parents precede children: one pass up the tree
+        if at_base[j] and parents[j] >= 0:
+            at_base[parents[j]] = True
+    base_joints = np.flatnonzero(at_base)
+    preset_joints = np.flatnonzero(preset)
+    copied = np.flatnonzero(at_base | preset)
     all_oriented = np.ones(J, dtype=np.int64)
-    for f0 in range(0, F, C):  # every frame's joints at base, C frames at once, by the same code as the hypotheses'
+    for f0 in range(0, F, C):  # the fixed joints at base, C frames at once, by the same code as the hypotheses'
         B = min(C, F - f0)
         for k in range(P):
             for i in range(B):
@@ -340,10 +371,17 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
                     sv, cv = sincos1(v)
                 pB[k, i], sinB[k, i], cosB[k, i] = v, sv, cv
                 bsin[f0 + i, k], bcos[f0 + i, k] = sv, cv
-        block_frames(B, pB, sinB, cosB, every, J, all_oriented, parents, offsets, rest, rest_identity, axes,
-                     axis_params, mirror, WB, WpB, GB)
+        block_frames(B, pB, sinB, cosB, base_joints, base_joints.shape[0], all_oriented, parents, offsets, rest,
+                     rest_identity, axes, axis_params, mirror, WB, WpB, GB)
+        for j in preset_joints:  # turned by 0: their frames before their own rotations
+            for a in range(A):
+                if axes[j, a] >= 0:
+                    for i in range(B):
+                        sinB[axis_params[j, a], i], cosB[axis_params[j, a], i] = 0.0, 1.0
+        block_frames(B, pB, sinB, cosB, preset_joints, preset_joints.shape[0], all_oriented, parents, offsets, rest,
+                     rest_identity, axes, axis_params, mirror, WB, WpB, GB)
         for i in range(B):
-            for j in range(J):
+            for j in copied:
                 for r in range(3):
                     Wp0[f0 + i, j, r] = WpB[j, r, i]
                     for c in range(3):
@@ -354,7 +392,7 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
 @nb.njit(cache=True, nogil=True, inline="always")
 def block_views(ints, floats):
     """The arrays of a stage's floats: base, bsin, bcos (F, P); W0 (F, J, 3, 3), Wp0 (F, J, 3)
-    the frames' joints at base; block buffers pB, sinB, cosB (P, C), WB (J, 3, 3, C), WpB
+    the frames' joints at base (see :func:`block_setup`); block buffers pB, sinB, cosB (P, C), WB (J, 3, 3, C), WpB
     (J, 3, C), GB (3, 3, C) and points pts (Q, 3, C) with C = G n columns (frame g's
     hypothesis i in column g n + i)."""
     n, F, P, J, Q = ints[4], ints[5], ints[6], ints[7], ints[8]
@@ -388,23 +426,28 @@ def block_views(ints, floats):
 
 @nb.njit(cache=True, nogil=True, fastmath=True)
 def block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X,
-                     first=0, m=-1):
+                     first=0, m=-1, particles_last=False):
     """The joints of frames f0 <= f < f1 (at most G) with hypotheses X[f, first:first + m]
     (X (F, >= first + m, d); m < 0: the rest of X) into the block buffers WpB, WB: frame f's
-    hypothesis first + i in column (f - f0) m + i."""
+    hypothesis first + i in column (f - f0) m + i. With ``particles_last`` X is (F, d, >=
+    first + m), the hypotheses innermost (copied into the block along its rows)."""
     (base, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = block_views(ints, floats)
     J, P = ints[7], ints[6]
     order, oriented, fixed, rows, frows, stage_pos = block_lists(ints, J, P)
     if m < 0:
-        m = X.shape[1] - first
+        m = X.shape[2 if particles_last else 1] - first
     count, n_fixed, n_rows, n_frows = ints[0], ints[1], ints[2], ints[3]
     for f in range(f0, f1):
         at = (f - f0) * m
         for k in range(P):
             t = stage_pos[k]
             if t >= 0:
-                for i in range(m):
-                    pB[k, at + i] = X[f, first + i, t]
+                if particles_last:
+                    for i in range(m):
+                        pB[k, at + i] = X[f, t, first + i]
+                else:
+                    for i in range(m):
+                        pB[k, at + i] = X[f, first + i, t]
         for r in range(n_frows):
             k = frows[r]
             v, s, c = base[f, k], bsin[f, k], bcos[f, k]

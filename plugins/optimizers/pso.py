@@ -133,7 +133,12 @@ def pso_tell(state, X, losses):
                 pbest_f[f, i] = losses[f, i]
                 for k in range(d):
                     pbest_x[f, k, i] = X[f, i, k]
-        best[f] = np.argmin(pbest_f[f])
+        b, low = 0, pbest_f[f, 0]
+        for i in range(1, pbest_f.shape[1]):  # np.argmin, branch-free
+            lower = pbest_f[f, i] < low
+            b = i if lower else b
+            low = pbest_f[f, i] if lower else low
+        best[f] = b
 
 
 STEPS = BatchSteps(pso_init, pso_ask, pso_tell)
