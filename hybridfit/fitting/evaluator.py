@@ -103,15 +103,17 @@ def kernel_frames():
 
 @nb.njit(cache=True, nogil=True, fastmath=True)
 def frame_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
-                 ints, floats, X, subset, out):
+                 ints, floats, X, subset, out, particles_last=False):
     """out (F, Q, 3, n >= m) mm, the hypothesis innermost: out[f, :, :, :m] the points
-    ``subset`` of frame f's hypotheses X[f] (m, d) (the other points are left as they are)."""
-    F, m = X.shape[0], X.shape[1]
+    ``subset`` of frame f's hypotheses X[f] (m, d), or with ``particles_last`` of X (F, d, m)
+    C-contiguous (the other points are left as they are)."""
+    F, m = X.shape[0], X.shape[2 if particles_last else 1]
     G = ints[9]
     WpB = block_views(ints, floats)[9]
     for f0 in range(0, F, G):
         f1 = min(F, f0 + G)
-        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X)
+        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X,
+                         0, m, particles_last)
         for f in range(f0, f1):
             block_points(m, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out[f], (f - f0) * m)
 
@@ -138,15 +140,17 @@ def _sum_points(m, G, WpB, pm_ptr, pm_joint, pm_weight, subset, out, f0):
 
 @nb.njit(cache=True, nogil=True, fastmath=True)
 def subset_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
-                  ints, floats, X, subset, out):
+                  ints, floats, X, subset, out, particles_last=False):
     """out (3, n >= m, >= len(subset), F) mm, the frame innermost: out[c, i, t, f] coordinate c
-    of point subset[t] of frame f's hypothesis X[f, i] (X (F, m, d))."""
-    F, m = X.shape[0], X.shape[1]
+    of point subset[t] of frame f's hypothesis X[f, i] (X (F, m, d), or with ``particles_last``
+    X (F, d, m) C-contiguous, as :func:`block_kinematics` reads it)."""
+    F, m = X.shape[0], X.shape[2 if particles_last else 1]
     G = ints[9]
     WpB = block_views(ints, floats)[9]
     for f0 in range(0, F, G):
         f1 = min(F, f0 + G)
-        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X)
+        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X,
+                         0, m, particles_last)
         _sum_points(m, f1 - f0, WpB, pm_ptr, pm_joint, pm_weight, subset, out, f0)
 
 
@@ -250,19 +254,25 @@ class NumpyScorer:
         self.score_frames, self.losses, self.objective = score_frames, losses, objective
         self.Q = len(point_map[0]) - 1
         self._cuts: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+        self._work = self._flat = None  # block buffers and score_frames' points, reused by later stages
 
     def prepare(self, base, pidx, subset, owned, n):
         if self.twin:
             base = np.concatenate([base, base])
         F, n = len(base), max(n, 1)
         if self.score_frames is not None:  # (3, m, len(subset), F) at its start: see subset_points
-            buffer = np.empty(3 * n * self.Q * F)
+            if self._flat is None or self._flat.shape[0] < 3 * n * self.Q * F:
+                self._flat = np.empty(3 * n * self.Q * F)
+            buffer = self._flat
         elif self.tree is not None:  # the hypothesis innermost; points outside the subset stay 0
             buffer = np.zeros((F, self.Q, 3, n))
         else:
             buffer = None
         if self.tree is not None:
-            return block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n), buffer
+            ints, floats = block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n, self._work)
+            if self._work is None or floats.shape[0] > self._work.shape[0]:
+                self._work = floats
+            return (ints, floats), buffer
         return (base.copy(), pidx), buffer
 
     def cut(self, subset):
@@ -291,8 +301,10 @@ class NumpyScorer:
         stage, buffer = stage
         F, m, s = X.shape[0], X.shape[1], len(subset)
         out = buffer[:3 * m * s * F].reshape(3, m, s, F)
-        if self.tree is not None:
-            subset_points(*self.tree, *self.point_map, *stage, X, subset, out)
+        if self.tree is not None:  # X (F, m, d) read as (F, d, m) where that is C-contiguous: as KernelScorer
+            XT = X.transpose(0, 2, 1)
+            rows = XT.flags.c_contiguous
+            subset_points(*self.tree, *self.point_map, *stage, XT if rows else X, subset, out, rows)
         else:
             out[...] = self._forward_points(stage, X)[:, :, subset].transpose(3, 1, 2, 0)
         return out.transpose(3, 1, 2, 0)
@@ -304,7 +316,9 @@ class NumpyScorer:
         on them run along the hypotheses (the objective's contract allows any strides)."""
         stage, buffer = stage
         if self.tree is not None:
-            frame_points(*self.tree, *self.point_map, *stage, X, subset, buffer)
+            XT = X.transpose(0, 2, 1)
+            rows = XT.flags.c_contiguous
+            frame_points(*self.tree, *self.point_map, *stage, XT if rows else X, subset, buffer, rows)
             return buffer[..., :X.shape[1]].transpose(0, 3, 1, 2)
         return self._forward_points(stage, X)
 
