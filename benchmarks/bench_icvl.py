@@ -3,7 +3,7 @@
     python benchmarks/bench_icvl.py [--data ../shared/data/icvl] [--out bench_out/icvl] [--jobs 2]
                                     [--d-max 40] [--budget 3400]
 
-Every step fits the model `hybridfit calibrate` calibrates by default (hand27 since 0.6.1;
+Every step fits the model `hybridfit calibrate` calibrates by default (hand27 since 0.7.0;
 the model config names it, so every `fit` uses it). Runs exactly these commands (printed as
 they run) and prints the tables:
 (a) the model-fit floor: calibrate on frames 0:100 (the first 100 frames of sequence 1; the
