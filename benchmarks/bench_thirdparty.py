@@ -112,7 +112,7 @@ def scoring_breakdown(data, budget: int) -> None:
     """Print one refinement generation's scoring (all parameters move, all points scored, 29
     hypotheses per frame, every frame at once) as the driver's scorers run it: the
     kinematics alone, the kinematics with the points written out for ``score_frames``
-    (``evaluator.subset_points``), and the built-in's kinematics with its compiled kernel
+    (``evaluator.write_points``), and the built-in's kinematics with its compiled kernel
     (``evaluator.kernel_frames``)."""
     from hybridfit.fitting import driver, evaluator
 
@@ -128,10 +128,10 @@ def scoring_breakdown(data, budget: int) -> None:
     kernel = (evaluator.as_cfunc(fitter.kernel[0]), fitter.kernel[1])
     proposals, weights = np.ascontiguousarray(chunk.proposals), np.ascontiguousarray(chunk.weights)
     calls = {
-        "kinematics alone": lambda: evaluator.subset_points(
-            *fitter.tree, *fitter.point_map, *stage, X, points[:0], out),
-        "kinematics + points written for score_frames": lambda: evaluator.subset_points(
-            *fitter.tree, *fitter.point_map, *stage, X, points, out),
+        "kinematics alone": lambda: evaluator.write_points(
+            *fitter.tree, *fitter.point_map, *stage, X, points[:0], out, False, True),
+        "kinematics + points written for score_frames": lambda: evaluator.write_points(
+            *fitter.tree, *fitter.point_map, *stage, X, points, out, False, True),
         "kinematics + compiled kernel (built-in)": lambda: evaluator.kernel_frames()(
             kernel[0], kernel[1], proposals, weights, *fitter.tree, *fitter.point_map, *stage, X, points, losses),
     }

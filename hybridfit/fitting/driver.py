@@ -62,16 +62,24 @@ def stage_box(base, lower, upper, pidx):
     return lo, hi, start
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def first_lowest(values, m):
+    """The index of the first lowest of values[:m] (m >= 1), as np.argmin, branch-free (a select,
+    not a branch: the order of losses is unpredictable)."""
+    i, low = 0, values[0]
+    for r in range(1, m):
+        lower = values[r] < low
+        i = r if lower else i
+        low = values[r] if lower else low
+    return i
+
+
 @nb.njit(cache=True, nogil=True)
 def keep_best(X, losses, best_x, best_loss):
     """Each frame's best of the batch X (F, m, d) with losses (F, >= m) into best_x, best_loss."""
     F, m, d = X.shape
     for f in range(F):
-        i, low = 0, losses[f, 0]
-        for r in range(1, m):  # the first lowest, branch-free (the losses' order is unpredictable)
-            lower = losses[f, r] < low
-            i = r if lower else i
-            low = losses[f, r] if lower else low
+        i = first_lowest(losses[f], m)
         if losses[f, i] < best_loss[f]:
             best_loss[f] = losses[f, i]
             for k in range(d):

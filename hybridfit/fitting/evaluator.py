@@ -101,23 +101,6 @@ def kernel_frames():
     return nb.njit(_KERNEL_FRAMES, cache=True, nogil=True)(_kernel_frames)
 
 
-@nb.njit(cache=True, nogil=True, fastmath=True)
-def frame_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
-                 ints, floats, X, subset, out, particles_last=False):
-    """out (F, Q, 3, n >= m) mm, the hypothesis innermost: out[f, :, :, :m] the points
-    ``subset`` of frame f's hypotheses X[f] (m, d), or with ``particles_last`` of X (F, d, m)
-    C-contiguous (the other points are left as they are)."""
-    F, m = X.shape[0], X.shape[2 if particles_last else 1]
-    G = ints[9]
-    WpB = block_views(ints, floats)[9]
-    for f0 in range(0, F, G):
-        f1 = min(F, f0 + G)
-        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X,
-                         0, m, particles_last)
-        for f in range(f0, f1):
-            block_points(m, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out[f], (f - f0) * m)
-
-
 @nb.njit(cache=True, nogil=True)
 def _sum_points(m, G, WpB, pm_ptr, pm_joint, pm_weight, subset, out, f0):
     """out[c, i, t, f0 + g] = sum_j point_map[subset[t], j] WpB[j, c, g m + i] for the G frames'
@@ -139,11 +122,14 @@ def _sum_points(m, G, WpB, pm_ptr, pm_joint, pm_weight, subset, out, f0):
 
 
 @nb.njit(cache=True, nogil=True, fastmath=True)
-def subset_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
-                  ints, floats, X, subset, out, particles_last=False):
-    """out (3, n >= m, >= len(subset), F) mm, the frame innermost: out[c, i, t, f] coordinate c
-    of point subset[t] of frame f's hypothesis X[f, i] (X (F, m, d), or with ``particles_last``
-    X (F, d, m) C-contiguous, as :func:`block_kinematics` reads it)."""
+def write_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
+                 ints, floats, X, subset, out, particles_last=False, frames_innermost=False):
+    """The points ``subset`` of every frame's hypotheses X (F, m, d), or with ``particles_last``
+    X (F, d, m) C-contiguous (as :func:`block_kinematics` reads it), into ``out`` (mm):
+    - the hypothesis innermost: out (F, Q, 3, n >= m), out[f, :, :, :m] frame f's points (the
+      other points are left as they are);
+    - with ``frames_innermost``: out (3, n >= m, >= len(subset), F), out[c, i, t, f] coordinate
+      c of point subset[t] of frame f's hypothesis i."""
     F, m = X.shape[0], X.shape[2 if particles_last else 1]
     G = ints[9]
     WpB = block_views(ints, floats)[9]
@@ -151,7 +137,26 @@ def subset_points(parents, offsets, rest, rest_identity, axes, axis_params, mirr
         f1 = min(F, f0 + G)
         block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X,
                          0, m, particles_last)
-        _sum_points(m, f1 - f0, WpB, pm_ptr, pm_joint, pm_weight, subset, out, f0)
+        if frames_innermost:
+            _sum_points(m, f1 - f0, WpB, pm_ptr, pm_joint, pm_weight, subset, out, f0)
+        else:
+            for f in range(f0, f1):
+                block_points(m, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out[f], (f - f0) * m)
+
+
+def along_rows(X: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Hypotheses X (F, m, d) as the block kinematics read them fastest: (X (F, d, m), True)
+    where that view is C-contiguous (PSO's swarm is: no copy), else (X, False)."""
+    XT = X.transpose(0, 2, 1)
+    return (XT, True) if XT.flags.c_contiguous else (X, False)
+
+
+def stage_setup(work, tree, point_map, base, pidx, subset, owned, n):
+    """:func:`block_setup` of a stage in ``work``, a scorer's buffer for all its stages (a fresh
+    one each stage costs page faults; None: none yet) -> (ints, floats, the buffer to keep:
+    ``work``, or ``floats`` where the stage needed more)."""
+    ints, floats = block_setup(*tree, *point_map, base, pidx, subset, owned, n, work)
+    return ints, floats, (floats if work is None or floats.shape[0] > work.shape[0] else work)
 
 
 def frames_innermost(a: np.ndarray, point_axis: int) -> np.ndarray:
@@ -216,17 +221,13 @@ class KernelScorer:
         self._work = None  # the stages' block buffers, one after the other (block_setup's work)
 
     def prepare(self, base, pidx, subset, owned, n):
-        ints, floats = block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n, self._work)
-        if self._work is None or floats.shape[0] > self._work.shape[0]:
-            self._work = floats
+        ints, floats, self._work = stage_setup(self._work, self.tree, self.point_map, base, pidx, subset, owned, n)
         return ints, floats
 
     def score(self, stage, X, subset, losses):
-        if self.frames:  # X (F, m, d) as (F, d, m) where that is C-contiguous (PSO's swarm is): no copy
-            XT = X.transpose(0, 2, 1)
-            rows = XT.flags.c_contiguous
+        if self.frames:
             self._run(self.kernel[0], self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map,
-                      self.identity, *stage, XT if rows else X, rows, subset, losses)
+                      self.identity, *stage, *along_rows(X), subset, losses)
         else:
             self._run(self.kernel[0], self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map,
                       *stage, X, subset, losses)
@@ -260,7 +261,7 @@ class NumpyScorer:
         if self.twin:
             base = np.concatenate([base, base])
         F, n = len(base), max(n, 1)
-        if self.score_frames is not None:  # (3, m, len(subset), F) at its start: see subset_points
+        if self.score_frames is not None:  # (3, m, len(subset), F) at its start: see write_points
             if self._flat is None or self._flat.shape[0] < 3 * n * self.Q * F:
                 self._flat = np.empty(3 * n * self.Q * F)
             buffer = self._flat
@@ -269,9 +270,7 @@ class NumpyScorer:
         else:
             buffer = None
         if self.tree is not None:
-            ints, floats = block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n, self._work)
-            if self._work is None or floats.shape[0] > self._work.shape[0]:
-                self._work = floats
+            ints, floats, self._work = stage_setup(self._work, self.tree, self.point_map, base, pidx, subset, owned, n)
             return (ints, floats), buffer
         return (base.copy(), pidx), buffer
 
@@ -301,10 +300,9 @@ class NumpyScorer:
         stage, buffer = stage
         F, m, s = X.shape[0], X.shape[1], len(subset)
         out = buffer[:3 * m * s * F].reshape(3, m, s, F)
-        if self.tree is not None:  # X (F, m, d) read as (F, d, m) where that is C-contiguous: as KernelScorer
-            XT = X.transpose(0, 2, 1)
-            rows = XT.flags.c_contiguous
-            subset_points(*self.tree, *self.point_map, *stage, XT if rows else X, subset, out, rows)
+        if self.tree is not None:
+            hypotheses, rows = along_rows(X)
+            write_points(*self.tree, *self.point_map, *stage, hypotheses, subset, out, rows, True)
         else:
             out[...] = self._forward_points(stage, X)[:, :, subset].transpose(3, 1, 2, 0)
         return out.transpose(3, 1, 2, 0)
@@ -316,9 +314,8 @@ class NumpyScorer:
         on them run along the hypotheses (the objective's contract allows any strides)."""
         stage, buffer = stage
         if self.tree is not None:
-            XT = X.transpose(0, 2, 1)
-            rows = XT.flags.c_contiguous
-            frame_points(*self.tree, *self.point_map, *stage, XT if rows else X, subset, buffer, rows)
+            hypotheses, rows = along_rows(X)
+            write_points(*self.tree, *self.point_map, *stage, hypotheses, subset, buffer, rows)
             return buffer[..., :X.shape[1]].transpose(0, 3, 1, 2)
         return self._forward_points(stage, X)
 

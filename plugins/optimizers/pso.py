@@ -27,6 +27,7 @@ import numba as nb
 import numpy as np
 from pydantic import Field
 
+from hybridfit.fitting.driver import first_lowest
 from hybridfit.fitting.streams import fill_normal, fill_uniform
 from hybridfit.optimizer import BatchSteps, Optimizer, Task
 from hybridfit.plugin import Settings
@@ -133,12 +134,7 @@ def pso_tell(state, X, losses):
                 pbest_f[f, i] = losses[f, i]
                 for k in range(d):
                     pbest_x[f, k, i] = X[f, i, k]
-        b, low = 0, pbest_f[f, 0]
-        for i in range(1, pbest_f.shape[1]):  # np.argmin, branch-free
-            lower = pbest_f[f, i] < low
-            b = i if lower else b
-            low = pbest_f[f, i] if lower else low
-        best[f] = b
+        best[f] = first_lowest(pbest_f[f], pbest_f.shape[1])
 
 
 STEPS = BatchSteps(pso_init, pso_ask, pso_tell)
