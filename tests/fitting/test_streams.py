@@ -49,6 +49,20 @@ def test_numpy_helpers_with_frames_last_give_the_same_numbers_frame_last():
             assert np.array_equal(np.moveaxis(last, -1, 0), draw(keys, start, (2, 5)))
 
 
+def test_numpy_helpers_write_into_a_given_buffer_or_refuse_it():
+    import pytest
+
+    keys = np.array([5, 9, 11], dtype=np.uint64)
+    for draw in (uniforms, normals):
+        for frames_last, shape in ((True, (2, 5, 3)), (False, (3, 2, 5))):
+            out = np.full(shape, np.nan)
+            assert draw(keys, 3, (2, 5), frames_last=frames_last, out=out) is out
+            assert np.array_equal(out, draw(keys, 3, (2, 5), frames_last=frames_last))
+        for bad in (np.empty((2, 5, 4)), np.empty((5, 2, 3)).transpose(1, 0, 2), np.empty((2, 5, 3), np.float32)):
+            with pytest.raises(ValueError, match="out must be"):
+                draw(keys, 0, (2, 5), frames_last=True, out=bad)
+
+
 def test_a_number_depends_only_on_its_key_and_counter():
     whole = np.empty(100)
     fill_uniform(np.uint64(12345), 0, whole)

@@ -8,12 +8,14 @@ scores the hypotheses itself and keeps the budget, so ``minimize``, stepwise sch
 the budget come for free. Frame f's random numbers come only from its key ``keys[f]``
 (``hybridfit.fitting.streams``), so a frame's fit does not depend on the frames beside it.
 
-The swarm keeps the frame axis last ((n, d, F) arrays, C order): a frame's bounds (d, F)
-then broadcast over the particles, and numpy's operations run over long contiguous (d, F)
-rows even when a stage moves few parameters. The updates work in place, in the state's
-arrays and one scratch array allocated by ``init`` (fresh arrays of this size every
-generation cost page faults). ``ask`` hands the driver an (F, m, d) view of the swarm (no
-copy).
+The swarm keeps the frame axis last and the parameter axis first ((d, n, F) arrays, C
+order): the order in which a generation's random numbers are numbered ((2, d, m), as ``pso``
+numbers them), so the numbers, the swarm and its bests are the same layout and every numpy
+operation runs over long contiguous (m, F) rows, whatever the number of parameters; a frame's
+bounds (d, 1, F) broadcast over the particles. The updates work in place, in the state's
+arrays, one scratch array and one buffer for the random numbers, all allocated by ``init``
+(fresh arrays of this size every generation cost page faults). ``ask`` hands the driver an
+(F, m, d) view of the swarm (no copy).
 """
 
 from __future__ import annotations
@@ -24,6 +26,12 @@ from pydantic import Field
 from hybridfit.fitting.streams import normals, uniforms
 from hybridfit.optimizer import BatchSteps, Optimizer
 from hybridfit.plugin import Settings
+
+
+#: elements per block of :func:`ask`'s update (at most, or one parameter's row): 16k, so the
+#: block's rows of the swarm, its bests, the random numbers and the scratch (128 KiB each)
+#: stay in a core's second-level cache from one numpy call to the next
+BLOCK_ELEMENTS = 1 << 14
 
 
 class NumpyPSOSettings(Settings):
@@ -42,52 +50,71 @@ def init(start, lower, upper, keys, budget, settings):
     near = min(int(settings[5]), n)
     start, lower, upper = start.T, lower.T.copy(), upper.T.copy()  # (d, F)
     span = upper - lower
-    x = lower + span * uniforms(keys, 0, (n, d), frames_last=True)  # (n, d, F)
+    x = lower + span * uniforms(keys, 0, (n, d), frames_last=True)  # (n, d, F), numbered as pso numbers them
     if near:
         x[:near] = start + settings[3] * normals(keys, 0, (near, d), frames_last=True) * span
         x[0] = start
     np.maximum(x, lower, out=x)
     np.minimum(x, upper, out=x)
+    x = np.ascontiguousarray(x.transpose(1, 0, 2))  # (d, n, F)
+    lower, upper, span = lower[:, None], upper[:, None], span[:, None]  # (d, 1, F)
     return {"x": x, "v": np.zeros_like(x), "pbest_x": x.copy(), "pbest_f": np.full((n, F), np.inf),
-            "scratch": np.empty_like(x), "lower": lower, "upper": upper, "vmax": settings[4] * span,
-            "min_v": -settings[4] * span, "keys": keys, "settings": settings, "counter": n * d, "first": True}
+            "scratch": np.empty_like(x), "random": np.empty(2 * d * n * F), "lower": lower, "upper": upper,
+            "vmax": settings[4] * span, "min_v": -settings[4] * span, "frames": np.arange(F), "keys": keys,
+            "settings": settings, "counter": n * d, "first": True}
 
 
 def ask(state, m):
     x = state["x"]
     if state["first"]:
-        return x[:m].transpose(2, 0, 1)
-    c1, c2, chi = state["settings"][:3]
-    n, d, F = x.shape
-    # (2, m, d, F), numbered coordinate by coordinate as pso numbers them
-    r = uniforms(state["keys"], state["counter"], (2, d, m), frames_last=True).transpose(0, 2, 1, 3)
+        return x[:, :m].transpose(2, 1, 0)
+    d, n, F = x.shape
+    pbest_x = state["pbest_x"]
+    best = pbest_x[:, state["pbest_f"].argmin(axis=0), state["frames"]][:, None]  # (d, 1, F)
+    rows = max(1, BLOCK_ELEMENTS // (m * F))  # parameters per block
+    for k0 in range(0, d, rows):
+        _move(state, slice(k0, min(d, k0 + rows)), m, best)
     state["counter"] += 2 * m * d
-    best = state["pbest_x"][state["pbest_f"].argmin(axis=0), :, np.arange(F)].T  # (d, F)
-    xs, vs, scratch = x[:m], state["v"][:m], state["scratch"][:m]
+    return x[:, :m].transpose(2, 1, 0)
+
+
+def _move(state, k, m, best):
+    """One generation's move of the parameters (rows) k of the first m particles, in place."""
+    c1, c2, chi = state["settings"][:3]
+    d, n, F = state["x"].shape
+    rows = k.stop - k.start
+    xs, vs, scratch = state["x"][k, :m], state["v"][k, :m], state["scratch"][k, :m]
+    # r (2, rows, m, F): the generation's numbers are numbered (2, d, m), as pso numbers them
+    r = state["random"].reshape(-1)[:2 * rows * m * F].reshape(2, rows, m, F)
+    for i, c in enumerate((c1, c2)):  # c r, the same floats as numpy's r * c
+        uniforms(state["keys"], state["counter"] + (i * d + k.start) * m, (rows, m), frames_last=True, out=r[i],
+                 scale=c)
     # v = chi (v + c1 r1 (pbest - x) + c2 r2 (best - x)), clipped to +-vmax
-    r[0] *= c1
-    r[0] *= np.subtract(state["pbest_x"][:m], xs, out=scratch)
-    r[1] *= c2
-    r[1] *= np.subtract(best, xs, out=scratch)
+    r[0] *= np.subtract(state["pbest_x"][k, :m], xs, out=scratch)
+    r[1] *= np.subtract(best[k], xs, out=scratch)
     vs += r[0]
     vs += r[1]
     vs *= chi
-    np.maximum(vs, state["min_v"], out=vs)
-    np.minimum(vs, state["vmax"], out=vs)
+    np.maximum(vs, state["min_v"][k], out=vs)
+    np.minimum(vs, state["vmax"][k], out=vs)
     moved = np.add(xs, vs, out=scratch)
-    np.maximum(moved, state["lower"], out=xs)
-    np.minimum(xs, state["upper"], out=xs)
-    np.copyto(vs, 0.0, where=xs != moved)  # a particle that hits a bound stops there
-    return xs.transpose(2, 0, 1)
+    np.maximum(moved, state["lower"][k], out=xs)
+    np.minimum(xs, state["upper"][k], out=xs)
+    vs *= xs == moved  # a particle that hits a bound stops there (v 0 or -0)
 
 
 def tell(state, X, losses):
+    """Each particle's best: the rows of the (d, n, F) bests are (n, F) blocks, so the improved
+    (particle, frame) pairs are the same flat indices in every row, copied at once (improvements
+    are few: a masked copy of every row costs more)."""
     state["first"] = False
     m = X.shape[1]
+    d, n, F = state["pbest_x"].shape
     losses = losses.T  # (m, F)
     better = losses < state["pbest_f"][:m]
     np.copyto(state["pbest_f"][:m], losses, where=better)
-    np.copyto(state["pbest_x"][:m], X.transpose(1, 2, 0), where=better[:, None])
+    improved = np.flatnonzero(better)
+    state["pbest_x"].reshape(d, n * F)[:, improved] = X.transpose(2, 1, 0).reshape(d, m * F)[:, improved]
 
 
 STEPS = BatchSteps(init, ask, tell)
