@@ -28,10 +28,10 @@ from hybridfit.optimizer import BatchSteps, Optimizer
 from hybridfit.plugin import Settings
 
 
-#: elements per block of :func:`ask`'s update (at most, or one parameter's row): 16k, so the
-#: block's rows of the swarm, its bests, the random numbers and the scratch (128 KiB each)
+#: elements per block of :func:`ask`'s update (at most, or one parameter's row): 32k, so the
+#: block's rows of the swarm, its bests, the random numbers and the scratch (256 KiB each)
 #: stay in a core's second-level cache from one numpy call to the next
-BLOCK_ELEMENTS = 1 << 14
+BLOCK_ELEMENTS = 1 << 15
 
 
 class NumpyPSOSettings(Settings):
