@@ -96,25 +96,24 @@ def _fill(pair, key, start, out):
 
 
 @nb.njit(cache=True, inline="always")
-def _fill_frames_last(pair, keys, start, scale, out):
-    """out (n, F): column f = ``scale`` times numbers start, start + 1, ... of stream ``keys[f]``,
-    as :func:`_fill` computes them, written row by row (the loop over frames innermost)."""
+def _fill_frames_last(pair, keys, start, out):
+    """out (n, F): column f = numbers start, start + 1, ... of stream ``keys[f]``, as
+    :func:`_fill` computes them, written row by row (the loop over frames innermost)."""
     n, F = out.shape
     if n == 0:
         return
     first = start & 1
     if first:
         for f in range(F):
-            out[0, f] = pair(keys[f], start >> 1)[1] * scale
+            out[0, f] = pair(keys[f], start >> 1)[1]
     pairs = (n - first) // 2
     p0 = (start + first) >> 1
     for p in range(pairs):
         for f in range(F):
-            a, b = pair(keys[f], p0 + p)
-            out[first + 2 * p, f], out[first + 2 * p + 1, f] = a * scale, b * scale
+            out[first + 2 * p, f], out[first + 2 * p + 1, f] = pair(keys[f], p0 + p)
     if first + 2 * pairs < n:
         for f in range(F):
-            out[n - 1, f] = pair(keys[f], (start + n - 1) >> 1)[0] * scale
+            out[n - 1, f] = pair(keys[f], (start + n - 1) >> 1)[0]
 
 
 @nb.njit(cache=True)
@@ -157,52 +156,47 @@ def stage_keys(seed: int, frames, stages: int) -> np.ndarray:
 
 
 @nb.njit(cache=True)
-def _uniforms(keys, start, scale, out):
+def _uniforms(keys, start, out):
     F = keys.shape[0]
     for f in range(F):
         fill_uniform(keys[f], start, out[f])
-        if scale != 1.0:
-            out[f] *= scale
 
 
 @nb.njit(cache=True)
-def _normals(keys, start, scale, out):
+def _normals(keys, start, out):
     F = keys.shape[0]
     for f in range(F):
         fill_normal(keys[f], start, out[f])
-        if scale != 1.0:
-            out[f] *= scale
 
 
 @nb.njit(cache=True)
-def _uniforms_last(keys, start, scale, out):
-    _fill_frames_last(uniform_pair, keys, start, scale, out)
+def _uniforms_last(keys, start, out):
+    _fill_frames_last(uniform_pair, keys, start, out)
 
 
 @nb.njit(cache=True)
-def _normals_last(keys, start, scale, out):
-    _fill_frames_last(normal_pair, keys, start, scale, out)
+def _normals_last(keys, start, out):
+    _fill_frames_last(normal_pair, keys, start, out)
 
 
-def uniforms(keys: np.ndarray, start: int, shape, frames_last: bool = False, out: np.ndarray | None = None,
-             scale: float = 1.0) -> np.ndarray:
+def uniforms(keys: np.ndarray, start: int, shape, frames_last: bool = False,
+             out: np.ndarray | None = None) -> np.ndarray:
     """(F, *shape) uniform numbers in [0, 1): per frame f the numbers start, start + 1, ... of
     stream ``keys[f]`` in C order of ``shape`` (for numpy optimisers). frames_last: the same
-    numbers as a C-contiguous (*shape, F) array, frame f's at ``[..., f]``. out: a C-contiguous
-    float64 array of that shape to write them into (returned), so that an optimiser that draws
-    every generation reuses one buffer (a fresh large array per call costs page faults).
-    scale: each number times ``scale``, the same float as numpy's ``uniforms(...) * scale``
-    (one pass fewer over the numbers)."""
-    return _draw(_uniforms_last if frames_last else _uniforms, keys, start, shape, frames_last, out, scale)
+    numbers as a C-contiguous (*shape, F) array, frame f's at ``[..., f]``. out: a writable
+    C-contiguous float64 array of that shape to draw them into (and return), so that an optimiser
+    that draws every generation reuses one buffer (a fresh large array per call costs page
+    faults); ValueError for any other."""
+    return _draw(_uniforms_last if frames_last else _uniforms, keys, start, shape, frames_last, out)
 
 
-def normals(keys: np.ndarray, start: int, shape, frames_last: bool = False, out: np.ndarray | None = None,
-            scale: float = 1.0) -> np.ndarray:
+def normals(keys: np.ndarray, start: int, shape, frames_last: bool = False,
+            out: np.ndarray | None = None) -> np.ndarray:
     """(F, *shape) standard normal numbers, as :func:`uniforms`."""
-    return _draw(_normals_last if frames_last else _normals, keys, start, shape, frames_last, out, scale)
+    return _draw(_normals_last if frames_last else _normals, keys, start, shape, frames_last, out)
 
 
-def _draw(fill, keys, start, shape, frames_last, out, scale):
+def _draw(fill, keys, start, shape, frames_last, out):
     keys = np.ascontiguousarray(keys, dtype=np.uint64)
     shape = tuple(int(s) for s in shape)
     size, F = math.prod(shape), len(keys)
@@ -212,5 +206,5 @@ def _draw(fill, keys, start, shape, frames_last, out, scale):
     elif out.shape != full or out.dtype != np.float64 or not out.flags.c_contiguous or not out.flags.writeable:
         raise ValueError(f"out must be a writable C-contiguous float64 array of shape {full}, got "
                          f"{out.dtype} {out.shape}")
-    fill(keys, int(start), float(scale), out.reshape((size, F) if frames_last else (F, size)))
+    fill(keys, int(start), out.reshape((size, F) if frames_last else (F, size)))
     return out

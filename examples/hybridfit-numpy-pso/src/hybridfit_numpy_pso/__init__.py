@@ -9,13 +9,14 @@ the budget come for free. Frame f's random numbers come only from its key ``keys
 (``hybridfit.fitting.streams``), so a frame's fit does not depend on the frames beside it.
 
 The swarm keeps the frame axis last and the parameter axis first ((d, n, F) arrays, C
-order): the order in which a generation's random numbers are numbered ((2, d, m), as ``pso``
-numbers them), so the numbers, the swarm and its bests are the same layout and every numpy
-operation runs over long contiguous (m, F) rows, whatever the number of parameters; a frame's
-bounds (d, 1, F) broadcast over the particles. The updates work in place, in the state's
-arrays, one scratch array and one buffer for the random numbers, all allocated by ``init``
-(fresh arrays of this size every generation cost page faults). ``ask`` hands the driver an
-(F, m, d) view of the swarm (no copy).
+order), the order in which a generation's random numbers are numbered ((2, d, m), as ``pso``
+numbers them): the numbers, the swarm and its bests then have one layout, and every numpy
+operation runs over the same contiguous (m, F) rows of each operand (a transposed operand
+costs a strided pass); a frame's bounds (d, 1, F) broadcast over the particles. The updates
+work in place, in the state's arrays, one scratch array and one buffer that the random
+numbers are drawn into (``uniforms(..., out=)``), all allocated by ``init`` (fresh arrays of
+this size every generation cost page faults). ``ask`` hands the driver an (F, m, d) view of
+the swarm (no copy).
 """
 
 from __future__ import annotations
@@ -26,12 +27,6 @@ from pydantic import Field
 from hybridfit.fitting.streams import normals, uniforms
 from hybridfit.optimizer import BatchSteps, Optimizer
 from hybridfit.plugin import Settings
-
-
-#: elements per block of :func:`ask`'s update (at most, or one parameter's row): 32k, so the
-#: block's rows of the swarm, its bests, the random numbers and the scratch (256 KiB each)
-#: stay in a core's second-level cache from one numpy call to the next
-BLOCK_ELEMENTS = 1 << 15
 
 
 class NumpyPSOSettings(Settings):
@@ -68,39 +63,30 @@ def ask(state, m):
     x = state["x"]
     if state["first"]:
         return x[:, :m].transpose(2, 1, 0)
+    c1, c2, chi = state["settings"][:3]
     d, n, F = x.shape
+    # (2, d, m, F), numbered coordinate by coordinate as pso numbers them
+    r = uniforms(state["keys"], state["counter"], (2, d, m), frames_last=True,
+                 out=state["random"][:2 * d * m * F].reshape(2, d, m, F))
+    state["counter"] += 2 * m * d
     pbest_x = state["pbest_x"]
     best = pbest_x[:, state["pbest_f"].argmin(axis=0), state["frames"]][:, None]  # (d, 1, F)
-    rows = max(1, BLOCK_ELEMENTS // (m * F))  # parameters per block
-    for k0 in range(0, d, rows):
-        _move(state, slice(k0, min(d, k0 + rows)), m, best)
-    state["counter"] += 2 * m * d
-    return x[:, :m].transpose(2, 1, 0)
-
-
-def _move(state, k, m, best):
-    """One generation's move of the parameters (rows) k of the first m particles, in place."""
-    c1, c2, chi = state["settings"][:3]
-    d, n, F = state["x"].shape
-    rows = k.stop - k.start
-    xs, vs, scratch = state["x"][k, :m], state["v"][k, :m], state["scratch"][k, :m]
-    # r (2, rows, m, F): the generation's numbers are numbered (2, d, m), as pso numbers them
-    r = state["random"].reshape(-1)[:2 * rows * m * F].reshape(2, rows, m, F)
-    for i, c in enumerate((c1, c2)):  # c r, the same floats as numpy's r * c
-        uniforms(state["keys"], state["counter"] + (i * d + k.start) * m, (rows, m), frames_last=True, out=r[i],
-                 scale=c)
+    xs, vs, scratch = x[:, :m], state["v"][:, :m], state["scratch"][:, :m]
     # v = chi (v + c1 r1 (pbest - x) + c2 r2 (best - x)), clipped to +-vmax
-    r[0] *= np.subtract(state["pbest_x"][k, :m], xs, out=scratch)
-    r[1] *= np.subtract(best[k], xs, out=scratch)
+    r[0] *= c1
+    r[0] *= np.subtract(pbest_x[:, :m], xs, out=scratch)
+    r[1] *= c2
+    r[1] *= np.subtract(best, xs, out=scratch)
     vs += r[0]
     vs += r[1]
     vs *= chi
-    np.maximum(vs, state["min_v"][k], out=vs)
-    np.minimum(vs, state["vmax"][k], out=vs)
+    np.maximum(vs, state["min_v"], out=vs)
+    np.minimum(vs, state["vmax"], out=vs)
     moved = np.add(xs, vs, out=scratch)
-    np.maximum(moved, state["lower"][k], out=xs)
-    np.minimum(xs, state["upper"][k], out=xs)
-    vs *= xs == moved  # a particle that hits a bound stops there (v 0 or -0)
+    np.maximum(moved, state["lower"], out=xs)
+    np.minimum(xs, state["upper"], out=xs)
+    np.copyto(vs, 0.0, where=xs != moved)  # a particle that hits a bound stops there
+    return xs.transpose(2, 1, 0)
 
 
 def tell(state, X, losses):
