@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -50,8 +51,6 @@ def test_numpy_helpers_with_frames_last_give_the_same_numbers_frame_last():
 
 
 def test_numpy_helpers_write_into_a_given_buffer_or_refuse_it():
-    import pytest
-
     keys = np.array([5, 9, 11], dtype=np.uint64)
     for draw in (uniforms, normals):
         for frames_last, shape in ((True, (2, 5, 3)), (False, (3, 2, 5))):

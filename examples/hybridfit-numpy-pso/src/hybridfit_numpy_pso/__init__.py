@@ -91,8 +91,8 @@ def ask(state, m):
 
 def tell(state, X, losses):
     """Each particle's best: the rows of the (d, n, F) bests are (n, F) blocks, so the improved
-    (particle, frame) pairs are the same flat indices in every row, copied at once (improvements
-    are few: a masked copy of every row costs more)."""
+    (particle, frame) pairs are the same flat indices in every row, gathered and copied at once
+    (a masked copy, ``np.copyto(..., where=)``, walks every element of every row)."""
     state["first"] = False
     m = X.shape[1]
     d, n, F = state["pbest_x"].shape
