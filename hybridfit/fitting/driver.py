@@ -37,6 +37,7 @@ from ..objective import capability, compiled_kernel_of
 from ..optimizer import BatchSteps, StagePlan, Task, steps_of
 from ..plugin import defining_class
 from ..problem import Problem, prepare_frames
+from ..stages import structure_of
 from . import stops
 from .evaluator import KernelScorer, NumpyScorer
 from .streams import stage_keys
@@ -201,17 +202,29 @@ def runs_batched(optimizer, task: Task) -> bool:
     """Whether the driver runs this optimiser on a task like this one: its ``plan`` is the one
     its ``minimize`` follows (a subclass overriding ``minimize`` is not run by its parent's
     plan), and the stages' optimisers share valid batch steps (:func:`layout`)."""
+    return _batched_layout(optimizer, task) is not None
+
+
+def _batched_layout(optimizer, task: Task) -> Layout | None:
+    """The layout of the optimiser's plan of the task when :func:`runs_batched`, else None."""
     cls = type(optimizer)
     if not issubclass(defining_class(cls, "plan"), defining_class(cls, "minimize")):
-        return False
-    return layout(optimizer.plan(task), len(task.problem.point_names)) is not None
+        return None
+    return layout(optimizer.plan(task), len(task.problem.point_names))
+
+
+def batched_layout(model, objective, optimizer, problem: Problem | None, budget: int) -> Layout | None:
+    """The layout of one frame's ``problem`` (None when no frame can be fitted) when
+    :class:`Driver` can fit with these plugins (:func:`supports`), else None."""
+    if problem is None or getattr(objective, "observes_depth", False) or not getattr(objective, "additive", True):
+        return None
+    return _batched_layout(optimizer, Task(problem, budget))
 
 
 def supports(model, objective, optimizer, problem: Problem | None, budget: int) -> bool:
     """Whether :class:`Driver` can fit with these plugins (``problem``: one frame's, None
     when no frame can be fitted)."""
-    return (problem is not None and not getattr(objective, "observes_depth", False)
-            and getattr(objective, "additive", True) and runs_batched(optimizer, Task(problem, budget)))
+    return batched_layout(model, objective, optimizer, problem, budget) is not None
 
 
 @dataclass
@@ -244,20 +257,15 @@ class Driver:
         self.names = tuple(point_names)
         self.budget, self.seed, self.search_radius_mm = int(budget), int(seed), float(search_radius_mm)
         self.point_matrix = None if self.names == tuple(model.joint_names) else model.point_matrix(self.names)
-        M = np.eye(model.n_joints) if self.point_matrix is None else self.point_matrix
-        rows, cols = np.nonzero(M)
-        self.point_map = (_require(np.searchsorted(rows, np.arange(len(self.names) + 1)), np.int64),
-                          _require(cols, np.int64), _require(M[rows, cols], np.float64))
+        structure = structure_of(model, self.names, self.point_matrix)  # computed once per model and points
+        self.point_map = structure.point_map()
         self.tree = None
         if callable(getattr(model, "kinematic_tree", None)):
             try:
-                tree = model.kinematic_tree()
+                tree = structure.tree()
             except NotImplementedError:
                 tree = None
-            if tree is not None:
-                self.tree = (_require(tree.parents, np.int64), _require(tree.offsets, np.float64),
-                             _require(tree.rest, np.float64), _require(tree.rest_is_identity, np.bool_),
-                             _require(tree.axes, np.int64), _require(tree.axis_params, np.int64), float(tree.mirror))
+            self.tree = None if tree is None else tree.arrays
         self.frames_kernel = compiled_kernel_of(objective, "compiled_frames_kernel") if self.tree is not None else None
         self.kernel = compiled_kernel_of(objective) if self.tree is not None else None
         self.score_frames = capability(objective, "score_frames")
@@ -272,6 +280,12 @@ class Driver:
             problem = Problem(self.model, self.objective, proposals, confidences, self.names, self.search_radius_mm)
             self._layouts[key] = layout(self.optimizer.plan(Task(problem, self.budget)), len(self.names))
         return self._layouts[key]
+
+    def add_layout(self, problem: Problem, found: Layout) -> None:
+        """Take ``found``, the layout of one frame's ``problem`` (:func:`batched_layout`), as
+        :meth:`layout`'s for every frame with the same observed points, instead of planning
+        it again."""
+        self._layouts[(problem.weights.sum(axis=-1) > 0).tobytes()] = found
 
     def prepare(self, frames, proposals: np.ndarray, confidences: np.ndarray) -> Chunk:
         """The set-up of fitting frames (their indices) with proposals (F, Q, K, 3) mm and

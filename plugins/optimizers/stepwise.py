@@ -96,9 +96,27 @@ class Stepwise(Optimizer):
 
     def _stages(self, task: Task):
         """The stages restricted to the task's parameters and observed points, with budget
-        weights: a list of (name, parameters, points, owned), and the weights."""
+        weights: a list of (name, parameters, points, owned), and the weights. They depend on
+        the model's stages over the points (the problem's structure), which points are
+        observed, the task's parameters and points and the settings: computed once for each."""
         if self.settings.schedule == "joint":
             return [("joint", task.parameters, task.points, task.points)], [1.0]
+        problem = task.problem
+        observed = problem.weights.sum(axis=-1) > 0
+        key = (problem._structure(), observed.tobytes(), task.parameters.tobytes(), task.points.tobytes())
+        cache = self.__dict__.setdefault("_stages_of", {})
+        if key not in cache:
+            if len(cache) >= 64:
+                cache.clear()
+            cache[key] = self._stages_for(task, observed)
+        return cache[key]
+
+    def __getstate__(self):
+        """Pickled (to worker processes) without the cached stages."""
+        return {k: v for k, v in self.__dict__.items() if k != "_stages_of"}
+
+    def _stages_for(self, task: Task, observed: np.ndarray):
+        """:meth:`_stages` computed, for a task whose points ``observed`` (Q,) bool have proposals."""
         problem = task.problem
         stages = problem.stage_points()
         w = self.settings.stage_weights
@@ -110,7 +128,7 @@ class Stepwise(Optimizer):
                 f"{self.name}: stage_weights needs {len(stages)} positive weights "
                 f"({', '.join(s[0] for s in stages)}), got {w}"
             )
-        observed = np.flatnonzero(problem.weights.sum(axis=-1) > 0)
+        observed = np.flatnonzero(observed)
         kept, weights = [], []
         for (name, params, points), weight in zip(stages, w):
             params = np.intersect1d(params, task.parameters)
