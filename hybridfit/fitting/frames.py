@@ -181,25 +181,42 @@ def proposal_spread(proposals, confidences):
     F, Q, K = confidences.shape
     dist = np.empty(F * Q)
     top = np.empty((3, Q))
-    centre = np.empty(3)
+    centre, work = np.empty(3), np.empty(Q)
     n = 0
     for f in range(F):
-        if not (confidences[f] > 0).any():
-            continue
+        used = False
         for q in range(Q):
             best = 0
-            for k in range(1, K):  # the first most confident, as np.argmax
+            for k in range(K):  # the first most confident, as np.argmax
+                used = used or confidences[f, q, k] > 0
                 if confidences[f, q, k] > confidences[f, q, best]:
                     best = k
             for c in range(3):
                 top[c, q] = proposals[f, q, best, c]
+        if not used:
+            continue
         for c in range(3):
-            centre[c] = np.median(top[c])
+            work[:] = top[c]
+            centre[c] = small_median(work)
         for q in range(Q):
             dx, dy, dz = top[0, q] - centre[0], top[1, q] - centre[1], top[2, q] - centre[2]
             dist[n] = np.sqrt(dx * dx + dy * dy + dz * dz)
             n += 1
     return np.median(dist[:n]) if n else np.nan
+
+
+@nb.njit(cache=True, nogil=True)
+def small_median(values):
+    """The median of a few values (n >= 1, sorted in place by insertion), as np.median
+    computes it (the mean of the two middle values for an even n)."""
+    n = values.shape[0]
+    for i in range(1, n):
+        v, j = values[i], i - 1
+        while j >= 0 and values[j] > v:
+            values[j + 1] = values[j]
+            j -= 1
+        values[j + 1] = v
+    return (values[(n - 1) // 2] + values[n // 2]) / 2.0
 
 
 def fit(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 import hybridfit
 from hybridfit.errors import HybridfitError
@@ -116,3 +117,21 @@ def test_the_scale_warning_and_the_inliers_count_frames_with_proposals_only(fram
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert hybridfit.fit(p, c, budget=300).inliers[[0, 2]].min() > 10
+
+
+@settings(max_examples=40, deadline=None)
+@given(shape=st.tuples(st.integers(1, 5), st.integers(1, 8), st.integers(1, 3)), seed=st.integers(0, 2**32 - 1))
+def test_the_proposals_spread_is_the_median_distance_of_the_top_proposals_from_their_centre(shape, seed):
+    from hybridfit.fitting.frames import proposal_spread
+
+    rng = np.random.default_rng(seed)
+    F, Q, K = shape
+    proposals = rng.normal(0, 30, (F, Q, K, 3))
+    confidences = rng.integers(0, 3, (F, Q, K)).astype(float)  # ties: the first most confident
+    used = (confidences > 0).any(axis=(1, 2))
+    got = proposal_spread(proposals, confidences)
+    if not used.any():
+        assert np.isnan(got)
+        return
+    top = np.take_along_axis(proposals[used], confidences[used].argmax(-1)[..., None, None], axis=2)[:, :, 0]
+    assert got == np.median(np.linalg.norm(top - np.median(top, axis=1, keepdims=True), axis=-1))
