@@ -244,6 +244,36 @@ class Chunk:
     upper: np.ndarray
 
 
+@dataclass
+class Fitted:
+    """A chunk's fits: of the frames ``fitted`` (n,) params (n, P), points (n, Q, 3) mm, joints
+    (n, J, 3) mm, loss (n,) and evaluations (n,); ``errors`` (frame, None, message) of the frames
+    whose input cannot be fitted; ``frames``: all of them, in order."""
+
+    frames: list
+    fitted: list
+    params: np.ndarray
+    points: np.ndarray
+    joints: np.ndarray
+    loss: np.ndarray
+    evaluations: np.ndarray
+    errors: list
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def items(self) -> list:
+        """:meth:`Driver.finish`'s list, in the frames' order."""
+        out = list(self.errors) + [
+            (f, (p, q, j, loss, used), None)
+            for f, p, q, j, loss, used in zip(self.fitted, self.params, self.points, self.joints, self.loss.tolist(),
+                                              self.evaluations.tolist())]
+        if self.errors:
+            order = {f: n for n, f in enumerate(self.frames)}
+            out.sort(key=lambda item: order[item[0]])
+        return out
+
+
 class Driver:
     """Fits chunks of frames of one model, objective and optimiser through the driver loop.
 
@@ -310,7 +340,8 @@ class Driver:
                                   f"batch steps, so the driver cannot run them")
             layouts.append(found)
             kept.append(i)
-        return Chunk(frames, errors, layouts, kept, proposals[kept], weights[kept], x0[kept], lower[kept], upper[kept])
+        rows = slice(None) if len(kept) == len(frames) else kept  # all kept: the arrays themselves, not copies
+        return Chunk(frames, errors, layouts, kept, proposals[rows], weights[rows], x0[rows], lower[rows], upper[rows])
 
     def run(self, chunk: Chunk, threads: int = 1):
         """(params (F, P), loss (F,), evaluations (F,)) of the chunk's fittable frames; frames of
@@ -372,17 +403,15 @@ class Driver:
         """A list of (frame, (params (P,), points (Q, 3), joints (J, 3), loss, evaluations),
         None), or (frame, None, message) for a frame whose input cannot be fitted, in the
         chunk's frame order."""
+        return self.fitted(chunk, fitted).items()
+
+    def fitted(self, chunk: Chunk, fitted) -> "Fitted":
+        """The chunk's fits (``fitted``: :meth:`run`'s result) as arrays (:class:`Fitted`)."""
         params, loss, used = fitted
-        out = list(chunk.errors)
-        if chunk.kept:
-            joints = self.model.forward(params)
-            points = joints if self.point_matrix is None else np.einsum("qj,njc->nqc", self.point_matrix, joints)
-            out += [(chunk.frames[i], (params[n], points[n], joints[n], float(loss[n]), int(used[n])), None)
-                    for n, i in enumerate(chunk.kept)]
-        if chunk.errors:
-            order = {f: n for n, f in enumerate(chunk.frames)}
-            out.sort(key=lambda item: order[item[0]])
-        return out
+        joints = self.model.forward(params) if chunk.kept else np.empty((0, self.model.n_joints, 3))
+        points = joints if self.point_matrix is None else np.einsum("qj,njc->nqc", self.point_matrix, joints)
+        return Fitted(chunk.frames, [chunk.frames[i] for i in chunk.kept], params, points, joints, loss, used,
+                      list(chunk.errors))
 
     def fit_chunk(self, frames, proposals: np.ndarray, confidences: np.ndarray, threads: int = 1) -> list:
         """Fit frames with proposals (F, Q, K, 3) mm and confidences (F, Q, K) (see :meth:`finish`)."""
@@ -390,13 +419,14 @@ class Driver:
         return self.finish(chunk, self.run(chunk, threads))
 
     def fit_chunks(self, chunks, proposals: np.ndarray, confidences: np.ndarray, jobs: int = 1):
-        """Yield :meth:`fit_chunk`'s result for each chunk of frame indices, in order. With
+        """Yield each chunk's :class:`Fitted` (:meth:`fit_chunk`'s result as arrays), in order. With
         ``jobs`` > 1 up to ``jobs`` chunks run at once on threads (the numba parts release the
         GIL) while the next chunk is prepared; an interrupt while preparing still yields the
         chunks that were running."""
         if jobs <= 1:
             for c in chunks:
-                yield self.fit_chunk(c, proposals[c], confidences[c])
+                chunk = self.prepare(c, proposals[c], confidences[c])
+                yield self.fitted(chunk, self.run(chunk))
             return
         with ThreadPoolExecutor(max_workers=jobs) as pool:
             running: deque = deque()
@@ -406,15 +436,15 @@ class Driver:
                 except BaseException:
                     while running:
                         done, future = running.popleft()
-                        yield self.finish(done, future.result())
+                        yield self.fitted(done, future.result())
                     raise
                 running.append((chunk, pool.submit(self.run, chunk)))
                 if len(running) >= jobs:
                     done, future = running.popleft()
-                    yield self.finish(done, future.result())
+                    yield self.fitted(done, future.result())
             while running:
                 done, future = running.popleft()
-                yield self.finish(done, future.result())
+                yield self.fitted(done, future.result())
 
 
 def _name(plugin) -> str:

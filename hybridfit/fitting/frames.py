@@ -280,6 +280,13 @@ def fit(
     done = np.zeros(F, dtype=bool)
 
     def store(items):
+        if isinstance(items, driver.Fitted):  # the driver's fits, as arrays
+            rows = np.asarray(items.fitted, dtype=np.int64)
+            (result.params[rows], result.joints[rows], result.model_joints[rows], result.objective[rows],
+             result.evaluations[rows]) = items.params, items.points, items.joints, items.loss, items.evaluations
+            result.failed[rows] = False
+            done[rows] = True
+            items = items.errors
         for f, values, error in items:
             done[f] = True
             if error is not None:
