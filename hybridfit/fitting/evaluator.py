@@ -43,7 +43,10 @@ def function_at(signature):
     """An intrinsic ``at(address) -> function``: the first-class function of ``signature`` whose
     C callback is at ``address`` (int64), as numba unboxes a callback argument (no jitted
     entry, so calls go through the callback). Passing the address instead of the callback
-    spares numba's unboxing of a Python function object on every call (about 9 us)."""
+    spares numba's unboxing of a Python function object on every call (about 9 us). With
+    numba's JIT disabled (``NUMBA_DISABLE_JIT``) the "address" is the kernel itself, returned."""
+    if nb.config.DISABLE_JIT:
+        return lambda kernel: kernel
     ftype = T.FunctionType(signature)
 
     @intrinsic
@@ -70,7 +73,9 @@ _KERNEL_AT, _FRAMES_KERNEL_AT = function_at(KERNEL_SIGNATURE), function_at(FRAME
 def callback_address(kernel, signature=KERNEL_SIGNATURE) -> int:
     """The address of a compiled kernel's C callback of ``signature`` (a ``cfunc``, or an
     object with numba's ``__wrapper_address__``, as :func:`as_cfunc` returns; the caller keeps
-    it alive)."""
+    it alive); with numba's JIT disabled, the kernel itself (see :func:`function_at`)."""
+    if nb.config.DISABLE_JIT:
+        return kernel
     return int(_get_wrapper_address(kernel, T.FunctionType(signature).signature))
 
 
