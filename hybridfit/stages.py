@@ -23,16 +23,24 @@ def structure_of(model: HandModel, point_names: tuple[str, ...], point_matrix: n
     model equal to one seen before (the same class and equal settings, which a plugin's
     structure depends on only) shares its structure, so a model created again by name for
     every fit does not rebuild it."""
-    bucket = _STRUCTURES.setdefault((type(model), tuple(point_names)), [])
     settings = getattr(model, "settings", None)
+    point_names = tuple(point_names)
+    last = _LAST.get((id(model), point_names))  # this model instance's, found before
+    if last is not None and last[0] is model and last[1] is settings:
+        return last[2]
+    bucket = _STRUCTURES.setdefault((type(model), point_names), [])
     for found in bucket:
         if found.model is model and found.settings is settings or (settings is not None and found.settings == settings):
-            return found
-    if sum(len(b) for b in _STRUCTURES.values()) >= 32:
-        _STRUCTURES.clear()
-        bucket = _STRUCTURES.setdefault((type(model), tuple(point_names)), [])
-    found = _Structure(model, point_matrix)
-    bucket.append(found)
+            break
+    else:
+        if sum(len(b) for b in _STRUCTURES.values()) >= 32:
+            _STRUCTURES.clear()
+            bucket = _STRUCTURES.setdefault((type(model), point_names), [])
+        found = _Structure(model, point_matrix)
+        bucket.append(found)
+    if len(_LAST) >= 32:
+        _LAST.clear()
+    _LAST[(id(model), point_names)] = (model, settings, found)
     return found
 
 
@@ -110,6 +118,9 @@ def csr_point_map(point_matrix: np.ndarray | None, n_joints: int) -> tuple[np.nd
 
 #: structures by (model class, point names): those of models with distinct settings
 _STRUCTURES: dict[tuple, list[_Structure]] = {}
+#: the structure last found for (a model instance's id, point names), with the model and its
+#: settings (the id is that model's only while it is held here)
+_LAST: dict[tuple, tuple] = {}
 
 
 def point_depths(parents: np.ndarray, point_matrix: np.ndarray) -> np.ndarray:

@@ -288,6 +288,9 @@ class Driver:
         self.budget, self.seed, self.search_radius_mm = int(budget), int(seed), float(search_radius_mm)
         self.point_matrix = None if self.names == tuple(model.joint_names) else model.point_matrix(self.names)
         structure = structure_of(model, self.names, self.point_matrix)  # computed once per model and points
+        # the structure's model is equal to this one (the same class and settings), with its
+        # kinematics already set up by an earlier fit: its forward gives the same joints
+        self.forward = structure.model.forward
         self.point_map = structure.point_map()
         self.tree = None
         if callable(getattr(model, "kinematic_tree", None)):
@@ -408,7 +411,7 @@ class Driver:
     def fitted(self, chunk: Chunk, fitted) -> "Fitted":
         """The chunk's fits (``fitted``: :meth:`run`'s result) as arrays (:class:`Fitted`)."""
         params, loss, used = fitted
-        joints = self.model.forward(params) if chunk.kept else np.empty((0, self.model.n_joints, 3))
+        joints = self.forward(params) if chunk.kept else np.empty((0, self.model.n_joints, 3))
         points = joints if self.point_matrix is None else np.einsum("qj,njc->nqc", self.point_matrix, joints)
         return Fitted(chunk.frames, [chunk.frames[i] for i in chunk.kept], params, points, joints, loss, used,
                       list(chunk.errors))

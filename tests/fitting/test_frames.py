@@ -96,6 +96,7 @@ def test_a_fit_after_another_models_fit_is_the_same(frames, other):
                              model_config=config)
 
     stages._STRUCTURES.clear()
+    stages._LAST.clear()
     alone = fit(other)  # the other model fitted first, with nothing kept
     first = fit({})
     between = fit(other)
