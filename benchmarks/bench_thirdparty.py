@@ -126,6 +126,7 @@ def scoring_breakdown(data, budget: int) -> None:
     stage = evaluator.block_setup(*fitter.tree, *fitter.point_map, chunk.x0, every, points, points, n)
     out, losses = np.empty((3, n, Q, F)), np.empty((F, n))
     kernel = (evaluator.as_cfunc(fitter.kernel[0]), fitter.kernel[1])
+    address = evaluator.callback_address(kernel[0])  # kernel[0] keeps the callback alive
     proposals, weights = np.ascontiguousarray(chunk.proposals), np.ascontiguousarray(chunk.weights)
     calls = {
         "kinematics alone": lambda: evaluator.write_points(
@@ -133,7 +134,7 @@ def scoring_breakdown(data, budget: int) -> None:
         "kinematics + points written for score_frames": lambda: evaluator.write_points(
             *fitter.tree, *fitter.point_map, *stage, X, points, out, False, True),
         "kinematics + compiled kernel (built-in)": lambda: evaluator.kernel_frames()(
-            kernel[0], kernel[1], proposals, weights, *fitter.tree, *fitter.point_map, *stage, X, points, losses),
+            address, kernel[1], proposals, weights, *fitter.tree, *fitter.point_map, *stage, X, points, losses),
     }
     for name, call in calls.items():
         call()

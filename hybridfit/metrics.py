@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 #: the error thresholds of success curves: 0, 1, ..., 80 mm
@@ -27,11 +28,33 @@ def oracle(proposals: np.ndarray, truth: np.ndarray, weights: np.ndarray | None 
 def inliers(points: np.ndarray, proposals: np.ndarray, confidences: np.ndarray, distance_mm: float) -> np.ndarray:
     """(F,) how many of each frame's points lie within ``distance_mm`` of one of their
     proposals of positive confidence; points (F, Q, 3) mm (NaN: counts as no inlier),
-    proposals (F, Q, K, 3) mm, confidences (F, Q, K)."""
-    d = np.linalg.norm(np.asarray(points, float)[:, :, None] - np.asarray(proposals, float), axis=-1)
-    d = np.where(np.asarray(confidences) > 0, d, np.inf)
-    near = np.nan_to_num(d.min(axis=-1, initial=np.inf), nan=np.inf) <= distance_mm
-    return near.sum(axis=1).astype(np.int64)
+    proposals (F, Q, K, 3) mm, confidences (F, Q, K) (broadcast against each other)."""
+    points, proposals, confidences = (np.asarray(a, dtype=np.float64) for a in (points, proposals, confidences))
+    F, Q, K = np.broadcast_shapes(points.shape[:2] + (1,), proposals.shape[:3], confidences.shape)
+    return _inliers(np.broadcast_to(points, (F, Q, 3)), np.broadcast_to(proposals, (F, Q, K, 3)),
+                    np.broadcast_to(confidences, (F, Q, K)), float(distance_mm))
+
+
+@nb.njit(cache=True, nogil=True)
+def _inliers(points, proposals, confidences, distance_mm):
+    """:func:`inliers`: a point's distance to its nearest proposal of positive confidence
+    (infinite when it has none, or when a distance is NaN) compared with distance_mm."""
+    F, Q, K = confidences.shape
+    out = np.zeros(F, dtype=np.int64)
+    for f in range(F):
+        for q in range(Q):
+            nearest, nan = np.inf, False
+            for k in range(K):
+                if confidences[f, q, k] > 0:
+                    dx = points[f, q, 0] - proposals[f, q, k, 0]
+                    dy = points[f, q, 1] - proposals[f, q, k, 1]
+                    dz = points[f, q, 2] - proposals[f, q, k, 2]
+                    d = np.sqrt(dx * dx + dy * dy + dz * dz)
+                    nan = nan or np.isnan(d)
+                    nearest = min(nearest, d)
+            if (np.inf if nan else nearest) <= distance_mm:
+                out[f] += 1
+    return out
 
 
 def fingertips(names) -> list[int]:

@@ -19,13 +19,28 @@ from .model.base import HandModel
 
 def structure_of(model: HandModel, point_names: tuple[str, ...], point_matrix: np.ndarray | None) -> "_Structure":
     """The model's :class:`_Structure` over these points (point_matrix: None for the model's
-    joints, else ``model.point_matrix(point_names)``), computed once."""
-    key = (id(model), point_names)
-    found = _STRUCTURES.get(key)
-    if found is None or found.model is not model:
-        if len(_STRUCTURES) >= 32:
+    joints, else ``model.point_matrix(point_names)``), computed once per model and points: a
+    model equal to one seen before (the same class and equal settings, which a plugin's
+    structure depends on only) shares its structure, so a model created again by name for
+    every fit does not rebuild it."""
+    settings = getattr(model, "settings", None)
+    point_names = tuple(point_names)
+    last = _LAST.get((id(model), point_names))  # this model instance's, found before
+    if last is not None and last[0] is model and last[1] is settings:
+        return last[2]
+    bucket = _STRUCTURES.setdefault((type(model), point_names), [])
+    for found in bucket:
+        if found.model is model and found.settings is settings or (settings is not None and found.settings == settings):
+            break
+    else:
+        if sum(len(b) for b in _STRUCTURES.values()) >= 32:
             _STRUCTURES.clear()
-        found = _STRUCTURES[key] = _Structure(model, point_matrix)
+            bucket = _STRUCTURES.setdefault((type(model), point_names), [])
+        found = _Structure(model, point_matrix)
+        bucket.append(found)
+    if len(_LAST) >= 32:
+        _LAST.clear()
+    _LAST[(id(model), point_names)] = (model, settings, found)
     return found
 
 
@@ -35,6 +50,7 @@ class _Structure:
 
     def __init__(self, model: HandModel, point_matrix: np.ndarray | None) -> None:
         self.model = model
+        self.settings = getattr(model, "settings", None)  # the settings it was computed for
         owner = model.stage_of_joint()
         M = np.eye(model.n_joints) if point_matrix is None else point_matrix
         point_stage = np.array([owner[np.flatnonzero(row)].max() for row in M])
@@ -51,15 +67,29 @@ class _Structure:
         self.default_params = model.default_params().astype(float).copy()
         # the points in the default pose, as Problem.points gives them
         joints = model.forward(self.default_params[None])
+        #: the median distance of the neutral pose's joints from their centre, mm (the model's size)
+        self.spread_mm = float(np.median(np.linalg.norm(joints[0] - np.median(joints[0], axis=0), axis=-1)))
         self.canonical = np.ascontiguousarray(
             joints[0] if point_matrix is None else np.einsum("qj,njc->nqc", M, np.nan_to_num(joints, nan=0.0))[0])
         self.point_matrix = point_matrix
         self._tree: _Tree | None = None
+        self._point_map: tuple | None = None
 
-    def tree(self) -> "_Tree":
-        """The model's kinematic tree and point map as :func:`tree_points` reads them."""
+    def point_map(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The point map (Q, J) in CSR form (row starts, joints, weights), as the block
+        kinematics (:mod:`hybridfit.model.kinematics`) read it."""
+        if self._point_map is None:
+            self._point_map = csr_point_map(self.point_matrix, self.model.n_joints)
+        return self._point_map
+
+    def tree(self) -> "_Tree | None":
+        """The model's kinematic tree and point map as :func:`tree_points` reads them (None
+        when its ``kinematic_tree`` returns None)."""
         if self._tree is None:
-            self._tree = _Tree(self.model.kinematic_tree(), self.point_matrix, self.model.n_joints)
+            tree = self.model.kinematic_tree()
+            if tree is None:  # the model has none after all
+                return None
+            self._tree = _Tree(tree, self.point_matrix, self.model.n_joints)
         return self._tree
 
 
@@ -73,13 +103,24 @@ class _Tree:
         self.axes, self.axis_params = req(tree.axes, np.int64), req(tree.axis_params, np.int64)
         self.arrays = (self.parents, req(tree.offsets, np.float64), req(tree.rest, np.float64),
                        req(tree.rest_is_identity, np.bool_), self.axes, self.axis_params, float(tree.mirror))
-        M = np.eye(n_joints) if point_matrix is None else point_matrix
-        rows, cols = np.nonzero(M)
-        self.point_map = (req(np.searchsorted(rows, np.arange(len(M) + 1)), np.int64), req(cols, np.int64),
-                          req(M[rows, cols], np.float64))
+        self.point_map = csr_point_map(point_matrix, n_joints)
 
 
-_STRUCTURES: dict[tuple, _Structure] = {}
+def csr_point_map(point_matrix: np.ndarray | None, n_joints: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A point map (Q, J) (None: the identity) in CSR form: (row starts (Q + 1,), joints,
+    weights)."""
+    req = lambda a, dtype: np.require(a, dtype=dtype, requirements=["C", "W"])  # noqa: E731
+    M = np.eye(n_joints) if point_matrix is None else point_matrix
+    rows, cols = np.nonzero(M)
+    return (req(np.searchsorted(rows, np.arange(len(M) + 1)), np.int64), req(cols, np.int64),
+            req(M[rows, cols], np.float64))
+
+
+#: structures by (model class, point names): those of models with distinct settings
+_STRUCTURES: dict[tuple, list[_Structure]] = {}
+#: the structure last found for (a model instance's id, point names), with the model and its
+#: settings (the id is that model's only while it is held here)
+_LAST: dict[tuple, tuple] = {}
 
 
 def point_depths(parents: np.ndarray, point_matrix: np.ndarray) -> np.ndarray:

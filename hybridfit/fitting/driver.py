@@ -37,6 +37,7 @@ from ..objective import capability, compiled_kernel_of
 from ..optimizer import BatchSteps, StagePlan, Task, steps_of
 from ..plugin import defining_class
 from ..problem import Problem, prepare_frames
+from ..stages import structure_of
 from . import stops
 from .evaluator import KernelScorer, NumpyScorer
 from .streams import stage_keys
@@ -201,17 +202,29 @@ def runs_batched(optimizer, task: Task) -> bool:
     """Whether the driver runs this optimiser on a task like this one: its ``plan`` is the one
     its ``minimize`` follows (a subclass overriding ``minimize`` is not run by its parent's
     plan), and the stages' optimisers share valid batch steps (:func:`layout`)."""
+    return _batched_layout(optimizer, task) is not None
+
+
+def _batched_layout(optimizer, task: Task) -> Layout | None:
+    """The layout of the optimiser's plan of the task when :func:`runs_batched`, else None."""
     cls = type(optimizer)
     if not issubclass(defining_class(cls, "plan"), defining_class(cls, "minimize")):
-        return False
-    return layout(optimizer.plan(task), len(task.problem.point_names)) is not None
+        return None
+    return layout(optimizer.plan(task), len(task.problem.point_names))
+
+
+def batched_layout(model, objective, optimizer, problem: Problem | None, budget: int) -> Layout | None:
+    """The layout of one frame's ``problem`` (None when no frame can be fitted) when
+    :class:`Driver` can fit with these plugins (:func:`supports`), else None."""
+    if problem is None or getattr(objective, "observes_depth", False) or not getattr(objective, "additive", True):
+        return None
+    return _batched_layout(optimizer, Task(problem, budget))
 
 
 def supports(model, objective, optimizer, problem: Problem | None, budget: int) -> bool:
     """Whether :class:`Driver` can fit with these plugins (``problem``: one frame's, None
     when no frame can be fitted)."""
-    return (problem is not None and not getattr(objective, "observes_depth", False)
-            and getattr(objective, "additive", True) and runs_batched(optimizer, Task(problem, budget)))
+    return batched_layout(model, objective, optimizer, problem, budget) is not None
 
 
 @dataclass
@@ -231,6 +244,36 @@ class Chunk:
     upper: np.ndarray
 
 
+@dataclass
+class Fitted:
+    """A chunk's fits: of the frames ``fitted`` (n,) params (n, P), points (n, Q, 3) mm, joints
+    (n, J, 3) mm, loss (n,) and evaluations (n,); ``errors`` (frame, None, message) of the frames
+    whose input cannot be fitted; ``frames``: all of them, in order."""
+
+    frames: list
+    fitted: list
+    params: np.ndarray
+    points: np.ndarray
+    joints: np.ndarray
+    loss: np.ndarray
+    evaluations: np.ndarray
+    errors: list
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def items(self) -> list:
+        """:meth:`Driver.finish`'s list, in the frames' order."""
+        out = list(self.errors) + [
+            (f, (p, q, j, loss, used), None)
+            for f, p, q, j, loss, used in zip(self.fitted, self.params, self.points, self.joints, self.loss.tolist(),
+                                              self.evaluations.tolist())]
+        if self.errors:
+            order = {f: n for n, f in enumerate(self.frames)}
+            out.sort(key=lambda item: order[item[0]])
+        return out
+
+
 class Driver:
     """Fits chunks of frames of one model, objective and optimiser through the driver loop.
 
@@ -244,20 +287,18 @@ class Driver:
         self.names = tuple(point_names)
         self.budget, self.seed, self.search_radius_mm = int(budget), int(seed), float(search_radius_mm)
         self.point_matrix = None if self.names == tuple(model.joint_names) else model.point_matrix(self.names)
-        M = np.eye(model.n_joints) if self.point_matrix is None else self.point_matrix
-        rows, cols = np.nonzero(M)
-        self.point_map = (_require(np.searchsorted(rows, np.arange(len(self.names) + 1)), np.int64),
-                          _require(cols, np.int64), _require(M[rows, cols], np.float64))
+        structure = structure_of(model, self.names, self.point_matrix)  # computed once per model and points
+        # the structure's model is equal to this one (the same class and settings), with its
+        # kinematics already set up by an earlier fit: its forward gives the same joints
+        self.forward = structure.model.forward
+        self.point_map = structure.point_map()
         self.tree = None
         if callable(getattr(model, "kinematic_tree", None)):
             try:
-                tree = model.kinematic_tree()
+                tree = structure.tree()
             except NotImplementedError:
                 tree = None
-            if tree is not None:
-                self.tree = (_require(tree.parents, np.int64), _require(tree.offsets, np.float64),
-                             _require(tree.rest, np.float64), _require(tree.rest_is_identity, np.bool_),
-                             _require(tree.axes, np.int64), _require(tree.axis_params, np.int64), float(tree.mirror))
+            self.tree = None if tree is None else tree.arrays
         self.frames_kernel = compiled_kernel_of(objective, "compiled_frames_kernel") if self.tree is not None else None
         self.kernel = compiled_kernel_of(objective) if self.tree is not None else None
         self.score_frames = capability(objective, "score_frames")
@@ -272,6 +313,12 @@ class Driver:
             problem = Problem(self.model, self.objective, proposals, confidences, self.names, self.search_radius_mm)
             self._layouts[key] = layout(self.optimizer.plan(Task(problem, self.budget)), len(self.names))
         return self._layouts[key]
+
+    def add_layout(self, problem: Problem, found: Layout) -> None:
+        """Take ``found``, the layout of one frame's ``problem`` (:func:`batched_layout`), as
+        :meth:`layout`'s for every frame with the same observed points, instead of planning
+        it again."""
+        self._layouts[(problem.weights.sum(axis=-1) > 0).tobytes()] = found
 
     def prepare(self, frames, proposals: np.ndarray, confidences: np.ndarray) -> Chunk:
         """The set-up of fitting frames (their indices) with proposals (F, Q, K, 3) mm and
@@ -296,7 +343,8 @@ class Driver:
                                   f"batch steps, so the driver cannot run them")
             layouts.append(found)
             kept.append(i)
-        return Chunk(frames, errors, layouts, kept, proposals[kept], weights[kept], x0[kept], lower[kept], upper[kept])
+        rows = slice(None) if len(kept) == len(frames) else kept  # all kept: the arrays themselves, not copies
+        return Chunk(frames, errors, layouts, kept, proposals[rows], weights[rows], x0[rows], lower[rows], upper[rows])
 
     def run(self, chunk: Chunk, threads: int = 1):
         """(params (F, P), loss (F,), evaluations (F,)) of the chunk's fittable frames; frames of
@@ -358,17 +406,15 @@ class Driver:
         """A list of (frame, (params (P,), points (Q, 3), joints (J, 3), loss, evaluations),
         None), or (frame, None, message) for a frame whose input cannot be fitted, in the
         chunk's frame order."""
+        return self.fitted(chunk, fitted).items()
+
+    def fitted(self, chunk: Chunk, fitted) -> "Fitted":
+        """The chunk's fits (``fitted``: :meth:`run`'s result) as arrays (:class:`Fitted`)."""
         params, loss, used = fitted
-        out = list(chunk.errors)
-        if chunk.kept:
-            joints = self.model.forward(params)
-            points = joints if self.point_matrix is None else np.einsum("qj,njc->nqc", self.point_matrix, joints)
-            out += [(chunk.frames[i], (params[n], points[n], joints[n], float(loss[n]), int(used[n])), None)
-                    for n, i in enumerate(chunk.kept)]
-        if chunk.errors:
-            order = {f: n for n, f in enumerate(chunk.frames)}
-            out.sort(key=lambda item: order[item[0]])
-        return out
+        joints = self.forward(params) if chunk.kept else np.empty((0, self.model.n_joints, 3))
+        points = joints if self.point_matrix is None else np.einsum("qj,njc->nqc", self.point_matrix, joints)
+        return Fitted(chunk.frames, [chunk.frames[i] for i in chunk.kept], params, points, joints, loss, used,
+                      list(chunk.errors))
 
     def fit_chunk(self, frames, proposals: np.ndarray, confidences: np.ndarray, threads: int = 1) -> list:
         """Fit frames with proposals (F, Q, K, 3) mm and confidences (F, Q, K) (see :meth:`finish`)."""
@@ -376,13 +422,14 @@ class Driver:
         return self.finish(chunk, self.run(chunk, threads))
 
     def fit_chunks(self, chunks, proposals: np.ndarray, confidences: np.ndarray, jobs: int = 1):
-        """Yield :meth:`fit_chunk`'s result for each chunk of frame indices, in order. With
+        """Yield each chunk's :class:`Fitted` (:meth:`fit_chunk`'s result as arrays), in order. With
         ``jobs`` > 1 up to ``jobs`` chunks run at once on threads (the numba parts release the
         GIL) while the next chunk is prepared; an interrupt while preparing still yields the
         chunks that were running."""
         if jobs <= 1:
             for c in chunks:
-                yield self.fit_chunk(c, proposals[c], confidences[c])
+                chunk = self.prepare(c, proposals[c], confidences[c])
+                yield self.fitted(chunk, self.run(chunk))
             return
         with ThreadPoolExecutor(max_workers=jobs) as pool:
             running: deque = deque()
@@ -392,15 +439,15 @@ class Driver:
                 except BaseException:
                     while running:
                         done, future = running.popleft()
-                        yield self.finish(done, future.result())
+                        yield self.fitted(done, future.result())
                     raise
                 running.append((chunk, pool.submit(self.run, chunk)))
                 if len(running) >= jobs:
                     done, future = running.popleft()
-                    yield self.finish(done, future.result())
+                    yield self.fitted(done, future.result())
             while running:
                 done, future = running.popleft()
-                yield self.finish(done, future.result())
+                yield self.fitted(done, future.result())
 
 
 def _name(plugin) -> str:

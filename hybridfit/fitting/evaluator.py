@@ -26,6 +26,9 @@ import warnings
 
 import numba as nb
 from numba import types as T
+from numba.core import cgutils
+from numba.experimental.function_type import _get_wrapper_address
+from numba.extending import intrinsic
 from numba.core.dispatcher import Dispatcher
 from numba.core.errors import NumbaWarning
 import numpy as np
@@ -36,9 +39,51 @@ from ..problem import checked_losses, objective_label
 from ..model.kinematics import block_kinematics, block_points, block_setup, block_views
 
 
-def _kernel_frames(kernel, consts, proposals, weights, parents, offsets, rest, rest_identity, axes, axis_params,
+def function_at(signature):
+    """An intrinsic ``at(address) -> function``: the first-class function of ``signature`` whose
+    C callback is at ``address`` (int64), as numba unboxes a callback argument (no jitted
+    entry, so calls go through the callback). Passing the address instead of the callback
+    spares numba's unboxing of a Python function object on every call (about 9 us). With
+    numba's JIT disabled (``NUMBA_DISABLE_JIT``) the "address" is the kernel itself, returned."""
+    if nb.config.DISABLE_JIT:
+        return lambda kernel: kernel
+    ftype = T.FunctionType(signature)
+
+    @intrinsic
+    def at(typingctx, address):
+        if not isinstance(address, T.Integer):
+            return None
+
+        def codegen(context, builder, sig, args):
+            voidptr = context.get_value_type(T.voidptr)
+            function = cgutils.create_struct_proxy(ftype)(context, builder)
+            function.c_addr = builder.inttoptr(args[0], voidptr)
+            function.py_addr = voidptr(None)
+            function.jit_addr = voidptr(None)
+            return function._getvalue()
+
+        return ftype(address), codegen
+
+    return at
+
+
+_KERNEL_AT, _FRAMES_KERNEL_AT = function_at(KERNEL_SIGNATURE), function_at(FRAMES_KERNEL_SIGNATURE)
+
+
+def callback_address(kernel, signature=KERNEL_SIGNATURE) -> int:
+    """The address of a compiled kernel's C callback of ``signature`` (a ``cfunc``, or an
+    object with numba's ``__wrapper_address__``, as :func:`as_cfunc` returns; the caller keeps
+    it alive); with numba's JIT disabled, the kernel itself (see :func:`function_at`)."""
+    if nb.config.DISABLE_JIT:
+        return kernel
+    return int(_get_wrapper_address(kernel, T.FunctionType(signature).signature))
+
+
+def _kernel_frames(kernel_address, consts, proposals, weights, parents, offsets, rest, rest_identity, axes, axis_params,
                    mirror, pm_ptr, pm_joint, pm_weight, ints, floats, X, subset, losses):
-    """losses[f, :m] = the kernel's loss over ``subset`` of frame f's hypotheses X[f] (m, d)."""
+    """losses[f, :m] = the kernel's loss over ``subset`` of frame f's hypotheses X[f] (m, d)
+    (the kernel: its callback's address, :func:`callback_address`)."""
+    kernel = _KERNEL_AT(kernel_address)
     F, m = X.shape[0], X.shape[1]
     G = ints[9]
     views = block_views(ints, floats)
@@ -52,20 +97,22 @@ def _kernel_frames(kernel, consts, proposals, weights, parents, offsets, rest, r
 
 
 _KERNEL_FRAMES = T.void(
-    T.FunctionType(KERNEL_SIGNATURE), T.float64[::1], T.float64[:, :, :, ::1], T.float64[:, :, ::1],
+    T.int64, T.float64[::1], T.float64[:, :, :, ::1], T.float64[:, :, ::1],
     T.int64[::1], T.float64[:, ::1], T.float64[:, :, ::1], T.boolean[::1], T.int64[:, ::1], T.int64[:, ::1], T.float64,
     T.int64[::1], T.int64[::1], T.float64[::1], T.int64[::1], T.float64[::1], T.float64[:, :, :], T.int64[::1],
     T.float64[:, ::1])
 
 
-def _frames_kernel_blocks(kernel, consts, proposals, weights, parents, offsets, rest, rest_identity, axes,
+def _frames_kernel_blocks(kernel_address, consts, proposals, weights, parents, offsets, rest, rest_identity, axes,
                           axis_params, mirror, pm_ptr, pm_joint, pm_weight, joints_are_points, ints, floats, X,
                           particles_last, subset, losses):
     """losses[f, :m] as :func:`_kernel_frames`, by a frames kernel: one call per block of frames.
     X (F, m, d), or with ``particles_last`` X (F, d, m) C-contiguous, the hypotheses innermost
     (copied into the kinematics' block along its rows, a loop that vectorises). With
     ``joints_are_points`` (the point map is the identity) the kernel reads the joints' block
-    buffer itself, else the block's points are gathered first."""
+    buffer itself, else the block's points are gathered first. The kernel: its callback's
+    address (:func:`callback_address`)."""
+    kernel = _FRAMES_KERNEL_AT(kernel_address)
     F, m = X.shape[0], X.shape[2 if particles_last else 1]
     G = ints[9]
     views = block_views(ints, floats)
@@ -82,7 +129,7 @@ def _frames_kernel_blocks(kernel, consts, proposals, weights, parents, offsets, 
 
 
 _FRAMES_KERNEL_BLOCKS = [T.void(
-    T.FunctionType(FRAMES_KERNEL_SIGNATURE), T.float64[::1], T.float64[:, :, :, ::1], T.float64[:, :, ::1],
+    T.int64, T.float64[::1], T.float64[:, :, :, ::1], T.float64[:, :, ::1],
     T.int64[::1], T.float64[:, ::1], T.float64[:, :, ::1], T.boolean[::1], T.int64[:, ::1], T.int64[:, ::1], T.float64,
     T.int64[::1], T.int64[::1], T.float64[::1], T.boolean, T.int64[::1], T.float64[::1], hypotheses, T.boolean,
     T.int64[::1], T.float64[:, ::1]) for hypotheses in (T.float64[:, :, ::1], T.float64[:, :, :])]
@@ -214,6 +261,7 @@ class KernelScorer:
     def __init__(self, tree, point_map, kernel, proposals, weights, frames: bool = False) -> None:
         signature = FRAMES_KERNEL_SIGNATURE if frames else KERNEL_SIGNATURE
         self.tree, self.point_map, self.kernel = tree, point_map, (as_cfunc(kernel[0], signature), kernel[1])
+        self.address = callback_address(self.kernel[0], signature)  # self.kernel keeps the callback alive
         self.proposals, self.weights = proposals, weights
         self.frames = frames
         self.identity = joints_are_points(tree, point_map)
@@ -226,10 +274,10 @@ class KernelScorer:
 
     def score(self, stage, X, subset, losses):
         if self.frames:
-            self._run(self.kernel[0], self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map,
+            self._run(self.address, self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map,
                       self.identity, *stage, *along_rows(X), subset, losses)
         else:
-            self._run(self.kernel[0], self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map,
+            self._run(self.address, self.kernel[1], self.proposals, self.weights, *self.tree, *self.point_map,
                       *stage, X, subset, losses)
 
 

@@ -19,6 +19,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
+import numba as nb
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -30,6 +31,7 @@ from ..metrics import inliers
 from ..model.base import ANGLES
 from ..optimizer import Task
 from ..problem import Problem
+from ..stages import structure_of
 
 
 #: frames per chunk of the driver (progress and Ctrl-C granularity; with jobs > 1, jobs
@@ -159,16 +161,62 @@ def check_scale(model, proposals: np.ndarray, confidences: np.ndarray, names: Se
     """Warn when the proposals' spread (median distance of the top proposals from their
     centre, frames with proposals only) is more than 8x off the model's: proposals in
     metres or centimetres, say, not millimetres."""
-    used = (confidences > 0).any(axis=(1, 2))
-    if not used.any():
+    spread = proposal_spread(np.ascontiguousarray(proposals, dtype=np.float64),
+                             np.ascontiguousarray(confidences, dtype=np.float64))
+    if np.isnan(spread):  # no frame has proposals
         return
-    top = np.take_along_axis(proposals[used], confidences[used].argmax(-1)[..., None, None], axis=2)[:, :, 0]
-    spread = np.median(np.linalg.norm(top - np.median(top, axis=1, keepdims=True), axis=-1))
-    joints = model.forward(model.default_params()[None])[0]
-    hand = np.median(np.linalg.norm(joints - np.median(joints, axis=0), axis=-1))
+    names = tuple(names)
+    hand = structure_of(model, names, None if names == tuple(model.joint_names) else model.point_matrix(names)).spread_mm
     if not hand / 8 <= spread <= hand * 8:
         warnings.warn(f"the proposals spread over {spread:.3g} (median distance from their centre), the model's "
                       f"{len(names)} points over {hand:.3g} mm: are the proposals in millimetres?", stacklevel=3)
+
+
+@nb.njit(cache=True, nogil=True)
+def proposal_spread(proposals, confidences):
+    """The median over frames with proposals (a positive confidence) and their points of the
+    distance of each point's most confident proposal from the frame's centre (the median of
+    those proposals, per coordinate); proposals (F, Q, K, 3) mm, confidences (F, Q, K). NaN
+    when no frame has proposals."""
+    F, Q, K = confidences.shape
+    dist = np.empty(F * Q)
+    top = np.empty((3, Q))
+    centre, work = np.empty(3), np.empty(Q)
+    n = 0
+    for f in range(F):
+        used = False
+        for q in range(Q):
+            best = 0
+            for k in range(K):  # the first most confident, as np.argmax
+                used = used or confidences[f, q, k] > 0
+                if confidences[f, q, k] > confidences[f, q, best]:
+                    best = k
+            for c in range(3):
+                top[c, q] = proposals[f, q, best, c]
+        if not used:
+            continue
+        for c in range(3):
+            work[:] = top[c]
+            centre[c] = small_median(work)
+        for q in range(Q):
+            dx, dy, dz = top[0, q] - centre[0], top[1, q] - centre[1], top[2, q] - centre[2]
+            dist[n] = np.sqrt(dx * dx + dy * dy + dz * dz)
+            n += 1
+    return np.median(dist[:n]) if n else np.nan
+
+
+@nb.njit(cache=True, nogil=True)
+def small_median(values):
+    """The median of a few values (n >= 1, sorted in place by insertion), as np.median
+    computes it (the mean of the two middle values for an even n)."""
+    n = values.shape[0]
+    for i in range(1, n):
+        v, j = values[i], i - 1
+        while j >= 0 and values[j] > v:
+            values[j + 1] = values[j]
+            j -= 1
+        values[j + 1] = v
+    return (values[(n - 1) // 2] + values[n // 2]) / 2.0
 
 
 def fit(
@@ -232,6 +280,13 @@ def fit(
     done = np.zeros(F, dtype=bool)
 
     def store(items):
+        if isinstance(items, driver.Fitted):  # the driver's fits, as arrays
+            rows = np.asarray(items.fitted, dtype=np.int64)
+            (result.params[rows], result.joints[rows], result.model_joints[rows], result.objective[rows],
+             result.evaluations[rows]) = items.params, items.points, items.joints, items.loss, items.evaluations
+            result.failed[rows] = False
+            done[rows] = True
+            items = items.errors
         for f, values, error in items:
             done[f] = True
             if error is not None:
@@ -243,8 +298,11 @@ def fit(
 
     # optimisers with batch steps: the driver runs chunks of frames in lockstep (compiled with a
     # compiled objective on a kinematic tree); callback solvers: a Task per frame
-    fitter = (driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm)
-              if observations is None and driver.supports(model, objective, optimizer, problem, budget) else None)
+    found = None if observations is not None else driver.batched_layout(model, objective, optimizer, problem, budget)
+    fitter = None
+    if found is not None:
+        fitter = driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm)
+        fitter.add_layout(problem, found)  # the first frame's plan, made once
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
         with stops.deferred():  # a stop signal is raised between chunks or frames, never inside compiled code

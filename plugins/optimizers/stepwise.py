@@ -73,6 +73,14 @@ def split_budget(budget: int, weights) -> list[int]:
     return [int(b) for b in out]
 
 
+def members(indices: np.ndarray, n: int) -> np.ndarray:
+    """(n,) bool: which of 0 .. n - 1 are among the indices (sets of indices as masks: their
+    intersections and unions in index order, as ``np.intersect1d`` and ``np.union1d`` give them)."""
+    mask = np.zeros(n, dtype=bool)
+    mask[indices] = True
+    return mask
+
+
 class Stepwise(Optimizer):
     """Runs any registered optimiser stage by stage (palm first, then fingers) or jointly.
 
@@ -96,9 +104,27 @@ class Stepwise(Optimizer):
 
     def _stages(self, task: Task):
         """The stages restricted to the task's parameters and observed points, with budget
-        weights: a list of (name, parameters, points, owned), and the weights."""
+        weights: a list of (name, parameters, points, owned), and the weights. They depend on
+        the model's stages over the points (the problem's structure), which points are
+        observed, the task's parameters and points and the settings: computed once for each."""
         if self.settings.schedule == "joint":
             return [("joint", task.parameters, task.points, task.points)], [1.0]
+        problem = task.problem
+        observed = problem.weights.sum(axis=-1) > 0
+        key = (problem._structure(), observed.tobytes(), task.parameters.tobytes(), task.points.tobytes())
+        cache = self.__dict__.setdefault("_stages_of", {})
+        if key not in cache:
+            if len(cache) >= 64:
+                cache.clear()
+            cache[key] = self._stages_for(task, observed)
+        return cache[key]
+
+    def __getstate__(self):
+        """Pickled (to worker processes) without the cached stages."""
+        return {k: v for k, v in self.__dict__.items() if k != "_stages_of"}
+
+    def _stages_for(self, task: Task, observed: np.ndarray):
+        """:meth:`_stages` computed, for a task whose points ``observed`` (Q,) bool have proposals."""
         problem = task.problem
         stages = problem.stage_points()
         w = self.settings.stage_weights
@@ -110,11 +136,12 @@ class Stepwise(Optimizer):
                 f"{self.name}: stage_weights needs {len(stages)} positive weights "
                 f"({', '.join(s[0] for s in stages)}), got {w}"
             )
-        observed = np.flatnonzero(problem.weights.sum(axis=-1) > 0)
+        P, Q = problem.model.n_params, len(observed)
+        free, scored = members(task.parameters, P), members(task.points, Q) & observed
         kept, weights = [], []
         for (name, params, points), weight in zip(stages, w):
-            params = np.intersect1d(params, task.parameters)
-            points = np.intersect1d(np.intersect1d(points, task.points), observed)
+            params = np.flatnonzero(members(params, P) & free)
+            points = np.flatnonzero(members(points, Q) & scored)
             if len(params) and len(points):
                 kept.append([name, params, points, points])
                 weights.append(weight)
@@ -122,13 +149,13 @@ class Stepwise(Optimizer):
             return [("joint", task.parameters, task.points, task.points)], [1.0]
         # points no kept stage scores only add a constant: the first stage owns them, so that
         # the stage losses still add up to the task's loss
-        left = np.setdiff1d(task.points, np.concatenate([k[3] for k in kept]))
+        left = members(task.points, Q) & ~members(np.concatenate([k[3] for k in kept]), Q)
         first = kept[0]
-        first[2], first[3] = np.union1d(first[2], left), np.union1d(first[3], left)
+        first[2] = first[3] = np.flatnonzero(members(first[3], Q) | left)
         if stages[0][0] == first[0] and len(kept) > 1:
             guides = guide_points(problem, first[3], [k[3] for k in kept[1:]], self.settings.min_root_points,
                                   self.settings.min_root_lever_mm)
-            first[2] = np.union1d(first[2], guides)
+            first[2] = np.flatnonzero(members(first[3], Q) | members(guides, Q))
         return [tuple(k) for k in kept], weights
 
     def plan(self, task: Task) -> list[StagePlan]:

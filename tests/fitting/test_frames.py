@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 import hybridfit
 from hybridfit.errors import HybridfitError
@@ -82,3 +83,56 @@ def test_an_interrupt_keeps_the_finished_frames(frames, interrupt_at):
     assert list(result.failed) == [False, False, True, True]
     assert result.errors == {2: "interrupted", 3: "interrupted"}
     assert np.isfinite(result.joints[:2]).all()
+
+
+@pytest.mark.parametrize("other", [{"scale": 1.1}, {"limits_deg": {"index_mcp_flexion": [0.0, 45.0]}}])
+def test_a_fit_after_another_models_fit_is_the_same(frames, other):
+    """What fit keeps between calls (the model's stages, neutral pose and bounds, by model
+    settings and point names) never hands one model's to another."""
+    from hybridfit import stages
+
+    def fit(config):
+        return hybridfit.fit(frames["proposals"][:3], frames["confidences"][:3], budget=300, seed=1,
+                             model_config=config)
+
+    stages._STRUCTURES.clear()
+    stages._LAST.clear()
+    alone = fit(other)  # the other model fitted first, with nothing kept
+    first = fit({})
+    between = fit(other)
+    again = fit({})
+    np.testing.assert_array_equal(between.params, alone.params)
+    np.testing.assert_array_equal(between.objective, alone.objective)
+    np.testing.assert_array_equal(again.params, first.params)
+    np.testing.assert_array_equal(again.objective, first.objective)
+    assert not np.array_equal(between.params, first.params)
+
+
+def test_the_scale_warning_and_the_inliers_count_frames_with_proposals_only(frames):
+    p, c = frames["proposals"][:3].copy(), frames["confidences"][:3].copy()
+    c[1] = 0.0  # no proposals: not a frame of the spread, no inliers
+    with pytest.warns(UserWarning, match="are the proposals in millimetres"):
+        result = hybridfit.fit(p / 1000.0, c, budget=300)
+    assert result.inliers[1] == 0 and result.failed[1]
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert hybridfit.fit(p, c, budget=300).inliers[[0, 2]].min() > 10
+
+
+@settings(max_examples=40, deadline=None)
+@given(shape=st.tuples(st.integers(1, 5), st.integers(1, 8), st.integers(1, 3)), seed=st.integers(0, 2**32 - 1))
+def test_the_proposals_spread_is_the_median_distance_of_the_top_proposals_from_their_centre(shape, seed):
+    from hybridfit.fitting.frames import proposal_spread
+
+    rng = np.random.default_rng(seed)
+    F, Q, K = shape
+    proposals = rng.normal(0, 30, (F, Q, K, 3))
+    confidences = rng.integers(0, 3, (F, Q, K)).astype(float)  # ties: the first most confident
+    used = (confidences > 0).any(axis=(1, 2))
+    got = proposal_spread(proposals, confidences)
+    if not used.any():
+        assert np.isnan(got)
+        return
+    top = np.take_along_axis(proposals[used], confidences[used].argmax(-1)[..., None, None], axis=2)[:, :, 0]
+    assert got == np.median(np.linalg.norm(top - np.median(top, axis=1, keepdims=True), axis=-1))

@@ -105,3 +105,24 @@ def test_guided_stepwise_beats_unguided_on_a_three_point_palm():
                           optimizer_config=config, budget=3400, seed=0)
         errors[label] = np.nanmean(joint_errors(r.joints, z["ground_truth"]))
     assert errors["guided"] < errors["unguided"] - 1.0, errors
+
+
+def test_one_optimizer_plans_each_task_as_a_fresh_one_would(hand26, clamped, frames, nyu_frames):
+    """The stages an optimiser keeps between plans are those of the same model, points,
+    observed points and task: interleaved plans equal fresh optimisers' plans."""
+    hidden = frames["confidences"][0].copy()
+    hidden[[5, 6, 7, 8]] = 0.0  # a finger without proposals: its stage is skipped
+    problems = [Problem(hand26, clamped, frames["proposals"][0], frames["confidences"][0]),
+                Problem(hand26, clamped, frames["proposals"][0], hidden), nyu_problem(nyu_frames),
+                Problem(hand26, clamped, frames["proposals"][0][::-1], frames["confidences"][0][::-1],
+                        hand26.joint_names[::-1])]  # the same count of points, other points
+    tasks = [Task(p, 3400) for p in problems] + [Task(problems[0], 3400, parameters=np.arange(11))]
+
+    def summary(plan):
+        return [(s.name, s.parameters.tolist(), s.points.tolist(), s.owned.tolist(), s.budget) for s in plan]
+
+    fresh = [summary(hybridfit.create("optimizer", "stepwise-pso").plan(t)) for t in tasks]
+    assert len({str(f) for f in fresh}) == len(tasks)
+    one = hybridfit.create("optimizer", "stepwise-pso")
+    for _ in range(2):
+        assert [summary(one.plan(t)) for t in tasks] == fresh
