@@ -134,3 +134,65 @@ def test_a_model_with_marker_offsets_stays_valid_under_the_polish(name):
     bone = lambda j: np.linalg.norm(j[:, 1:] - j[:, parents[1:]], axis=-1)  # noqa: E731
     ratio = bone(polished.joints(model)) / bone(model.forward(start))
     assert np.abs(ratio - 1).max() <= 0.15 + 1e-9 and np.abs(ratio - 1).max() > 0.1
+
+
+def _finger_bones(model, joints):
+    """(F, J') lengths (mm) of every bone that is not a finger base's (those inside the fingers)."""
+    parents = np.asarray(model.parents)
+    inner = [j for j in range(len(parents)) if parents[j] >= 0 and parents[parents[j]] >= 0]
+    return np.linalg.norm(joints[:, inner] - joints[:, parents[inner]], axis=-1)
+
+
+def test_palm_freedom_follows_moved_bases_within_its_tolerance(model):
+    """Finger bases moved by 3 mm in the hand frame (MCP spread and palm arch): the rigid
+    palm cannot follow, palm freedom of 4 mm can; every base moves within +-4 mm per axis,
+    only bases move, the fingers' own bones and the joint limits hold."""
+    from hybridfit.fitting.refine import hand_rotations, move_bases
+
+    start = _poses(model, 5, seed=9)
+    parents = np.asarray(model.parents)
+    bases = np.flatnonzero(parents == 0)
+    moves = np.zeros((5, model.n_joints, 3))
+    moves[:, bases] = np.random.default_rng(10).uniform(-3.0, 3.0, (5, len(bases), 3))
+    target = move_bases(model.forward(start), parents, start[:, 3:7], moves)[:, :, None]
+    names = model.joint_names
+    conf = np.ones(target.shape[:3])
+    err = lambda p: np.linalg.norm(p - target[:, :, 0], axis=-1).mean()  # noqa: E731
+    rigid = refine(model, start, target, conf, names, iterations=40)
+    free = refine(model, start, target, conf, names, palm_tolerance_mm=4.0, palm_weight=0.01, iterations=40)
+    assert err(free.points(model, names)) < 0.2 * err(rigid.points(model, names))
+    assert np.abs(free.base_moves).max() <= 4.0 + 1e-12 and np.abs(free.base_moves[:, bases]).max() > 2.0
+    assert (np.delete(free.base_moves, bases, axis=1) == 0).all()
+    joints = free.joints(model)
+    np.testing.assert_allclose(_finger_bones(model, joints), _finger_bones(model, model.forward(free.params)))
+    lower, upper = model.bounds()
+    assert (free.params[:, 7:] >= lower[7:]).all() and (free.params[:, 7:] <= upper[7:]).all()
+    # each base is where the pose puts it, moved by its base_moves (hand frame) and no further
+    hand = np.einsum("fji,fkj->fki", hand_rotations(free.params[:, 3:7]), joints - model.forward(free.params))
+    np.testing.assert_allclose(hand[:, bases], free.base_moves[:, bases], atol=1e-9)
+
+
+def test_palm_freedom_holds_its_tolerance_against_a_far_pull(model):
+    """A hand 30 % larger pulls every base far: the moves stop at the tolerance, bones too."""
+    start = _poses(model, 4, seed=11)
+    target = model.forward(start)[:, :, None] * 1.3 - 120.0
+    polished = refine(model, start, target, np.ones(target.shape[:3]), model.joint_names, bone_tolerance=0.15,
+                      bone_weight=0.01, palm_tolerance_mm=2.5, palm_weight=0.01)
+    bases = np.flatnonzero(np.asarray(model.parents) == 0)
+    assert np.abs(polished.base_moves).max() <= 2.5 + 1e-12
+    assert np.isclose(np.abs(polished.base_moves[:, bases]).max(), 2.5)
+    assert np.abs(polished.bone_factors - 1).max() <= 0.15 + 1e-12
+
+
+def test_fit_and_refine_reports_the_palm_moves(model):
+    truth = model.forward(_poses(model, 3, seed=12))
+    proposals = truth[:, :, None] + np.random.default_rng(13).normal(0, 3.0, truth.shape)[:, :, None]
+    conf = np.ones(proposals.shape[:3])
+    free = fit_and_refine(proposals, conf, budget=600, model=model.name, palm_tolerance_mm=3.0, palm_weight=0.3)
+    assert np.abs(free.base_moves).max() <= 3.0 + 1e-12 and np.abs(free.base_moves).max() > 0
+    from hybridfit.fitting.refine import move_bases
+
+    np.testing.assert_allclose(free.model_joints, move_bases(
+        stretch_bones(model.forward(free.params), model.parents, free.bone_factors), np.asarray(model.parents),
+        free.params[:, 3:7], free.base_moves))
+    assert "base_moves" in free.to_npz()
