@@ -170,8 +170,8 @@ def main() -> None:
                 rows.append(row)
                 print(" | ".join(map(str, row)), flush=True)
     print(table(["data", "skeleton", "pool", "frames", "calibration in-sample", "held out (frames)", "ratio",
-                 "palm freedom (mm / weight)", "floor (fit only)", "design", "predictor", "refined (fit only)", "cost", "cost: fit / model",
-                 "fused (fit only)", "fused, sequence confidences", "best input",
+                 "palm freedom (mm / weight)", "floor (fit only)", "design", "predictor", "refined (fit only)", "cost",
+                 "cost: fit / model", "fused (fit only)", "fused, sequence confidences", "best input",
                  "median", "calibration time (s)"], rows))
 
 

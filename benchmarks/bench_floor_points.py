@@ -130,7 +130,8 @@ def main() -> None:
         groups.setdefault(group(name), []).append(q)
     total = (err**2).sum()
     print(table(["group", "share of squared residual", "mean error (mm)"],
-                [[g, f"{(err[:, qs] ** 2).sum() / total:.1%}", f"{err[:, qs].mean():.2f}"] for g, qs in groups.items()]))
+                [[g, f"{(err[:, qs] ** 2).sum() / total:.1%}", f"{err[:, qs].mean():.2f}"]
+                 for g, qs in groups.items()]))
     # per-frame palm shape: MCP spread and palm arch against the MCPs' residuals
     q = {name: i for i, name in enumerate(names)}
     mcps = [q[f"{f}_mcp"] for f in ("index", "middle", "ring", "little")]
@@ -148,6 +149,14 @@ def main() -> None:
     print(f"palm arch (middle/ring MCPs over index/little, along the palm normal, mm): annotated "
           f"{arch.mean():+.1f} +- {arch.std():.1f}, fitted {fitted_arch.mean():+.1f} +- {fitted_arch.std():.1f}; "
           f"corr(annotated, fitted) {np.corrcoef(arch, fitted_arch)[0, 1]:+.2f}")
+    tolerance = options.get("palm_tolerance_mm", 0.0)
+    if tolerance > 0:  # the polish's palm freedom: how far the bases moved, how often to the tolerance
+        bases = np.flatnonzero(np.isin(np.asarray(model.parents), np.flatnonzero(np.asarray(model.parents) < 0)))
+        moves = polished.base_moves[:, bases]
+        print("base moves (hand frame, mm): " + "; ".join(
+            f"{model.joint_names[b]} mean |move| {np.linalg.norm(moves[:, i], axis=-1).mean():.1f}, "
+            f"sd x/y/z {' / '.join(f'{v:.1f}' for v in moves[:, i].std(0))}" for i, b in enumerate(bases))
+            + f"; coordinates at the tolerance {(np.abs(moves) >= tolerance - 1e-9).mean():.1%}")
     mcp_err = err[:, mcps].mean(1)
     print(f"finger MCPs' mean error per frame {mcp_err.mean():.2f} +- {mcp_err.std():.2f} mm; "
           f"corr with |arch - mean| {np.corrcoef(np.abs(arch - arch.mean()), mcp_err)[0, 1]:+.2f}, "

@@ -50,7 +50,7 @@ from tqdm.auto import tqdm
 from .. import registry
 from ..errors import HybridfitError
 from .frames import fit
-from .refine import BONE_TOLERANCE, BONE_WEIGHT, refine
+from .refine import BONE_TOLERANCE, BONE_WEIGHT, PALM_TOLERANCE_MM, PALM_WEIGHT, refine
 from ..model.base import Geometry, HandModel
 
 
@@ -188,7 +188,7 @@ def _fit_error(truth, names, model, budget, seed, jobs, progress, given=None):
     r = fit(proposals, confidences, model=model, joint_names=names, budget=budget, seed=seed, jobs=jobs,
             progress=progress)
     polished = refine(model, r.params, proposals, confidences, names, bone_tolerance=BONE_TOLERANCE,
-                      bone_weight=BONE_WEIGHT)
+                      bone_weight=BONE_WEIGHT, palm_tolerance_mm=PALM_TOLERANCE_MM, palm_weight=PALM_WEIGHT)
     err = np.linalg.norm(polished.points(model, names) - truth, axis=-1)
     return float(np.nanmean(err)), polished, err
 

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 import hybridfit
-from hybridfit.fitting.refine import fit_and_refine, proposal_weights, refine, stretch_bones
+from hybridfit.fitting.refine import fit_and_refine, move_bases, proposal_weights, refine, stretch_bones
 
 NAMES = None
 
@@ -72,19 +72,21 @@ def test_fit_and_refine_is_fit_then_the_polish(model):
     proposals = truth[:, :, None] + np.random.default_rng(6).normal(0, 3.0, truth.shape)[:, :, None]
     conf = np.ones(proposals.shape[:3])
     plain = hybridfit.fit(proposals, conf, budget=600, model=model.name)
-    rigid = fit_and_refine(proposals, conf, budget=600, bone_tolerance=0.0, model=model.name)
+    rigid = fit_and_refine(proposals, conf, budget=600, bone_tolerance=0.0, palm_tolerance_mm=0.0, model=model.name)
     np.testing.assert_allclose(rigid.params, refine(model, plain.params, proposals, conf, model.joint_names).params)
     np.testing.assert_allclose(rigid.joints, model.forward(rigid.params))
-    assert (rigid.bone_factors == 1).all()
+    assert (rigid.bone_factors == 1).all() and (rigid.base_moves == 0).all()
     err = lambda r: np.linalg.norm(r.joints - truth, axis=-1).mean()  # noqa: E731
     assert err(rigid) < err(plain)
     assert (rigid.objective < 0).all() and not np.allclose(rigid.objective, plain.objective)
-    free = fit_and_refine(proposals, conf, budget=600, model=model.name)  # the default: bones free within 15 %
+    free = fit_and_refine(proposals, conf, budget=600, model=model.name)  # the default: bones free within 15 %,
     assert np.abs(free.bone_factors - 1).max() <= 0.15 + 1e-12 and np.abs(free.bone_factors - 1).max() > 0
+    assert np.abs(free.base_moves).max() <= 5.0 + 1e-12 and np.abs(free.base_moves).max() > 0  # bases within 5 mm
     lower, upper = model.bounds()
     assert (free.params[:, 7:] >= lower[7:]).all() and (free.params[:, 7:] <= upper[7:]).all()
-    np.testing.assert_allclose(free.model_joints, stretch_bones(model.forward(free.params), model.parents,
-                                                                free.bone_factors))
+    np.testing.assert_allclose(free.model_joints, move_bases(
+        stretch_bones(model.forward(free.params), model.parents, free.bone_factors), np.asarray(model.parents),
+        free.params[:, 3:7], free.base_moves))
     assert "bone_factors" in free.to_npz()
 
 
@@ -147,7 +149,7 @@ def test_palm_freedom_follows_moved_bases_within_its_tolerance(model):
     """Finger bases moved by 3 mm in the hand frame (MCP spread and palm arch): the rigid
     palm cannot follow, palm freedom of 4 mm can; every base moves within +-4 mm per axis,
     only bases move, the fingers' own bones and the joint limits hold."""
-    from hybridfit.fitting.refine import hand_rotations, move_bases
+    from hybridfit.fitting.refine import hand_rotations
 
     start = _poses(model, 5, seed=9)
     parents = np.asarray(model.parents)
@@ -190,8 +192,6 @@ def test_fit_and_refine_reports_the_palm_moves(model):
     conf = np.ones(proposals.shape[:3])
     free = fit_and_refine(proposals, conf, budget=600, model=model.name, palm_tolerance_mm=3.0, palm_weight=0.3)
     assert np.abs(free.base_moves).max() <= 3.0 + 1e-12 and np.abs(free.base_moves).max() > 0
-    from hybridfit.fitting.refine import move_bases
-
     np.testing.assert_allclose(free.model_joints, move_bases(
         stretch_bones(model.forward(free.params), model.parents, free.bone_factors), np.asarray(model.parents),
         free.params[:, 3:7], free.base_moves))
