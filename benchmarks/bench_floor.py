@@ -3,6 +3,7 @@
     python benchmarks/bench_floor.py [--real icvl nyu] [--stress icvl nyu nyu36 msra mediapipe mano]
                                      [--pool 0:100] [--frames 200] [--jobs 1] [--model hand26]
                                      [--subset START:STOP:STEP] [--design heavy gaussian]
+                                     [--levels 4 5 6] [--palm 5:0.3 0:1]
 
 Per dataset (real: ICVL's test annotations, NYU actor 2's, from ../shared/data; stress: a
 ``stress_proposals`` subject per skeleton, seed 3), ``hybridfit.fitting.calibrate`` with its
@@ -14,7 +15,7 @@ held-out frames), it then measures (mean 3D error, mm):
 - the floor: the annotations themselves fitted (``hybridfit.fit`` with the defaults, then
   the least-squares polish with its default per-frame bone freedom, as
   ``fitting.refine.fit_and_refine`` and ``hybridfit fit`` do; the fit alone in brackets);
-- refining a strong predictor: three predictors at 4, 5 and 6 mm with errors correlated as
+- refining a strong predictor: three predictors at 4, 5 and 6 mm (``--levels``) with errors correlated as
   real ones are (``synthetic.predictors``, seed 0), in each ``--design``: ``heavy`` (the
   default: heavy tails, a profile per predictor) and ``gaussian`` (``tail_sd = profile_sd =
   0``, the design of 0.6.0 and before); the best alone fitted (k = 1), and the three fused
@@ -27,6 +28,10 @@ held-out frames), it then measures (mean 3D error, mm):
   floor).
 
 Calibration's in-sample and held-out errors are printed beside them.
+
+``--palm TOLERANCE_MM:WEIGHT ...`` polishes every fit with each palm freedom of the polish
+(``refine``'s ``palm_tolerance_mm`` and ``palm_weight``; default: ``fit_and_refine``'s), a
+row each; the PSO fits are shared (calibration uses the defaults).
 
 ``--subset`` keeps only those frames of the annotations before anything else (frame
 numbers, ``--pool`` included, then count within the subset): the tuning data, ICVL frames

@@ -22,9 +22,10 @@ projected Levenberg-Marquardt on a robust least-squares loss:
   thumb CMC and finger MCPs) may also move, each with its whole finger, by up to
   +-``palm_tolerance_mm`` along each axis of the hand frame (the global quaternion's) at a
   quadratic cost (``palm_weight``): the palm is not rigid (real MCPs spread and arch by
-  several millimetres between frames). The fingers' own bones and angles are unchanged;
-  only the distance of a base from the wrist changes, by at most sqrt(3) times the
-  tolerance beyond the bone freedom.
+  several millimetres between frames). The fingers' own bones and joint angles are
+  unchanged; only where each base sits relative to the wrist changes, by at most sqrt(3)
+  times the tolerance beyond the bone freedom. :func:`fit_and_refine` uses ``PALM_TOLERANCE_MM`` and
+  ``PALM_WEIGHT``.
 
 A frame's step is taken only when it lowers that frame's loss, so no frame ends worse
 than it started on that loss; frames that are NaN (failed fits) stay NaN. All frames are
@@ -204,14 +205,14 @@ def polish(model, params: np.ndarray, proposals: np.ndarray, weight: np.ndarray,
     prior = np.concatenate([bone_weight * length**2, np.full(3 * len(bases), palm_weight)])  # d(cost s^2)/d(z^2)
     lam = np.full(F, 1e-2)
 
-    def points(z):
+    def points(z, moved=True):
         joints = model.forward(z[:, :P])
         if len(bones):
             factors = np.ones((len(z), n_joints))
             factors[:, bones] = 1.0 + z[:, P:S]
             joints = stretch_bones(joints, parents, factors)
         out = np.matmul(M, joints)  # (Q, J) @ (F, J, 3) -> (F, Q, 3)
-        if len(bases):
+        if moved and len(bases):
             world = np.einsum("fij,fbj->fbi", hand_rotations(z[:, 3:7]), z[:, S:].reshape(len(z), -1, 3))
             out = out + np.einsum("qb,fbi->fqi", carried, world)
         return out
@@ -226,11 +227,13 @@ def polish(model, params: np.ndarray, proposals: np.ndarray, weight: np.ndarray,
     h = step * np.maximum(1.0, np.abs(x))
     for _ in range(iterations):
         base = points(x)  # (F, Q, 3)
+        unmoved = points(x, False) if len(bases) else base
         J = np.empty((F, base.shape[1] * 3, D))
-        for i in range(S):
+        for i in range(S):  # the moves' part changes with the quaternion only
             xi = x.copy()
             xi[:, i] += h[:, i]
-            J[:, :, i] = (points(xi) - base).reshape(F, -1) / h[:, i, None]
+            turns = 3 <= i < 7
+            J[:, :, i] = (points(xi, turns) - (base if turns else unmoved)).reshape(F, -1) / h[:, i, None]
         if len(bases):  # the points are linear in the moves: d point_qc / d move_ba = carried_qb R_ca
             R = hand_rotations(x[:, 3:7])
             J[:, :, S:] = np.einsum("qb,fca->fqcba", carried, R).reshape(F, -1, D - S)
