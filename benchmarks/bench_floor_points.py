@@ -6,8 +6,8 @@
 On the tuning data only (default: ICVL frames 0-99), ``hybridfit.fitting.calibrate`` with
 its defaults calibrates the model on the subset (as ``bench_floor --subset 0:100 --pool
 0:100`` does); every frame of the subset is then fitted (``hybridfit.fit``, the annotations
-as k = 1 proposals) and polished (``refine`` with the default per-frame bone freedom, and
-the ``--polish`` options). Per annotated point, the residual (annotation - fitted point) is
+as k = 1 proposals) and polished (``refine`` with the default per-frame bone and palm freedom,
+changed by the ``--polish`` options: ``palm_tolerance_mm=0`` for 0.7.0's rigid palm). Per annotated point, the residual (annotation - fitted point) is
 expressed in two frames of the fitted hand:
 
 - the palm's: y from the wrist to the middle MCP, x across the index and little MCPs
@@ -34,7 +34,7 @@ import numpy as np
 import hybridfit
 from hybridfit.datasets.skeletons import dataset_model_config, skeleton
 from hybridfit.fitting.calibrate import calibrate
-from hybridfit.fitting.refine import BONE_TOLERANCE, BONE_WEIGHT, refine
+from hybridfit.fitting.refine import BONE_TOLERANCE, BONE_WEIGHT, PALM_TOLERANCE_MM, PALM_WEIGHT, refine
 
 from _util import table
 from bench_floor import annotations
@@ -103,8 +103,8 @@ def main() -> None:
     ones = np.ones(truth.shape[:2] + (1,))
     fitted = hybridfit.fit(truth[:, :, None], ones, joint_names=names, model=a.model, model_config=cal.settings,
                            jobs=a.jobs)
-    options = {"bone_tolerance": BONE_TOLERANCE, "bone_weight": BONE_WEIGHT,
-               **{k: float(v) for k, v in (o.split("=") for o in a.polish)}}
+    options = {"bone_tolerance": BONE_TOLERANCE, "bone_weight": BONE_WEIGHT, "palm_tolerance_mm": PALM_TOLERANCE_MM,
+               "palm_weight": PALM_WEIGHT, **{k: float(v) for k, v in (o.split("=") for o in a.polish)}}
     polished = refine(model, fitted.params, truth[:, :, None], ones, names, **options)
     joints, points = polished.joints(model), polished.points(model, names)
     residual = truth - points  # (F, Q, 3)
