@@ -13,12 +13,12 @@ spread evenly over the rest of the sequence (a pool of the whole sequence: over 
 held-out frames), it then measures (mean 3D error, mm):
 
 - the floor: the annotations themselves fitted (``hybridfit.fit`` with the defaults, then
-  the least-squares polish with its default per-frame bone freedom, as
+  the least-squares polish with its default per-frame bone and palm freedom, as
   ``fitting.refine.fit_and_refine`` and ``hybridfit fit`` do; the fit alone in brackets);
-- refining a strong predictor: three predictors at 4, 5 and 6 mm (``--levels``) with errors correlated as
-  real ones are (``synthetic.predictors``, seed 0), in each ``--design``: ``heavy`` (the
-  default: heavy tails, a profile per predictor) and ``gaussian`` (``tail_sd = profile_sd =
-  0``, the design of 0.6.0 and before); the best alone fitted (k = 1), and the three fused
+- refining a strong predictor: three predictors at 4, 5 and 6 mm (``--levels``) with errors
+  correlated as real ones are (``synthetic.predictors``, seed 0), in each ``--design``:
+  ``heavy`` (the default: heavy tails, a profile per predictor) and ``gaussian``
+  (``tail_sd = profile_sd = 0``, the design of 0.6.0 and before); the best alone fitted (k = 1), and the three fused
   (k = 3, the confidences ``proposals from-results`` gives them: from their agreement per
   point and per frame, ``hybridfit.agreement``; beside it, with the sequence-level
   confidences alone, ``frame_reach = None``) beside the best input and their per-point median;

@@ -31,8 +31,8 @@ the model's joints and derived points. From ground-truth points (F, Q, 3) mm:
    what the frames need.
 
 Reported errors are those of :func:`hybridfit.fit` followed by the least-squares polish
-with its default per-frame bone freedom (:func:`hybridfit.fitting.refine.fit_and_refine`),
-what a user gets: on the calibration frames before and after, and on the held-out frames
+with its default per-frame bone and palm freedom
+(:func:`hybridfit.fitting.refine.fit_and_refine`), what a user gets: on the calibration frames before and after, and on the held-out frames
 after (the floor), with the cost of refining a strong predictor there
 (:func:`refining_cost`).
 """
