@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 import hybridfit
 from hybridfit.fitting.refine import fit_and_refine, move_bases, proposal_weights, refine, stretch_bones
@@ -196,3 +197,28 @@ def test_fit_and_refine_reports_the_palm_moves(model):
         stretch_bones(model.forward(free.params), model.parents, free.bone_factors), np.asarray(model.parents),
         free.params[:, 3:7], free.base_moves))
     assert "base_moves" in free.to_npz()
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), tolerance=st.floats(0.0, 10.0))
+def test_moving_the_bases_carries_each_finger_rigidly(seed, tolerance):
+    """Any base moves within a tolerance: every bone inside a finger keeps its vector, the
+    wrist stays, and each base moves by its move rotated into the world."""
+    from hybridfit.fitting.refine import hand_rotations
+
+    model = hybridfit.create("model", "hand27")
+    parents = np.asarray(model.parents)
+    rng = np.random.default_rng(seed)
+    params = _poses(model, 3, seed=seed % 1000)
+    joints = model.forward(params)
+    moves = np.zeros((3, model.n_joints, 3))
+    bases = np.flatnonzero(parents == 0)
+    moves[:, bases] = rng.uniform(-tolerance, tolerance, (3, len(bases), 3))
+    moved = move_bases(joints, parents, params[:, 3:7], moves)
+    inner = [j for j in range(len(parents)) if parents[j] > 0]
+    np.testing.assert_allclose(moved[:, inner] - moved[:, parents[inner]], joints[:, inner] - joints[:, parents[inner]],
+                               atol=1e-9)
+    np.testing.assert_array_equal(moved[:, 0], joints[:, 0])
+    shift = np.einsum("fij,fbj->fbi", hand_rotations(params[:, 3:7]), moves[:, bases])
+    np.testing.assert_allclose(moved[:, bases] - joints[:, bases], shift, atol=1e-9)
+    assert (np.linalg.norm(shift, axis=-1) <= np.sqrt(3) * tolerance + 1e-9).all()
