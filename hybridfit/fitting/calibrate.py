@@ -31,8 +31,8 @@ the model's joints and derived points. From ground-truth points (F, Q, 3) mm:
    what the frames need.
 
 Reported errors are those of :func:`hybridfit.fit` followed by the least-squares polish
-with its default per-frame bone freedom (:func:`hybridfit.fitting.refine.fit_and_refine`),
-what a user gets: on the calibration frames before and after, and on the held-out frames
+with its default per-frame bone and palm freedom
+(:func:`hybridfit.fitting.refine.fit_and_refine`), what a user gets: on the calibration frames before and after, and on the held-out frames
 after (the floor), with the cost of refining a strong predictor there
 (:func:`refining_cost`).
 """
@@ -50,7 +50,7 @@ from tqdm.auto import tqdm
 from .. import registry
 from ..errors import HybridfitError
 from .frames import fit
-from .refine import BONE_TOLERANCE, BONE_WEIGHT, refine
+from .refine import BONE_TOLERANCE, BONE_WEIGHT, PALM_TOLERANCE_MM, PALM_WEIGHT, refine
 from ..model.base import Geometry, HandModel
 
 
@@ -188,7 +188,7 @@ def _fit_error(truth, names, model, budget, seed, jobs, progress, given=None):
     r = fit(proposals, confidences, model=model, joint_names=names, budget=budget, seed=seed, jobs=jobs,
             progress=progress)
     polished = refine(model, r.params, proposals, confidences, names, bone_tolerance=BONE_TOLERANCE,
-                      bone_weight=BONE_WEIGHT)
+                      bone_weight=BONE_WEIGHT, palm_tolerance_mm=PALM_TOLERANCE_MM, palm_weight=PALM_WEIGHT)
     err = np.linalg.norm(polished.points(model, names) - truth, axis=-1)
     return float(np.nanmean(err)), polished, err
 

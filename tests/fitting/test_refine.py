@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 import hybridfit
-from hybridfit.fitting.refine import fit_and_refine, proposal_weights, refine, stretch_bones
+from hybridfit.fitting.refine import fit_and_refine, move_bases, proposal_weights, refine, stretch_bones
 
 NAMES = None
 
@@ -72,19 +73,21 @@ def test_fit_and_refine_is_fit_then_the_polish(model):
     proposals = truth[:, :, None] + np.random.default_rng(6).normal(0, 3.0, truth.shape)[:, :, None]
     conf = np.ones(proposals.shape[:3])
     plain = hybridfit.fit(proposals, conf, budget=600, model=model.name)
-    rigid = fit_and_refine(proposals, conf, budget=600, bone_tolerance=0.0, model=model.name)
+    rigid = fit_and_refine(proposals, conf, budget=600, bone_tolerance=0.0, palm_tolerance_mm=0.0, model=model.name)
     np.testing.assert_allclose(rigid.params, refine(model, plain.params, proposals, conf, model.joint_names).params)
     np.testing.assert_allclose(rigid.joints, model.forward(rigid.params))
-    assert (rigid.bone_factors == 1).all()
+    assert (rigid.bone_factors == 1).all() and (rigid.base_moves == 0).all()
     err = lambda r: np.linalg.norm(r.joints - truth, axis=-1).mean()  # noqa: E731
     assert err(rigid) < err(plain)
     assert (rigid.objective < 0).all() and not np.allclose(rigid.objective, plain.objective)
-    free = fit_and_refine(proposals, conf, budget=600, model=model.name)  # the default: bones free within 15 %
+    free = fit_and_refine(proposals, conf, budget=600, model=model.name)  # the default: bones free within 15 %,
     assert np.abs(free.bone_factors - 1).max() <= 0.15 + 1e-12 and np.abs(free.bone_factors - 1).max() > 0
+    assert np.abs(free.base_moves).max() <= 5.0 + 1e-12 and np.abs(free.base_moves).max() > 0  # bases within 5 mm
     lower, upper = model.bounds()
     assert (free.params[:, 7:] >= lower[7:]).all() and (free.params[:, 7:] <= upper[7:]).all()
-    np.testing.assert_allclose(free.model_joints, stretch_bones(model.forward(free.params), model.parents,
-                                                                free.bone_factors))
+    np.testing.assert_allclose(free.model_joints, move_bases(
+        stretch_bones(model.forward(free.params), model.parents, free.bone_factors), np.asarray(model.parents),
+        free.params[:, 3:7], free.base_moves))
     assert "bone_factors" in free.to_npz()
 
 
@@ -134,3 +137,88 @@ def test_a_model_with_marker_offsets_stays_valid_under_the_polish(name):
     bone = lambda j: np.linalg.norm(j[:, 1:] - j[:, parents[1:]], axis=-1)  # noqa: E731
     ratio = bone(polished.joints(model)) / bone(model.forward(start))
     assert np.abs(ratio - 1).max() <= 0.15 + 1e-9 and np.abs(ratio - 1).max() > 0.1
+
+
+def _finger_bones(model, joints):
+    """(F, J') lengths (mm) of every bone that is not a finger base's (those inside the fingers)."""
+    parents = np.asarray(model.parents)
+    inner = [j for j in range(len(parents)) if parents[j] >= 0 and parents[parents[j]] >= 0]
+    return np.linalg.norm(joints[:, inner] - joints[:, parents[inner]], axis=-1)
+
+
+def test_palm_freedom_follows_moved_bases_within_its_tolerance(model):
+    """Finger bases moved by 3 mm in the hand frame (MCP spread and palm arch): the rigid
+    palm cannot follow, palm freedom of 4 mm can; every base moves within +-4 mm per axis,
+    only bases move, the fingers' own bones and the joint limits hold."""
+    from hybridfit.fitting.refine import hand_rotations
+
+    start = _poses(model, 5, seed=9)
+    parents = np.asarray(model.parents)
+    bases = np.flatnonzero(parents == 0)
+    moves = np.zeros((5, model.n_joints, 3))
+    moves[:, bases] = np.random.default_rng(10).uniform(-3.0, 3.0, (5, len(bases), 3))
+    target = move_bases(model.forward(start), parents, start[:, 3:7], moves)[:, :, None]
+    names = model.joint_names
+    conf = np.ones(target.shape[:3])
+    err = lambda p: np.linalg.norm(p - target[:, :, 0], axis=-1).mean()  # noqa: E731
+    rigid = refine(model, start, target, conf, names, iterations=40)
+    free = refine(model, start, target, conf, names, palm_tolerance_mm=4.0, palm_weight=0.01, iterations=40)
+    assert err(free.points(model, names)) < 0.2 * err(rigid.points(model, names))
+    assert np.abs(free.base_moves).max() <= 4.0 + 1e-12 and np.abs(free.base_moves[:, bases]).max() > 2.0
+    assert (np.delete(free.base_moves, bases, axis=1) == 0).all()
+    joints = free.joints(model)
+    np.testing.assert_allclose(_finger_bones(model, joints), _finger_bones(model, model.forward(free.params)))
+    lower, upper = model.bounds()
+    assert (free.params[:, 7:] >= lower[7:]).all() and (free.params[:, 7:] <= upper[7:]).all()
+    # each base is where the pose puts it, moved by its base_moves (hand frame) and no further
+    hand = np.einsum("fji,fkj->fki", hand_rotations(free.params[:, 3:7]), joints - model.forward(free.params))
+    np.testing.assert_allclose(hand[:, bases], free.base_moves[:, bases], atol=1e-9)
+
+
+def test_palm_freedom_holds_its_tolerance_against_a_far_pull(model):
+    """A hand 30 % larger pulls every base far: the moves stop at the tolerance, bones too."""
+    start = _poses(model, 4, seed=11)
+    target = model.forward(start)[:, :, None] * 1.3 - 120.0
+    polished = refine(model, start, target, np.ones(target.shape[:3]), model.joint_names, bone_tolerance=0.15,
+                      bone_weight=0.01, palm_tolerance_mm=2.5, palm_weight=0.01)
+    bases = np.flatnonzero(np.asarray(model.parents) == 0)
+    assert np.abs(polished.base_moves).max() <= 2.5 + 1e-12
+    assert np.isclose(np.abs(polished.base_moves[:, bases]).max(), 2.5)
+    assert np.abs(polished.bone_factors - 1).max() <= 0.15 + 1e-12
+
+
+def test_fit_and_refine_reports_the_palm_moves(model):
+    truth = model.forward(_poses(model, 3, seed=12))
+    proposals = truth[:, :, None] + np.random.default_rng(13).normal(0, 3.0, truth.shape)[:, :, None]
+    conf = np.ones(proposals.shape[:3])
+    free = fit_and_refine(proposals, conf, budget=600, model=model.name, palm_tolerance_mm=3.0, palm_weight=0.3)
+    assert np.abs(free.base_moves).max() <= 3.0 + 1e-12 and np.abs(free.base_moves).max() > 0
+    np.testing.assert_allclose(free.model_joints, move_bases(
+        stretch_bones(model.forward(free.params), model.parents, free.bone_factors), np.asarray(model.parents),
+        free.params[:, 3:7], free.base_moves))
+    assert "base_moves" in free.to_npz()
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), tolerance=st.floats(0.0, 10.0))
+def test_moving_the_bases_carries_each_finger_rigidly(seed, tolerance):
+    """Any base moves within a tolerance: every bone inside a finger keeps its vector, the
+    wrist stays, and each base moves by its move rotated into the world."""
+    from hybridfit.fitting.refine import hand_rotations
+
+    model = hybridfit.create("model", "hand27")
+    parents = np.asarray(model.parents)
+    rng = np.random.default_rng(seed)
+    params = _poses(model, 3, seed=seed % 1000)
+    joints = model.forward(params)
+    moves = np.zeros((3, model.n_joints, 3))
+    bases = np.flatnonzero(parents == 0)
+    moves[:, bases] = rng.uniform(-tolerance, tolerance, (3, len(bases), 3))
+    moved = move_bases(joints, parents, params[:, 3:7], moves)
+    inner = [j for j in range(len(parents)) if parents[j] > 0]
+    np.testing.assert_allclose(moved[:, inner] - moved[:, parents[inner]], joints[:, inner] - joints[:, parents[inner]],
+                               atol=1e-9)
+    np.testing.assert_array_equal(moved[:, 0], joints[:, 0])
+    shift = np.einsum("fij,fbj->fbi", hand_rotations(params[:, 3:7]), moves[:, bases])
+    np.testing.assert_allclose(moved[:, bases] - joints[:, bases], shift, atol=1e-9)
+    assert (np.linalg.norm(shift, axis=-1) <= np.sqrt(3) * tolerance + 1e-9).all()
