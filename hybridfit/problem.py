@@ -17,7 +17,7 @@ from .model.base import ORIENTATION, POSITION, HandModel
 from .model.kinematics import COLUMNS, block_setup, tree_points
 from .objective import Objective, Observation, compiled_kernel_of, normalise_confidences
 from .stages import (MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, _Structure, guide_points, point_depths,  # noqa: F401
-                     rotation_lever_mm, structure_of)
+                     point_matrix_of, rotation_lever_mm, structure_of)
 
 
 def objective_label(objective) -> str:
@@ -66,10 +66,7 @@ class Problem:
             raise HybridfitError(
                 f"{len(self.point_names)} point names for {self.proposals.shape[0]} proposal points"
             )
-        if self.point_names == tuple(model.joint_names):
-            self.point_matrix = None
-        else:
-            self.point_matrix = model.point_matrix(self.point_names)
+        self.point_matrix = point_matrix_of(model, self.point_names)
         self.observed = bool(getattr(objective, "observes_depth", False))
         if self.observed:
             if observation is None:
@@ -166,7 +163,7 @@ class Problem:
 
     def _structure(self) -> "_Structure":
         """What depends only on the model and the point names (shared by every frame)."""
-        return structure_of(self.model, self.point_names, self.point_matrix)
+        return structure_of(self.model, self.point_names)
 
 
 def search_boxes(structure: "_Structure", x0: np.ndarray, search_radius_mm: float) -> tuple[np.ndarray, np.ndarray]:
@@ -193,8 +190,7 @@ def prepare_frames(model: HandModel, objective: Objective, proposals: np.ndarray
     if F == 0:
         P = model.n_params
         return weights, np.empty((0, P)), np.empty((0, P)), np.empty((0, P)), {}
-    names = tuple(point_names)
-    structure = structure_of(model, names, None if names == tuple(model.joint_names) else model.point_matrix(names))
+    structure = structure_of(model, point_names)
     observed = weights.sum(axis=-1) > 0
     uses = [alignment_points(structure, observed[f]) for f in range(F)]
     at = np.cumsum([0] + [0 if u is None else len(u) for u in uses]).astype(np.int64)

@@ -17,9 +17,15 @@ from .model.base import HandModel
 
 
 
-def structure_of(model: HandModel, point_names: tuple[str, ...], point_matrix: np.ndarray | None) -> "_Structure":
-    """The model's :class:`_Structure` over these points (point_matrix: None for the model's
-    joints, else ``model.point_matrix(point_names)``), computed once per model and points: a
+def point_matrix_of(model: HandModel, point_names) -> np.ndarray | None:
+    """The (Q, J) matrix of these points over the model's joints (``model.point_matrix``),
+    None when they are the model's joints."""
+    names = tuple(point_names)
+    return None if names == tuple(model.joint_names) else model.point_matrix(names)
+
+
+def structure_of(model: HandModel, point_names) -> "_Structure":
+    """The model's :class:`_Structure` over these points, computed once per model and points: a
     model equal to one seen before (the same class and equal settings, which a plugin's
     structure depends on only) shares its structure, so a model created again by name for
     every fit does not rebuild it."""
@@ -36,7 +42,7 @@ def structure_of(model: HandModel, point_names: tuple[str, ...], point_matrix: n
         if sum(len(b) for b in _STRUCTURES.values()) >= 32:
             _STRUCTURES.clear()
             bucket = _STRUCTURES.setdefault((type(model), point_names), [])
-        found = _Structure(model, point_matrix)
+        found = _Structure(model, point_matrix_of(model, point_names))
         bucket.append(found)
     if len(_LAST) >= 32:
         _LAST.clear()

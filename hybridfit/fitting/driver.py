@@ -286,8 +286,8 @@ class Driver:
         self.model, self.objective, self.optimizer = model, objective, optimizer
         self.names = tuple(point_names)
         self.budget, self.seed, self.search_radius_mm = int(budget), int(seed), float(search_radius_mm)
-        self.point_matrix = None if self.names == tuple(model.joint_names) else model.point_matrix(self.names)
-        structure = structure_of(model, self.names, self.point_matrix)  # computed once per model and points
+        structure = structure_of(model, self.names)  # computed once per model and points
+        self.point_matrix = structure.point_matrix
         # the structure's model is equal to this one (the same class and settings), with its
         # kinematics already set up by an earlier fit: its forward gives the same joints
         self.forward = structure.model.forward

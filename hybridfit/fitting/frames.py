@@ -165,8 +165,7 @@ def check_scale(model, proposals: np.ndarray, confidences: np.ndarray, names: Se
                              np.ascontiguousarray(confidences, dtype=np.float64))
     if np.isnan(spread):  # no frame has proposals
         return
-    names = tuple(names)
-    hand = structure_of(model, names, None if names == tuple(model.joint_names) else model.point_matrix(names)).spread_mm
+    hand = structure_of(model, names).spread_mm
     if not hand / 8 <= spread <= hand * 8:
         warnings.warn(f"the proposals spread over {spread:.3g} (median distance from their centre), the model's "
                       f"{len(names)} points over {hand:.3g} mm: are the proposals in millimetres?", stacklevel=3)
