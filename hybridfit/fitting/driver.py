@@ -198,15 +198,11 @@ def layout(plan: list[StagePlan], n_points: int) -> Layout | None:
                   plan[0].optimizer)
 
 
-def runs_batched(optimizer, task: Task) -> bool:
-    """Whether the driver runs this optimiser on a task like this one: its ``plan`` is the one
-    its ``minimize`` follows (a subclass overriding ``minimize`` is not run by its parent's
-    plan), and the stages' optimisers share valid batch steps (:func:`layout`)."""
-    return _batched_layout(optimizer, task) is not None
-
-
 def _batched_layout(optimizer, task: Task) -> Layout | None:
-    """The layout of the optimiser's plan of the task when :func:`runs_batched`, else None."""
+    """The layout of the optimiser's plan of the task when the driver runs this optimiser on
+    a task like this one, else None: its ``plan`` is the one its ``minimize`` follows (a
+    subclass overriding ``minimize`` is not run by its parent's plan), and the stages'
+    optimisers share valid batch steps (:func:`layout`)."""
     cls = type(optimizer)
     if not issubclass(defining_class(cls, "plan"), defining_class(cls, "minimize")):
         return None
