@@ -42,6 +42,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .. import registry
+from ..model.rotations import quaternions_to_matrices
 from ..problem import Problem
 from .frames import FitResult, fit
 
@@ -146,19 +147,10 @@ def subtrees(parents: np.ndarray) -> np.ndarray:
     return below
 
 
-def hand_rotations(quaternions: np.ndarray) -> np.ndarray:
-    """(F, 4) quaternions (w, x, y, z), any length -> (F, 3, 3) rotations of the hand frame."""
-    q = np.asarray(quaternions, dtype=np.float64)
-    w, x, y, z = (q / np.linalg.norm(q, axis=-1, keepdims=True)).T
-    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], 1)
-
-
 def move_bases(joints: np.ndarray, parents: np.ndarray, quaternions: np.ndarray, moves: np.ndarray) -> np.ndarray:
     """joints (F, J, 3) mm with every joint moved by moves (F, J, 3) mm (hand frame, rotated
     by quaternions (F, 4)) of itself and its ancestors: a base's move carries its finger."""
-    world = np.einsum("fij,fkj->fki", hand_rotations(quaternions), moves)
+    world = np.einsum("fij,fkj->fki", quaternions_to_matrices(quaternions), moves)
     return joints + np.einsum("ki,fkc->fic", subtrees(parents).astype(float), world)
 
 
@@ -213,7 +205,7 @@ def polish(model, params: np.ndarray, proposals: np.ndarray, weight: np.ndarray,
             joints = stretch_bones(joints, parents, factors)
         out = np.matmul(M, joints)  # (Q, J) @ (F, J, 3) -> (F, Q, 3)
         if moved and len(bases):
-            world = np.einsum("fij,fbj->fbi", hand_rotations(z[:, 3:7]), z[:, S:].reshape(len(z), -1, 3))
+            world = np.einsum("fij,fbj->fbi", quaternions_to_matrices(z[:, 3:7]), z[:, S:].reshape(len(z), -1, 3))
             out = out + np.einsum("qb,fbi->fqi", carried, world)
         return out
 
@@ -235,7 +227,7 @@ def polish(model, params: np.ndarray, proposals: np.ndarray, weight: np.ndarray,
             turns = 3 <= i < 7
             J[:, :, i] = (points(xi, turns) - (base if turns else unmoved)).reshape(F, -1) / h[:, i, None]
         if len(bases):  # the points are linear in the moves: d point_qc / d move_ba = carried_qb R_ca
-            R = hand_rotations(x[:, 3:7])
+            R = quaternions_to_matrices(x[:, 3:7])
             J[:, :, S:] = np.einsum("qb,fca->fqcba", carried, R).reshape(F, -1, D - S)
         W = np.repeat(irls.sum(2), 3, axis=1)  # (F, 3Q): a point's weights over its proposals
         r = np.einsum("fqk,fqkc->fqc", irls, base[:, :, None] - tgt).reshape(F, -1)  # weighted residual sums
