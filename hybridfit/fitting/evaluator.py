@@ -381,5 +381,11 @@ class NumpyScorer:
             losses[:, :m] = out[:len(losses)]
             return
         points = self.points(stage, X, subset)
-        for f, loss in enumerate(self.losses):
-            losses[f, :m] = checked_losses(loss(points[f], subset), m, self.objective)
+        out = [loss(frame, subset) for loss, frame in zip(self.losses, points)]
+        try:  # one conversion for all frames; the frame-by-frame check names the objective
+            scored = np.array(out, dtype=np.float64)
+        except (ValueError, TypeError):
+            scored = None
+        if scored is None or scored.shape != (len(out), m):
+            scored = [checked_losses(o, m, self.objective) for o in out]
+        losses[:, :m] = scored

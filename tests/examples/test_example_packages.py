@@ -62,6 +62,41 @@ def test_the_numpy_objective_scores_frames_in_batches_and_fits_like_the_built_in
     np.testing.assert_allclose(ours.params, built_in.params, rtol=0, atol=1e-6)
 
 
+def test_the_numpy_objective_keeps_aligned_buffers_per_thread_and_scores_like_fresh_ones(installed):
+    """clamped_loss's kept scratch: on a cache line, one set per thread, and a call after a
+    larger or smaller one (or beside one on another thread) scores as a first call does."""
+    import threading
+
+    from hybridfit_numpy_objective import clamped_loss, kept
+
+    assert kept("probe", 1000).ctypes.data % 64 == 0
+    rng = np.random.default_rng(4)
+
+    def batch(F, N, m):
+        proposals = rng.normal(0.0, 30.0, (F, m, 3, 3))
+        points = proposals[:, None, :, 0] + rng.normal(0.0, 20.0, (F, N, m, 3))
+        return testing.frames_arguments(points, np.arange(m), proposals, rng.random((F, m, 3)))
+
+    batches = [batch(40, 29, 21), batch(7, 19, 3), batch(40, 28, 6)]
+    first = [clamped_loss(p, q, w, 40.0) for p, _, q, w in batches]
+    again = [clamped_loss(p, q, w, 40.0) for p, _, q, w in batches[::-1]][::-1]
+    threaded = [None] * len(batches)
+
+    def score(i):  # each thread's result must not change while the others run
+        results = [clamped_loss(batches[i][0], batches[i][2], batches[i][3], 40.0) for _ in range(10)]
+        threaded[i] = results[0] if all(np.array_equal(r, results[0]) for r in results) else None
+
+    workers = [threading.Thread(target=score, args=(i,)) for i in range(len(batches))]
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join()
+    for a, b, c in zip(first, again, threaded):
+        np.testing.assert_array_equal(a, b)
+        assert c is not None
+        np.testing.assert_array_equal(a, c)
+
+
 def test_the_numpy_optimizer_runs_stepwise_and_fits(installed):
     data = hybridfit.synthetic_proposals(6, k=3, seed=3)
     fit = hybridfit.fit(data["proposals"], data["confidences"], budget=1200, seed=0, optimizer="stepwise",

@@ -276,6 +276,33 @@ def test_a_frame_scorer_of_the_wrong_shape_is_a_plugin_error_naming_the_objectiv
         hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], objective=OneColumnShort(), budget=300)
 
 
+@pytest.mark.parametrize("short", [False, True], ids=["list-of-ints", "one-frame-short"])
+def test_bound_losses_are_converted_together_and_a_frame_of_the_wrong_shape_names_the_objective(frames, short):
+    """The scorer converts the frames' bound losses in one go; one frame's wrong shape among
+    right ones (a ragged batch) is still the objective's PluginError, and losses that are
+    lists of ints score as float64 would."""
+    from hybridfit.errors import PluginError
+    from hybridfit.objective import Objective
+
+    class Ragged(Objective):
+        def bind(self, proposals, weights):
+            first = bool(np.all(proposals == frames["proposals"][0][:len(proposals)]))
+
+            def loss(points, subset):
+                n = len(points) - (1 if short and first else 0)
+                return [0] * n
+            return loss
+
+    run = lambda: hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], objective=Ragged(),  # noqa: E731
+                                budget=300, seed=0)
+    if short:
+        with pytest.raises(PluginError, match=r"objective Ragged: its bound loss returned shape \(\d+,\), "):
+            run()
+    else:
+        fit = run()
+        assert not fit.failed.any() and np.all(fit.objective == 0.0)
+
+
 def test_a_frame_scored_by_score_frames_alone_or_beside_others_gets_the_same_losses_bit_for_bit():
     """A sum over the points of arrays in the frame-batched layout is a pairwise sum over one
     frame and a running sum over several: the scorer never hands score_frames a single frame."""

@@ -11,6 +11,8 @@ driver scores a whole chunk of frames per generation with one Python call.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 from pydantic import Field
 
@@ -26,6 +28,22 @@ class NumpyClampedSettings(Settings):
 #: stays in a core's second-level cache beside the points
 SCRATCH_ELEMENTS = 1 << 17
 
+_kept = threading.local()  # each thread's buffers: the driver may score chunks of frames on threads
+
+
+def kept(name: str, size: int) -> np.ndarray:
+    """This thread's float64 buffer ``name`` (size,), uninitialised, kept from call to call and
+    starting on a cache line (64 bytes): numpy's arrays start 16 or 32 bytes into one, and the
+    loops that write a megabyte scratch so placed took about a fifth longer (measured:
+    hybridfit's ``docs/results.md``)."""
+    buffer = getattr(_kept, name, None)
+    if buffer is None or buffer.size < size:
+        raw = np.empty(size + 8)
+        start = (-raw.ctypes.data % 64) // 8
+        buffer = raw[start:start + size]
+        setattr(_kept, name, buffer)
+    return buffer[:size]
+
 
 def clamped_loss(points, proposals, weights, d_max_mm):
     """points (F, N, m, 3) mm, proposals (F, m, K, 3) mm, weights (F, m, K) of the same m points
@@ -37,11 +55,12 @@ def clamped_loss(points, proposals, weights, d_max_mm):
     w (1 - d^2) = w - (w / d_max^2) ||p - h||^2, and the clamp at 0 is the maximum's initial
     value. Few calls matter as much as few passes (a stage that moves one finger scores a few
     thousand points per call); a large batch goes through in nearly equal runs of hypotheses
-    whose scratch fits :data:`SCRATCH_ELEMENTS`."""
+    whose scratch fits :data:`SCRATCH_ELEMENTS`. The scratch is the thread's, kept between calls
+    (:func:`kept`)."""
     F, N, m, K = points.shape[0], points.shape[1], points.shape[2], proposals.shape[2]
     step = -(-N // -(-3 * K * F * N * m // SCRATCH_ELEMENTS))  # hypotheses per run
-    scratch = np.empty((3, K, step, m, F)).transpose(4, 2, 3, 1, 0)  # (F, step, m, K, 3)
-    best = np.empty((N, m, F)).transpose(2, 0, 1)  # (F, N, m), frames innermost
+    scratch = kept("scratch", 3 * K * step * m * F).reshape(3, K, step, m, F).transpose(4, 2, 3, 1, 0)
+    best = kept("best", N * m * F).reshape(N, m, F).transpose(2, 0, 1)  # (F, N, m), frames innermost
     ws = weights[:, None] / d_max_mm**2
     for a in range(0, N, step):
         h = points[:, a:a + step, :, None, :]
