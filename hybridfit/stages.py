@@ -95,7 +95,7 @@ class _Structure:
             tree = self.model.kinematic_tree()
             if tree is None:  # the model has none after all
                 return None
-            self._tree = _Tree(tree, self.point_matrix, self.model.n_joints)
+            self._tree = _Tree(tree, self.point_map())
         return self._tree
 
 
@@ -103,23 +103,26 @@ class _Tree:
     """A kinematic tree's arrays and a point map (Q, J) in CSR form, as the block kinematics
     (:mod:`hybridfit.model.kinematics`) read them."""
 
-    def __init__(self, tree, point_matrix: np.ndarray | None, n_joints: int) -> None:
-        req = lambda a, dtype: np.require(a, dtype=dtype, requirements=["C", "W"])  # noqa: E731
-        self.parents = req(tree.parents, np.int64)
-        self.axes, self.axis_params = req(tree.axes, np.int64), req(tree.axis_params, np.int64)
-        self.arrays = (self.parents, req(tree.offsets, np.float64), req(tree.rest, np.float64),
-                       req(tree.rest_is_identity, np.bool_), self.axes, self.axis_params, float(tree.mirror))
-        self.point_map = csr_point_map(point_matrix, n_joints)
+    def __init__(self, tree, point_map: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        self.parents = _require(tree.parents, np.int64)
+        self.axes, self.axis_params = _require(tree.axes, np.int64), _require(tree.axis_params, np.int64)
+        self.arrays = (self.parents, _require(tree.offsets, np.float64), _require(tree.rest, np.float64),
+                       _require(tree.rest_is_identity, np.bool_), self.axes, self.axis_params, float(tree.mirror))
+        self.point_map = point_map
 
 
 def csr_point_map(point_matrix: np.ndarray | None, n_joints: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A point map (Q, J) (None: the identity) in CSR form: (row starts (Q + 1,), joints,
     weights)."""
-    req = lambda a, dtype: np.require(a, dtype=dtype, requirements=["C", "W"])  # noqa: E731
     M = np.eye(n_joints) if point_matrix is None else point_matrix
     rows, cols = np.nonzero(M)
-    return (req(np.searchsorted(rows, np.arange(len(M) + 1)), np.int64), req(cols, np.int64),
-            req(M[rows, cols], np.float64))
+    return (_require(np.searchsorted(rows, np.arange(len(M) + 1)), np.int64), _require(cols, np.int64),
+            _require(M[rows, cols], np.float64))
+
+
+def _require(a, dtype) -> np.ndarray:
+    """``a`` as a C-contiguous, writable array of ``dtype`` (as the compiled kinematics take it)."""
+    return np.require(a, dtype=dtype, requirements=["C", "W"])
 
 
 #: structures by (model class, point names): those of models with distinct settings
