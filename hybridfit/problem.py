@@ -17,7 +17,7 @@ from .model.base import ORIENTATION, POSITION, HandModel
 from .model.kinematics import COLUMNS, block_setup, tree_points
 from .objective import Objective, Observation, compiled_kernel_of, normalise_confidences
 from .stages import (MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, _Structure, guide_points, point_depths,  # noqa: F401
-                     point_matrix_of, rotation_lever_mm, structure_of)
+                     rotation_lever_mm, structure_of)
 
 
 def objective_label(objective) -> str:
@@ -66,7 +66,7 @@ class Problem:
             raise HybridfitError(
                 f"{len(self.point_names)} point names for {self.proposals.shape[0]} proposal points"
             )
-        self.point_matrix = point_matrix_of(model, self.point_names)
+        self.point_matrix = self._structure().point_matrix  # the structure derives it once per model and points
         self.observed = bool(getattr(objective, "observes_depth", False))
         if self.observed:
             if observation is None:
