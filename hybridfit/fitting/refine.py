@@ -197,17 +197,22 @@ def polish(model, params: np.ndarray, proposals: np.ndarray, weight: np.ndarray,
     prior = np.concatenate([bone_weight * length**2, np.full(3 * len(bases), palm_weight)])  # d(cost s^2)/d(z^2)
     lam = np.full(F, 1e-2)
 
-    def points(z, moved=True):
+    def unmoved_points(z):  # (F, Q, 3): the pose and the bones, the bases where the pose puts them
         joints = model.forward(z[:, :P])
         if len(bones):
             factors = np.ones((len(z), n_joints))
             factors[:, bones] = 1.0 + z[:, P:S]
             joints = stretch_bones(joints, parents, factors)
-        out = np.matmul(M, joints)  # (Q, J) @ (F, J, 3) -> (F, Q, 3)
-        if moved and len(bases):
-            world = np.einsum("fij,fbj->fbi", quaternions_to_matrices(z[:, 3:7]), z[:, S:].reshape(len(z), -1, 3))
-            out = out + np.einsum("qb,fbi->fqi", carried, world)
-        return out
+        return np.matmul(M, joints)  # (Q, J) @ (F, J, 3) -> (F, Q, 3)
+
+    def moved(z, out):  # out with the bases' moves added (each carrying its finger)
+        if not len(bases):
+            return out
+        world = np.einsum("fij,fbj->fbi", quaternions_to_matrices(z[:, 3:7]), z[:, S:].reshape(len(z), -1, 3))
+        return out + np.einsum("qb,fbi->fqi", carried, world)
+
+    def points(z):
+        return moved(z, unmoved_points(z))
 
     def cost(z, rows):
         d2 = ((points(z)[:, :, None] - tgt[rows]) ** 2).sum(-1) / scale_mm**2
@@ -218,14 +223,16 @@ def polish(model, params: np.ndarray, proposals: np.ndarray, weight: np.ndarray,
     current, irls = cost(x, slice(None))
     h = step * np.maximum(1.0, np.abs(x))
     for _ in range(iterations):
-        base = points(x)  # (F, Q, 3)
-        unmoved = points(x, False) if len(bases) else base
+        unmoved = unmoved_points(x)
+        base = moved(x, unmoved)  # (F, Q, 3)
         J = np.empty((F, base.shape[1] * 3, D))
         for i in range(S):  # the moves' part changes with the quaternion only
             xi = x.copy()
             xi[:, i] += h[:, i]
-            turns = 3 <= i < 7
-            J[:, :, i] = (points(xi, turns) - (base if turns else unmoved)).reshape(F, -1) / h[:, i, None]
+            if 3 <= i < 7:
+                J[:, :, i] = (points(xi) - base).reshape(F, -1) / h[:, i, None]
+            else:
+                J[:, :, i] = (unmoved_points(xi) - unmoved).reshape(F, -1) / h[:, i, None]
         if len(bases):  # the points are linear in the moves: d point_qc / d move_ba = carried_qb R_ca
             R = quaternions_to_matrices(x[:, 3:7])
             J[:, :, S:] = np.einsum("qb,fca->fqcba", carried, R).reshape(F, -1, D - S)
