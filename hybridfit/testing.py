@@ -31,7 +31,7 @@ from pydantic import Field
 from . import registry
 from .errors import HybridfitError
 from .fitting.angles import PARAMETER_NAME
-from .fitting.evaluator import frames_innermost
+from .fitting.evaluator import frames_innermost, frames_innermost_points
 from .model.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
 from .model.base import ANGLES, HandModel, Stage
 from .objective import Objective, capability, compiled_kernel_of, normalise_confidences
@@ -452,9 +452,10 @@ def frames_arguments(points: np.ndarray, subset: np.ndarray, proposals: np.ndarr
     """What the driver hands ``score_frames`` for frames' points (F, N, Q, 3), proposals
     (F, Q, K, 3) and weights (F, Q, K) scored over ``subset`` (m,): (points (F, N, m, 3),
     subset, proposals (F, m, K, 3), weights (F, m, K)), the points' rows and the proposals cut
-    to ``subset``, each laid out with the frame innermost in memory (views, not C-contiguous;
-    :func:`hybridfit.fitting.evaluator.frames_innermost`)."""
-    return (frames_innermost(np.asarray(points)[:, :, subset], 2), subset,
+    to ``subset``, each laid out with the frame innermost in memory as the driver lays them
+    out (views, not C-contiguous; :func:`hybridfit.fitting.evaluator.frames_innermost_points`
+    and :func:`~hybridfit.fitting.evaluator.frames_innermost`)."""
+    return (frames_innermost_points(np.asarray(points)[:, :, subset]), subset,
             frames_innermost(np.asarray(proposals)[:, subset], 1), frames_innermost(np.asarray(weights)[:, subset], 1))
 
 

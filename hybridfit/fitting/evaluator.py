@@ -214,6 +214,13 @@ def frames_innermost(a: np.ndarray, point_axis: int) -> np.ndarray:
     return np.moveaxis(inner, (-2, -1), (point_axis, 0))
 
 
+def frames_innermost_points(points: np.ndarray) -> np.ndarray:
+    """Points (F, N, m, 3) laid out as the driver hands them to ``score_frames``: a view of a
+    C-contiguous (3, N, m, F) array (a copy unless ``points`` already is such a view), so each
+    coordinate of a run of hypotheses is one contiguous (hypotheses, points, frames) block."""
+    return np.ascontiguousarray(np.asarray(points, dtype=np.float64).transpose(3, 1, 2, 0)).transpose(3, 1, 2, 0)
+
+
 class _KernelAddress:
     """A C callback of a known signature as numba's first-class function protocol sees it
     (``__wrapper_address__``), with its numba type made once (``_numba_type_``): typing a
@@ -343,7 +350,7 @@ class NumpyScorer:
     def subset_points(self, stage, X, subset):
         """(F, m, len(subset), 3) the points ``subset`` of hypotheses X (F, m, d): a view of a
         C-contiguous (3, m, len(subset), F) array at the start of the stage's buffer, the frame
-        innermost (:func:`frames_innermost`'s layout, no copy): each coordinate of the scored
+        innermost (:func:`frames_innermost_points`, no copy): each coordinate of the scored
         points is one contiguous block, whatever the subset and batch."""
         stage, buffer = stage
         F, m, s = X.shape[0], X.shape[1], len(subset)
@@ -353,7 +360,7 @@ class NumpyScorer:
             write_points(*self.tree, *self.point_map, *stage, hypotheses, subset, out, rows, True)
         else:
             out[...] = self._forward_points(stage, X)[:, :, subset].transpose(3, 1, 2, 0)
-        return out.transpose(3, 1, 2, 0)
+        return frames_innermost_points(out.transpose(3, 1, 2, 0))
 
     def points(self, stage, X, subset):
         """(F, m, Q, 3) points of hypotheses X (F, m, d) (those in ``subset`` guaranteed). From

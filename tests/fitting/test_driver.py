@@ -330,3 +330,33 @@ def test_a_frame_scored_by_score_frames_alone_or_beside_others_gets_the_same_los
     for f in range(3):
         assert np.array_equal(scored([f])[0], together[f])
         assert np.array_equal(scored([f, (f + 1) % 3])[0], together[f])
+
+
+@pytest.mark.parametrize("kinematics", ["tree", "forward"])
+def test_score_frames_gets_the_layout_the_conformance_suite_checks(kinematics):
+    """The driver's arguments to score_frames are laid out (strides) as
+    ``hybridfit.testing.frames_arguments`` lays out arrays of the same shapes: an objective
+    that passes the suite's checks sees no other layout in a fit."""
+    from hybridfit.testing import frames_arguments
+
+    seen = []
+
+    class Recording(hybridfit.objective.Objective):
+        def bind(self, proposals, weights):
+            return lambda points, subset: np.zeros(len(points))
+
+        def score_frames(self, points, subset, proposals, weights):
+            seen.append((points, subset, proposals, weights))
+            return np.zeros(points.shape[:2])
+
+    data = hybridfit.synthetic_proposals(3, k=3, seed=6)
+    fitter = driver.Driver(hybridfit.create("model", "hand26"), Recording(), hybridfit.create("optimizer", "stepwise-pso"),
+                           data["joint_names"], 400, 0)
+    if kinematics == "forward":
+        fitter.tree = None
+    fitter.fit_chunk([0, 1, 2], data["proposals"], data["confidences"], 1)
+    assert {len(s[1]) for s in seen} == {6, 3, len(data["joint_names"])}  # palm, fingers, refinement
+    for points, subset, proposals, weights in seen:
+        (F, N), Q, K = points.shape[:2], len(data["joint_names"]), proposals.shape[2]
+        want = frames_arguments(np.zeros((F, N, Q, 3)), subset, np.zeros((F, Q, K, 3)), np.zeros((F, Q, K)))
+        assert [a.strides for a in (points, proposals, weights)] == [want[0].strides, want[2].strides, want[3].strides]
