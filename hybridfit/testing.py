@@ -13,8 +13,8 @@ one test id each::
 
 ``check_model``, ``check_objective`` and ``check_optimizer`` run all checks of a kind.
 Optimiser checks fit small synthetic frames of the suite's own :class:`ToyHand` (a wrist and
-two 3-joint fingers, 13 parameters, 7 joints) with the reference objectives, so they take
-seconds and depend on no model plugin. (The checks of objectives that observe depth render
+two 3-joint fingers, 13 parameters, 7 joints) with its own objectives (:class:`ToyClamped`,
+the paper's, and :class:`ToyLeastSquares`), so they take seconds and depend on no plugin. (The checks of objectives that observe depth render
 the suite's ToyHand too.)
 """
 
@@ -28,7 +28,6 @@ import numpy as np
 
 from pydantic import Field
 
-from . import registry
 from .errors import HybridfitError
 from .fitting.angles import PARAMETER_NAME
 from .fitting.evaluator import frames_innermost, frames_innermost_points
@@ -41,7 +40,7 @@ from .problem import Problem
 from .synthetic.proposals import synthetic_proposals
 
 __all__ = [
-    "ToyHand", "RecordingTask", "check_config_round_trip", "check_pickle", "check_unknown_setting", "checks",
+    "ToyHand", "ToyClamped", "ToyLeastSquares", "RecordingTask", "check_config_round_trip", "check_pickle", "check_unknown_setting", "checks",
     "check_model", "check_objective", "check_optimizer", "check_plugin",
 ]
 
@@ -100,6 +99,52 @@ class ToyHand(TreeHandModel):
     def stages(self):
         return (Stage("palm", tuple(range(7)), (0, 1, 4)), Stage("a", (7, 8, 9), (2, 3)),
                 Stage("b", (10, 11, 12), (5, 6)))
+
+
+# ------------------------------------------------------------------ the suite's own objectives
+class ToyClampedSettings(Settings):
+    d_max_mm: float = Field(40.0, gt=0, description="clamping distance d_max in millimetres")
+
+
+class ToyClamped(Objective):
+    """The paper's clamped, confidence-weighted objective in a few lines of numpy, for the
+    optimiser checks: loss = -sum_j max_r w_jr (1 - min(1, ||p_jr - h_j|| / d_max)^2), in
+    [-Q, 0] for weights that sum to 1 per point."""
+
+    Settings = ToyClampedSettings
+
+    def bind(self, proposals, weights):
+        proposals, weights = np.asarray(proposals, dtype=np.float64), np.asarray(weights, dtype=np.float64)
+        scale = 1.0 / self.settings.d_max_mm**2
+
+        def loss(points, subset):  # points (N, Q, 3), subset (m,) -> (N,)
+            d2 = np.square(np.asarray(points)[:, subset, None, :] - proposals[subset]).sum(axis=-1)  # (N, m, K)
+            return -np.maximum(weights[subset] * (1.0 - d2 * scale), 0.0).max(axis=-1).sum(axis=-1)
+
+        return loss
+
+    def lower_bound(self, weights):
+        return -float(np.max(weights, axis=-1).sum())
+
+
+class ToyLeastSquares(Objective):
+    """Squared distance (mm^2) from each point to its most confident proposal, summed, for
+    the optimiser checks with a known optimum (0 where every point is on its proposal); a
+    point without proposals (all weights 0) contributes 0."""
+
+    def bind(self, proposals, weights):
+        proposals, weights = np.asarray(proposals, dtype=np.float64), np.asarray(weights, dtype=np.float64)
+        targets = np.take_along_axis(proposals, weights.argmax(axis=-1)[:, None, None], axis=1)[:, 0]  # (Q, 3)
+        active = weights.max(axis=-1) > 0
+
+        def loss(points, subset):
+            d2 = np.square(np.asarray(points)[:, subset] - targets[subset]).sum(axis=-1)  # (N, m)
+            return (d2 * active[subset]).sum(axis=-1)
+
+        return loss
+
+    def lower_bound(self, weights):
+        return 0.0
 
 
 # ------------------------------------------------------------------ every plugin
@@ -548,23 +593,22 @@ class RecordingTask(Task):
 
 
 def check_problem(seed: int = 0) -> Problem:
-    """A small synthetic frame (ToyHand, clamped-confidence, k = 3) for the optimiser checks."""
+    """A small synthetic frame (ToyHand, ToyClamped, k = 3) for the optimiser checks."""
     model = ToyHand()
     data = synthetic_proposals(1, k=3, seed=seed, model=model)
-    return Problem(model, registry.create("objective", "clamped-confidence"),
-                   data["proposals"][0], data["confidences"][0])
+    return Problem(model, ToyClamped(), data["proposals"][0], data["confidences"][0])
 
 
 def known_optimum_problem(seed: int = 0) -> tuple[Problem, np.ndarray]:
     """(problem, truth (P,)): ToyHand with one exact proposal per joint at a random pose and
-    least squares, so the optimum is the pose itself, loss 0. The initial guess (given, not
+    ToyLeastSquares, so the optimum is the pose itself, loss 0. The initial guess (given, not
     estimated) has the true global pose and the default finger angles."""
     model = ToyHand()
     truth = synthetic_proposals(1, k=1, seed=seed, model=model, p_missing=0.0)["params"][0]
     start = truth.copy()
     start[7:] = model.default_params()[7:]
     proposals = model.forward(truth)[:, None]
-    return Problem(model, registry.create("objective", "least-squares"), proposals,
+    return Problem(model, ToyLeastSquares(), proposals,
                    np.ones((model.n_joints, 1)), x0=start), truth
 
 
@@ -703,7 +747,7 @@ def check_optimizer_batch_steps(optimizer: Optimizer) -> None:
         return
     model = ToyHand()
     data = synthetic_proposals(3, k=3, seed=7, model=model)
-    objective = registry.create("objective", "clamped-confidence")
+    objective = ToyClamped()
     problem = Problem(model, objective, data["proposals"][0], data["confidences"][0])
     budget = _budget(optimizer, Task(problem, 1))
     driver = Driver(model, objective, optimizer, model.joint_names, budget, seed=3)

@@ -6,6 +6,7 @@ import pytest
 
 from hybridfit import registry, testing
 from hybridfit.errors import HybridfitError
+from hybridfit.objective import normalise_confidences
 from hybridfit.optimizer import Optimizer
 from hybridfit.plugin import Settings
 
@@ -113,6 +114,24 @@ def test_sum_check_catches_a_non_additive_objective():
 
     with pytest.raises(AssertionError, match="add up"):
         testing.check_objective_sum_over_points(Squared())
+
+
+@pytest.mark.parametrize("toy, reference", [(testing.ToyClamped, "clamped-confidence"),
+                                             (testing.ToyLeastSquares, "least-squares")])
+def test_the_suites_own_objectives_pass_its_checks_and_score_as_the_reference_plugins(toy, reference):
+    """The optimiser checks fit the suite's own objectives (the core names no plugin); they
+    are the reference formulas: equal losses on random points, proposals and weights (some
+    points without proposals)."""
+    testing.check_objective(toy())
+    rng = np.random.default_rng(3)
+    Q, K, N = 7, 3, 40
+    proposals = rng.normal(0.0, 30.0, size=(Q, K, 3))
+    weights = normalise_confidences(rng.random((Q, K)) * (rng.random((Q, 1)) > 0.2))
+    points = proposals[None, :, 0] + rng.normal(0.0, 25.0, size=(N, Q, 3))
+    subset = np.array([0, 2, 3, 6], dtype=np.int64)
+    want = registry.create("objective", reference).bind(proposals, weights)(points, subset)
+    assert np.allclose(toy().bind(proposals, weights)(points, subset), want, rtol=1e-12, atol=1e-9)
+    assert toy().lower_bound(weights) == registry.create("objective", reference).lower_bound(weights)
 
 
 def test_recording_task_records_stages():

@@ -89,8 +89,8 @@ def test_a_model_without_a_kinematic_tree_is_refused():
 
 
 def test_names_the_surrogate_it_optimises_when_the_objective_has_no_symbols():
-    problem = testing.check_problem()  # clamped-confidence: not smooth, no CasADi symbols
-    with pytest.warns(UserWarning, match=r"objective 'clamped-confidence' offers no CasADi symbols .* surrogate: "
+    problem = testing.check_problem()  # the suite's ToyClamped: not smooth, no CasADi symbols
+    with pytest.warns(UserWarning, match=r"objective 'ToyClamped' offers no CasADi symbols .* surrogate: "
                                           r"the Gaussian-mixture negative log-likelihood .*sigma_mm=15"):
         registry.create("optimizer", "casadi-ik").run(problem, 100)
 
