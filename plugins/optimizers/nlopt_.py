@@ -22,12 +22,13 @@ before every run (``nlopt.srand``), so a seed gives identical results.
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
 from pydantic import Field
 
-from hybridfit.errors import BudgetExceeded, HybridfitError
+from hybridfit.errors import HybridfitError
 from hybridfit.optimizer import Optimizer, Task
 from hybridfit.plugin import Settings
 
@@ -83,15 +84,25 @@ class NLopt(Optimizer):
             raise HybridfitError(f"{self.name}: needs finite bounds on every parameter of task {task.name}")
         span = upper - lower
 
+        raised, running = [], []  # an exception from the task (not NLopt's), and the solver running
+
         def objective(x, grad):
+            if raised:  # stopped, but some algorithms (CRS2's first population) call on
+                return math.inf
             if task.remaining < 1:  # some algorithms (CRS2's first population) overrun maxeval
                 raise nlopt.ForcedStop
-            return float(task.evaluate(np.clip(x, lower, upper)[None])[0])
+            try:
+                return float(task.evaluate(np.clip(x, lower, upper)[None])[0])
+            except BaseException as err:  # the objective's error, a budget overrun: re-raised below
+                raised.append(err)
+                running[-1].force_stop()
+                return math.inf
 
         start = task.x0.copy()
         while task.remaining > 0:  # the last run may be cut short by maxeval: still valid samples
             opt = nlopt.opt(getattr(nlopt, ALGORITHMS[s.algorithm]), task.dim)
             opt.set_min_objective(objective)
+            running.append(opt)
             opt.set_lower_bounds(lower)
             opt.set_upper_bounds(upper)
             opt.set_maxeval(task.remaining)
@@ -106,15 +117,19 @@ class NLopt(Optimizer):
             used = task.used
             try:
                 opt.optimize(start)
-            except BudgetExceeded:
-                raise  # a bug, not a solver failure
             except _stopped(nlopt, "ForcedStop", "forced_stop"):
+                if raised:
+                    raise raised[0] from None  # the task's error as it was raised, with its traceback
                 return  # the budget is spent
             except _stopped(nlopt, "RoundoffLimited", "roundoff_limited"):
                 pass  # converged as far as floating point allows; the task kept the best point
             except (RuntimeError, ValueError, getattr(nlopt, "exception", RuntimeError)) as err:
+                if raised:
+                    raise raised[0] from None
                 raise HybridfitError(f"{self.name}: NLopt {s.algorithm} failed on task {task.name} "
                                      f"({task.dim} parameters): {type(err).__name__}: {err}") from err
+            if raised:  # a forced stop that NLopt reported as a normal return
+                raise raised[0] from None
             if task.used == used:
                 return  # NLopt stopped without evaluating: no progress possible
             start = np.clip(task.best_x + rng.normal(0.0, s.restart_sigma, task.dim) * span, lower, upper)

@@ -5,7 +5,7 @@ import pytest
 
 import hybridfit
 from hybridfit import registry, testing
-from hybridfit.errors import HybridfitError
+from hybridfit.errors import HybridfitError, PluginError
 from hybridfit_plugins.optimizers.nlopt_ import ALGORITHMS
 
 
@@ -52,3 +52,31 @@ def test_an_nlopt_error_is_a_clear_error():
     problem = testing.check_problem()
     with pytest.raises(HybridfitError, match=f"NLopt crs2 failed on task all \\({problem.model.n_params} parameters\\)"):
         registry.create("optimizer", "nlopt", {"algorithm": "crs2", "population": 5}).run(problem, 100)
+
+
+class _Broken(hybridfit.objective.Objective):
+    """A loss with a bug (ValueError) or of the wrong shape (the driver's PluginError)."""
+
+    def __init__(self, fault: str):
+        super().__init__()
+        self.fault = fault
+
+    def bind(self, proposals, weights):
+        def loss(points, subset):
+            if self.fault == "bug":
+                raise ValueError("a bug in the objective")
+            return np.zeros(len(points) + 1)
+
+        return loss
+
+
+@pytest.mark.parametrize("algorithm", ["bobyqa", "crs2"])
+@pytest.mark.parametrize("fault, match", [("bug", "ValueError while fitting .* a bug in the objective"),
+                                          ("shape", "objective _Broken: .*shape")])
+def test_an_error_of_the_objective_stops_the_fit_and_is_not_taken_for_a_solver_failure(algorithm, fault, match):
+    # NLopt catches only its own exceptions: the objective's error (a bug, a wrong shape) is a
+    # PluginError of the fit, not a frame that failed to converge
+    data = hybridfit.synthetic_proposals(2, seed=1)
+    with pytest.raises(PluginError, match=match):
+        hybridfit.fit(data["proposals"], data["confidences"], budget=300, objective=_Broken(fault),
+                      optimizer="nlopt", optimizer_config={"algorithm": algorithm})
