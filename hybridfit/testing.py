@@ -430,14 +430,15 @@ def check_objective_deterministic(objective: Objective) -> None:
 
 
 def check_objective_capabilities(objective: Objective) -> None:
-    """A compiled kernel, a compiled frames kernel and a frame-batched scorer (``score_frames``)
-    that the core would use
+    """A compiled kernel, a compiled frames kernel, a frame-batched scorer (``score_frames``)
+    and CasADi symbols (``casadi_loss``, where casadi is installed) that the core would use
     (:func:`hybridfit.objective.capability`) give ``bind``'s losses on random points, on the
     whole frame and on a subset of points, for several frames at once."""
     kernel = compiled_kernel_of(objective)
     frames_kernel = compiled_kernel_of(objective, "compiled_frames_kernel")
     score_frames = capability(objective, "score_frames")
-    if objective.observes_depth or (kernel is None and frames_kernel is None and score_frames is None):
+    symbols = _casadi_scorer(objective)
+    if objective.observes_depth or all(c is None for c in (kernel, frames_kernel, score_frames, symbols)):
         return
     frames = [_objective_frame(seed) for seed in (11, 12, 13)]
     proposals = np.stack([f[0] for f in frames])
@@ -471,6 +472,30 @@ def check_objective_capabilities(objective: Objective) -> None:
                      f"expected {want.shape}")
             np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9,
                                        err_msg=f"{_label(objective)}: score_frames disagrees with bind")
+        if symbols is not None:
+            got = np.stack([symbols(points[f], subset, proposals[f], weights[f]) for f in range(len(frames))])
+            np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9,
+                                       err_msg=f"{_label(objective)}: casadi_loss disagrees with bind")
+
+
+def _casadi_scorer(objective: Objective):
+    """None, or score(points (N, Q, 3), subset, proposals, weights) -> (N,): the objective's
+    ``casadi_loss`` on symbolic points (Q, 3), evaluated at each hypothesis (None too where
+    casadi is not installed: then no solver can use the symbols either)."""
+    casadi_loss = capability(objective, "casadi_loss")
+    if casadi_loss is None:
+        return None
+    try:
+        import casadi as ca
+    except ImportError:
+        return None
+
+    def score(points, subset, proposals, weights):
+        symbols = ca.SX.sym("points", points.shape[1], 3)
+        function = ca.Function("loss", [symbols], [casadi_loss(symbols, proposals, weights, subset)])
+        return np.array([float(function(ca.DM(hypothesis))) for hypothesis in points])
+
+    return score
 
 
 def check_objective_frames_independent(objective: Objective) -> None:

@@ -473,3 +473,26 @@ def test_the_driver_layout_is_the_same_points_not_c_contiguous():
     strided = testing.hypotheses_innermost(points)
     assert np.array_equal(strided, points) and not strided.flags.c_contiguous
     assert strided.strides[1] == 8  # the hypothesis innermost
+
+
+def _symbolic_least_squares(offset_mm: float):
+    """least-squares with CasADi symbols, their points moved by ``offset_mm`` in x (0: right)."""
+    import casadi as ca
+
+    class Symbolic(type(registry.create("objective", "least-squares"))):
+        def casadi_loss(self, points, proposals, weights, subset):
+            f = ca.SX(0.0)
+            for q in subset:
+                if weights[q].max() > 0:
+                    target = proposals[q, weights[q].argmax()] - [offset_mm, 0.0, 0.0]
+                    f += ca.sumsqr(points[int(q), :] - ca.DM(target).T)
+            return f
+
+    return Symbolic()
+
+
+def test_casadi_symbols_that_disagree_with_bind_fail_their_check():
+    pytest.importorskip("casadi")
+    testing.check_objective_capabilities(_symbolic_least_squares(0.0))
+    with pytest.raises(AssertionError, match="casadi_loss disagrees with bind"):
+        testing.check_objective_capabilities(_symbolic_least_squares(0.5))
