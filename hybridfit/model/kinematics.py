@@ -205,6 +205,15 @@ def block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out, firs
                 out[q, 2, at + i] += w * WpB[j, 2, first + i]
 
 
+@nb.njit(cache=True, inline="always")
+def mark_with_ancestors(parents, j, needed):
+    """The one walk up the tree: sets ``needed`` (J,) bool for joint j (none if j < 0) and its
+    ancestors, stopping at a joint already set (so every joint set has its ancestors set)."""
+    while j >= 0 and not needed[j]:
+        needed[j] = True
+        j = parents[j]
+
+
 @nb.njit(cache=True)
 def mark_needed(parents, pm_ptr, pm_joint, points, needed):
     """The one "which joints are needed" walker: sets ``needed[j]`` (J,) bool for every joint
@@ -213,10 +222,7 @@ def mark_needed(parents, pm_ptr, pm_joint, points, needed):
     for t in range(points.shape[0]):
         q = points[t]
         for e in range(pm_ptr[q], pm_ptr[q + 1]):
-            j = pm_joint[e]
-            while j >= 0 and not needed[j]:
-                needed[j] = True
-                j = parents[j]
+            mark_with_ancestors(parents, pm_joint[e], needed)
 
 
 #: the tree's first parameters: position x, y, z (mm) and the quaternion w, x, y, z
@@ -353,10 +359,7 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
     at_base = np.zeros(J, dtype=np.bool_)
     for t in range(n_fixed):
         j = fixed[t]
-        at_base[parents[j] if preset[j] else j] = True
-    for j in range(J - 1, -1, -1):  # parents precede children: one pass up the tree
-        if at_base[j] and parents[j] >= 0:
-            at_base[parents[j]] = True
+        mark_with_ancestors(parents, parents[j] if preset[j] else j, at_base)
     base_joints = np.flatnonzero(at_base)
     preset_joints = np.flatnonzero(preset)
     copied = np.flatnonzero(at_base | preset)
