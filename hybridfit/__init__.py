@@ -53,7 +53,7 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
 
-__version__ = "0.8.1"
+__version__ = "0.9.0"
 
 __all__ = [
     "FitResult", "HandModel", "HybridEstimator", "HybridfitError", "Objective", "OptimizeResult", "Optimizer",

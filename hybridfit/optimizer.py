@@ -26,6 +26,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from .errors import BudgetExceeded, HybridfitError, PluginError
+from .keys import stage_key
 from .plugin import Plugin, defining_class
 from .problem import Problem
 
@@ -73,10 +74,15 @@ class Task:
     points than it owns (guide points that a later stage owns); the owned sets of a parent's
     committed stages partition the parent's points. Child tasks (stages) charge their
     parent too. One evaluation is one hypothesis scored, whatever the points.
+
+    stream: (seed, frame) of a fit's frame (a root task's; None: none), index: the stage's
+    place in its frame's schedule. Then :attr:`key` is the stage's documented random key,
+    the one the driver gives the same stage of the same frame.
     """
 
     def __init__(self, problem: Problem, budget: int, parameters=None, points=None,
-                 base=None, name: str = "all", parent: "Task | None" = None, owned=None) -> None:
+                 base=None, name: str = "all", parent: "Task | None" = None, owned=None,
+                 stream: tuple[int, int] | None = None, index: int = 0) -> None:
         self.problem = problem
         self.budget = int(budget)
         P = problem.model.n_params
@@ -88,6 +94,8 @@ class Task:
         self.name = name
         self.parent = parent
         self.root: Task = self if parent is None else parent.root
+        self.stream = stream if parent is None else parent.root.stream
+        self.index = int(index)
         self.lower = problem.lower[self.parameters]
         self.upper = problem.upper[self.parameters]
         self.x0 = np.clip(self.base[self.parameters], self.lower, self.upper)
@@ -102,6 +110,15 @@ class Task:
     @property
     def dim(self) -> int:
         return len(self.parameters)
+
+    @property
+    def key(self) -> np.uint64 | None:
+        """``stage_key(seed, frame, index)`` (:mod:`hybridfit.keys`) of the frame's stream, or
+        None without one."""
+        if self.stream is None:
+            return None
+        seed, frame = self.stream
+        return np.uint64(stage_key(np.uint64(seed), np.uint64(frame), np.uint64(self.index)))
 
     @property
     def remaining(self) -> int:
@@ -142,10 +159,11 @@ class Task:
             self.root._history.append((self.best_loss, self.root.used, self.name))
         return losses
 
-    def stage(self, name: str, parameters, points, budget: int, owned=None) -> "Task":
+    def stage(self, name: str, parameters, points, budget: int, owned=None, index: int = 0) -> "Task":
         """A child task over some parameters and points (owning ``owned``, default ``points``),
-        starting from this task's base."""
-        return Task(self.problem, budget, parameters, points, base=self.base, name=name, parent=self, owned=owned)
+        starting from this task's base; ``index``: its place in the schedule (its key)."""
+        return Task(self.problem, budget, parameters, points, base=self.base, name=name, parent=self, owned=owned,
+                    index=index)
 
     def commit(self, child: "Task") -> None:
         """Fix a finished child's best parameters into this task's base.
@@ -232,14 +250,16 @@ class Optimizer(Plugin, abc.ABC):
         """Spend at most ``task.budget`` evaluations through ``task.evaluate``.
 
         The task keeps the best hypothesis; all randomness comes from ``rng``. The default
-        runs the optimiser's ``batch_steps`` on the task (one frame; its key is one draw from
-        ``rng``); a callback solver overrides this.
+        runs the optimiser's ``batch_steps`` on the task (one frame), keyed by the task's
+        :attr:`Task.key` as the driver keys the same stage (one draw from ``rng`` for a task
+        without a stream); a callback solver overrides this.
         """
         steps = steps_of(self)
         if steps is None:
             raise NotImplementedError(f"optimizer {self.name or type(self).__name__} has neither batch_steps nor "
                                       f"minimize")
-        run_steps(self, steps, task, np.array([rng.integers(0, 2**64, dtype=np.uint64)], dtype=np.uint64))
+        key = task.key if task.key is not None else rng.integers(0, 2**64, dtype=np.uint64)
+        run_steps(self, steps, task, np.array([key], dtype=np.uint64))
 
     def check_budget(self, task: Task) -> None:
         """Raise a HybridfitError naming the minimum when the task's budget is below it."""
@@ -250,11 +270,17 @@ class Optimizer(Plugin, abc.ABC):
                 f"it needs at least {need} evaluations"
             )
 
-    def run(self, problem: Problem, budget: int, seed: int | np.random.Generator = 0) -> OptimizeResult:
-        """Optimise one problem with an exact evaluation budget and a seed."""
-        task = Task(problem, budget)
+    def run(self, problem: Problem, budget: int, seed: int | np.random.Generator = 0,
+            frame: int | None = None) -> OptimizeResult:
+        """Optimise one problem with an exact evaluation budget and a seed: frame ``frame``
+        (None: 0) of a fit with an int seed draws as the driver would (the batch steps'
+        keys from (seed, frame, stage); a callback solver's ``rng`` from
+        ``default_rng([seed, frame])``, or ``default_rng(seed)`` without a frame); a
+        Generator is the ``rng`` itself, and batch steps draw their keys from it."""
+        generator = isinstance(seed, np.random.Generator)
+        task = Task(problem, budget, stream=None if generator else (int(seed), int(frame or 0)))
         self.check_budget(task)
-        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        rng = seed if generator else np.random.default_rng(seed if frame is None else [seed, frame])
         try:
             self.minimize(task, rng)
         except BudgetExceeded as err:

@@ -612,9 +612,9 @@ class RecordingTask(Task):
         self.record.append((self, X))
         return losses
 
-    def stage(self, name, parameters, points, budget, owned=None):
+    def stage(self, name, parameters, points, budget, owned=None, index=0):
         return RecordingTask(self.problem, budget, parameters, points, base=self.base, name=name, parent=self,
-                             owned=owned, record=self.record)
+                             owned=owned, index=index, record=self.record)
 
 
 def check_problem(seed: int = 0) -> Problem:

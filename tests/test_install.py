@@ -1,12 +1,12 @@
 """The package installs: a wheel built offline from the checkout, installed into a fresh
-virtual environment, works from a folder outside the checkout, with the third-party
-example package (examples/hybridfit-random-restart) installed beside it.
+virtual environment, works from a folder outside the checkout, with every third-party
+example package (examples/: a model, an objective and two optimisers) installed beside it.
 
 The environment sees this interpreter's packages (numpy, numba, ...) but not its
 hybridfit: the test fails unless ``hybridfit`` and ``hybridfit_plugins`` are imported from
-the wheel's files inside the new environment. Its commands run with numba's JIT off
-(``NUMBA_DISABLE_JIT=1``): compiling the fit in a fresh environment takes a minute and
-tests numba, not the package; the fit's numbers are tested elsewhere.
+the wheel's files inside the new environment. Most commands run with numba's JIT off
+(``NUMBA_DISABLE_JIT=1``), each example's fit included; one fit runs compiled, as users run
+it, numba caching its functions inside the new environment.
 """
 
 from __future__ import annotations
@@ -22,7 +22,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-EXAMPLE = ROOT / "examples" / "hybridfit-random-restart"
+#: folder: (kind, registered name) of every example plugin package
+EXAMPLES = {"hybridfit-random-restart": ("optimizer", "random-restart"), "hybridfit-numpy-pso": ("optimizer", "numpy-pso"),
+            "hybridfit-numpy-objective": ("objective", "numpy-clamped"), "hybridfit-tripod-hand": ("model", "tripod-hand")}
 #: what building the wheel reads (a file pyproject.toml needs and this list lacks fails the build)
 BUILD_INPUTS = ("pyproject.toml", "setup.py", "README.md", "LICENSE", "hybridfit", "plugins")
 _BUILD_LEFTOVERS = shutil.ignore_patterns("build", "dist", "*.egg-info", "__pycache__")
@@ -51,7 +53,7 @@ def _check(cmd, cwd: Path, env: dict) -> str:
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
     """(python, hybridfit script, work folder, environment variables) of a fresh virtual
-    environment holding the wheel and the example plugin package."""
+    environment holding the wheel and the example plugin packages."""
     tmp = tmp_path_factory.mktemp("install")
     venv = tmp / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", "--without-pip", str(venv)], check=True)
@@ -72,8 +74,10 @@ def env(tmp_path_factory):
     (wheel,) = (tmp / "dist").glob("hybridfit-*.whl")
     # --ignore-installed: an editable hybridfit in the base environment is left alone and shadowed
     _check([python, *PIP_INSTALL, "--ignore-installed", wheel], work, variables)
-    example = _copy([p.name for p in EXAMPLE.iterdir()], EXAMPLE, tmp / EXAMPLE.name)
-    _check([python, *PIP_INSTALL, example], work, variables)
+    for folder in EXAMPLES:
+        example = ROOT / "examples" / folder
+        _check([python, *PIP_INSTALL, _copy([p.name for p in example.iterdir()], example, tmp / folder)], work,
+               variables)
     return python, venv / "bin" / "hybridfit", work, variables
 
 
@@ -108,7 +112,8 @@ def test_plugins_lists_every_plugin_from_the_wheel_and_the_example(env):
     lines = {line.split()[0]: line for line in out.splitlines() if line.startswith("  ")}
     for name in ("hand26", "hand27", "clamped-confidence", "stepwise-pso", "pso"):
         assert "[hybridfit]" in lines[name]
-    assert "[hybridfit-random-restart]" in lines["random-restart"]
+    for folder, (_, name) in EXAMPLES.items():
+        assert f"[{folder}]" in lines[name]
 
 
 def test_a_fit_and_its_angles_from_outside_the_checkout(env):
@@ -119,6 +124,18 @@ def test_a_fit_and_its_angles_from_outside_the_checkout(env):
     _check([hybridfit, "export-angles", "fit.npz", "--out", "angles.csv"], work, variables)
     header = (work / "angles.csv").read_text().splitlines()[0]
     assert header.startswith("frame,failed,x_mm,y_mm,z_mm,qw,qx,qy,qz,thumb_cmc_flexion_deg,")
-    out = _check([hybridfit, "fit", "frames.npz", "--budget", "300", "--optimizer", "random-restart",
-                  "--out", "fit-random-restart.npz"], work, variables)
-    assert "fitted 2/2 frames" in out
+    for folder, (kind, name) in EXAMPLES.items():
+        given = "tripod.npz" if kind == "model" else "frames.npz"
+        if kind == "model":
+            _check([hybridfit, "synth", "proposals", "--frames", "2", "--model", name, "--out", given], work, variables)
+        out = _check([hybridfit, "fit", given, "--budget", "300", f"--{kind}", name, "--out", f"fit-{name}.npz"],
+                     work, variables)
+        assert "fitted 2/2 frames" in out, (folder, out)
+
+
+def test_a_compiled_fit_from_the_wheel(env):
+    _, hybridfit, work, variables = env
+    compiled = {k: v for k, v in variables.items() if k != "NUMBA_DISABLE_JIT"}
+    _check([hybridfit, "synth", "proposals", "--frames", "3", "--seed", "4", "--out", "three.npz"], work, compiled)
+    out = _check([hybridfit, "fit", "three.npz", "--budget", "400", "--out", "three-fit.npz"], work, compiled)
+    assert "fitted 3/3 frames" in out

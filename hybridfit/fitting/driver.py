@@ -14,7 +14,7 @@ points and budgets, :class:`~hybridfit.optimizer.StagePlan`) is laid out as data
   not counted as an evaluation); a stage owning every point (a final refinement) replaces
   them only if it is better;
 - stage s of frame f draws its random numbers from ``stage_key(seed, f, s)``
-  (:mod:`.streams`): a frame's result does not depend on the frames beside it, the chunking
+  (:mod:`hybridfit.keys`): a frame's result does not depend on the frames beside it, the chunking
   or ``--jobs``.
 
 The loop is written once (:func:`run_schedule`), in Python: it makes a few calls per
@@ -33,6 +33,7 @@ import numba as nb
 import numpy as np
 
 from ..errors import HybridfitError, PluginError
+from ..keys import stage_keys
 from ..objective import capability, compiled_kernel_of
 from ..optimizer import BatchSteps, StagePlan, Task, steps_of
 from ..plugin import defining_class
@@ -40,7 +41,6 @@ from ..problem import Problem, prepare_frames
 from ..stages import structure_of
 from . import stops
 from .evaluator import KernelScorer, NumpyScorer
-from .streams import stage_keys
 
 #: columns of the integer stage table: budget, rows per ask, whether the stage owns every
 #: point, and [lo, hi) ranges of ``indices`` for its parameters, points and owned points

@@ -1,8 +1,9 @@
 """``hybridfit.fit``: fit a hand model to every frame's joint proposals.
 
 Frames are independent: optimisers with batch steps run in the driver
-(:mod:`.driver`), stage s of frame i drawing from the key ``stage_key(seed, i, s)``
-(:mod:`.streams`); callback solvers run on a Task per frame with
+(:mod:`.driver`), or on a Task per frame for objectives that observe depth, stage s of frame
+i drawing from the key ``stage_key(seed, i, s)`` (:mod:`hybridfit.keys`) on either path (the same
+fit, bit for bit); callback solvers run on a Task per frame with
 ``numpy.random.default_rng([seed, i])``. So results are identical for any number of
 ``jobs`` and any chunking. A frame whose input cannot be fitted (a ``HybridfitError``: all confidences 0,
 say) is recorded (``failed``, ``errors``) and the others go on; options and errors that would
@@ -110,7 +111,7 @@ class _Spec:
 def _fit_one(spec: _Spec, frame: int, proposals: np.ndarray, confidences: np.ndarray, observation=None):
     problem = Problem(spec.model, spec.objective, proposals, confidences, spec.point_names, spec.search_radius_mm,
                       observation)
-    result = spec.optimizer.run(problem, spec.budget, np.random.default_rng([spec.seed, frame]))
+    result = spec.optimizer.run(problem, spec.budget, spec.seed, frame)
     points = problem.points(result.params[None])[0]
     loss = result.loss if getattr(spec.objective, "additive", True) else float(problem.evaluate(result.params[None])[0])
     return result.params, points, spec.model.forward(result.params), loss, result.evaluations

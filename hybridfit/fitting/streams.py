@@ -1,13 +1,11 @@
 """Counter-based random numbers: number c of the stream with key k is a pure function of (k, c).
 
-The keys: stage s of frame f of a fit with seed ``seed`` draws from the stream
-``stage_key(seed, f, s) = mix(mix(mix(seed) + f) + s)``, with ``mix(z)`` splitmix64's
-finaliser of ``z + golden`` (Steele, Lea & Flood, *Fast splittable pseudorandom number
-generators*, OOPSLA 2014), all arithmetic modulo 2^64. So a frame's numbers depend on
-nothing but (seed, frame, stage): not on the frames fitted beside it, the chunking or
-``--jobs``. Numbers come in pairs: numbers 2p and 2p + 1 of stream k are the two 32-bit
-halves of ``mix(k + p * golden)`` (one hash serves two numbers); optimisers compute them
-inside their (compiled or numpy) steps, in any order and without a buffer.
+The keys are :mod:`hybridfit.keys`' (stage s of frame f of a fit with seed ``seed`` draws from
+``stage_key(seed, f, s)``), so a frame's numbers depend on nothing but (seed, frame, stage):
+not on the frames fitted beside it, the chunking or ``--jobs``. Numbers come in pairs:
+numbers 2p and 2p + 1 of stream k are the two 32-bit halves of ``mix(k, p)`` (one hash
+serves two numbers); optimisers compute them inside their (compiled or numpy) steps, in any
+order and without a buffer.
 
 Uniform numbers are exact multiples of 2^-32 in [0, 1) computed with integer operations
 only, so they are identical wherever the function is inlined. Standard normal numbers 2p and
@@ -22,22 +20,11 @@ import math
 import numba as nb
 import numpy as np
 
+from ..keys import mix
 from ..model.kinematics import sincos1
 
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-_M1 = np.uint64(0xBF58476D1CE4E5B9)
-_M2 = np.uint64(0x94D049BB133111EB)
 _NORMAL_SALT = np.uint64(0xD1B54A32D192ED03)
-_S30, _S27, _S31 = np.uint64(30), np.uint64(27), np.uint64(31)
 _TWO_PI = 6.283185307179586
-
-
-@nb.njit(cache=True, inline="always")
-def _mix(key, counter):
-    z = key + np.uint64(counter) * _GOLDEN
-    z = (z ^ (z >> _S30)) * _M1
-    z = (z ^ (z >> _S27)) * _M2
-    return z ^ (z >> _S31)
 
 
 _S32 = np.uint64(32)
@@ -48,21 +35,21 @@ _TWO_M32 = 2.3283064365386963e-10  # 2^-32
 @nb.njit(cache=True, inline="always")
 def uniform_pair(key, pair):
     """Uniform numbers 2 pair and 2 pair + 1 (pair >= 0) of stream ``key`` (uint64): floats in [0, 1)."""
-    h = _mix(key, pair)
+    h = mix(key, pair)
     return np.float64(h >> _S32) * _TWO_M32, np.float64(h & _LOW) * _TWO_M32
 
 
 @nb.njit(cache=True, inline="always")
 def uniform(key, counter):
     """Number ``counter`` (>= 0) of the uniform stream ``key`` (uint64): a float in [0, 1)."""
-    h = _mix(key, counter >> 1)
+    h = mix(key, counter >> 1)
     return np.float64((h & _LOW) if counter & 1 else (h >> _S32)) * _TWO_M32
 
 
 @nb.njit(cache=True, inline="always")
 def normal_pair(key, pair):
     """Standard normal numbers 2 pair and 2 pair + 1 (pair >= 0) of stream ``key`` (uint64)."""
-    h = _mix(key ^ _NORMAL_SALT, pair)
+    h = mix(key ^ _NORMAL_SALT, pair)
     u1 = 1.0 - np.float64(h >> _S32) * _TWO_M32  # (0, 1]
     u2 = np.float64(h & _LOW) * _TWO_M32
     r = np.sqrt(-2.0 * np.log(u1))
@@ -127,32 +114,6 @@ def fill_normal(key, start, out):
     """out (n,) = standard normal numbers start, start + 1, ... of stream ``key`` (one
     Box-Muller pair per two numbers)."""
     _fill(normal_pair, key, start, out)
-
-
-@nb.njit(cache=True)
-def _split(z):
-    return _mix(z, 1)
-
-
-@nb.njit(cache=True)
-def stage_key(seed, frame, stage):
-    """The key (uint64) of stage ``stage`` of frame ``frame`` of a fit with seed ``seed``."""
-    return _split(_split(_split(np.uint64(seed)) + np.uint64(frame)) + np.uint64(stage))
-
-
-@nb.njit(cache=True)
-def _stage_keys(seed, frames, stages, out):
-    for i in range(frames.shape[0]):
-        for s in range(stages):
-            out[i, s] = stage_key(seed, frames[i], s)
-
-
-def stage_keys(seed: int, frames, stages: int) -> np.ndarray:
-    """(F, stages) uint64: :func:`stage_key` of every stage of frames (F,)."""
-    frames = np.asarray(frames, dtype=np.int64)
-    out = np.empty((len(frames), int(stages)), dtype=np.uint64)
-    _stage_keys(np.uint64(seed), frames, int(stages), out)
-    return out
 
 
 @nb.njit(cache=True)

@@ -3,7 +3,7 @@
 Frame t's initial guess (the centre of the optimiser's search) is frame t-1's fitted
 parameters; frame 0 starts from ``first_params`` (the paper's FORTH set-up: the ground
 truth) or, without them, from its proposals (``hybridfit.problem.initial_guess``). Frame
-t is optimised with ``numpy.random.default_rng([seed, t])``, like ``hybridfit.fit``; frames
+t draws as frame t of ``hybridfit.fit`` does (``Optimizer.run(problem, budget, seed, t)``); frames
 depend on each other, so a sequence runs in one process.
 
 Lost track: a fit is *lost* when its points lie, in the median over the points that have
@@ -115,7 +115,7 @@ def track(
             try:
                 problem = Problem(model, objective, proposals[t], confidences[t], names, search_radius_mm,
                                   None if observations is None else observations[t], start)
-                res = optimizer.run(problem, budget, np.random.default_rng([seed, t]))
+                res = optimizer.run(problem, budget, seed, t)
             except HybridfitError as err:  # this frame cannot be fitted: recorded, tracking goes on
                 result.errors[t] = str(err)
                 continue

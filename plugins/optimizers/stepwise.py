@@ -187,8 +187,8 @@ class Stepwise(Optimizer):
     def minimize(self, task: Task, rng: np.random.Generator) -> None:
         """The plan on one frame's Task (the driver runs the same plan for many frames when
         the stages' optimisers offer batch steps; this is the path of callback solvers)."""
-        for st in self.plan(task):
-            stage = task.stage(st.name, st.parameters, st.points, st.budget, st.owned)
+        for index, st in enumerate(self.plan(task)):
+            stage = task.stage(st.name, st.parameters, st.points, st.budget, st.owned, index)
             st.optimizer.minimize(stage, rng)
             task.commit(stage)
 

@@ -142,15 +142,6 @@ def test_fit_gives_the_same_results_for_any_jobs_and_chunking(frames, chunk, mon
     assert (one.evaluations == 600).all()
 
 
-def test_the_random_keys_are_documented_functions_of_seed_frame_and_stage():
-    from hybridfit.fitting.streams import stage_key, stage_keys
-
-    keys = stage_keys(3, [0, 7, 2], 4)
-    assert keys.shape == (3, 4) and len(np.unique(keys)) == 12
-    assert keys[1, 2] == stage_key(3, 7, 2) and stage_keys(3, [7], 4)[0, 2] == keys[1, 2]
-    assert stage_key(4, 7, 2) != keys[1, 2]
-
-
 @settings(max_examples=12, deadline=None)
 @given(budget=st.integers(12, 2500), seed=st.integers(0, 2**32 - 1), name=st.sampled_from(list(OPTIMIZERS)))
 def test_budgets_are_exact_and_fits_stay_in_bounds(frames, budget, seed, name):
@@ -360,3 +351,22 @@ def test_score_frames_gets_the_layout_the_conformance_suite_checks(kinematics):
         (F, N), Q, K = points.shape[:2], len(data["joint_names"]), proposals.shape[2]
         want = frames_arguments(np.zeros((F, N, Q, 3)), subset, np.zeros((F, Q, K, 3)), np.zeros((F, Q, K)))
         assert [a.strides for a in (points, proposals, weights)] == [want[0].strides, want[2].strides, want[3].strides]
+
+
+@pytest.mark.parametrize("config", [{}, {"refine_share": 0.0}], ids=["default", "paper"])
+def test_the_task_path_fits_every_frame_as_the_driver_does_bit_for_bit(monkeypatch, config):
+    """One frame's Task (the path of depth objectives and callback solvers) runs the same
+    schedule with the same documented keys (seed, frame, stage) as the driver: the same fit,
+    bit for bit, and the same for Optimizer.run on one frame."""
+    data = hybridfit.synthetic_proposals(5, k=3, seed=4)
+    optimizer = hybridfit.create("optimizer", "stepwise-pso", config)
+    run = lambda: hybridfit.fit(data["proposals"], data["confidences"], budget=700, seed=7,  # noqa: E731
+                                optimizer=optimizer)
+    by_driver = run()
+    monkeypatch.setattr(driver, "batched_layout", lambda *args: None)  # every frame through its Task
+    by_task = run()
+    assert np.array_equal(by_task.params, by_driver.params)
+    assert np.array_equal(by_task.objective, by_driver.objective)
+    problem = Problem(hybridfit.create("model", "hand26"), hybridfit.create("objective", "clamped-confidence"),
+                      data["proposals"][3], data["confidences"][3], data["joint_names"])
+    assert np.array_equal(optimizer.run(problem, 700, 7, 3).params, by_driver.params[3])

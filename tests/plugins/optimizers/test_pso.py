@@ -115,12 +115,12 @@ def test_refinement_stage_keeps_the_budget_and_never_loses(hand26, clamped, fram
     refined = opt.run(p, 1200, seed=2)
     assert refined.evaluations == 1200 and refined.history_stage[-1] == "refine"
     assert refined.loss == pytest.approx(p.evaluate(refined.params[None])[0])
-    # the loss before refinement: the stepwise stages' result, re-run with the same stream
-    task = Task(p, 1200)
+    # the loss before refinement: the stepwise stages' result, re-run with the same keys
+    task = Task(p, 1200, stream=(2, 0))
     rng = np.random.default_rng(2)
     stages = opt.plan(task)
-    for st in stages[:-1]:
-        stage = task.stage(st.name, st.parameters, st.points, st.budget, st.owned)
+    for index, st in enumerate(stages[:-1]):
+        stage = task.stage(st.name, st.parameters, st.points, st.budget, st.owned, index)
         opt.inner.minimize(stage, rng)
         task.commit(stage)
     before = p.evaluate(task.full(task.best_x[None]))[0]

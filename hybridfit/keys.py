@@ -1,0 +1,57 @@
+"""The documented random keys: stage s of frame f of a fit with seed ``seed`` draws from the
+stream with key
+
+    stage_key(seed, f, s) = split(split(split(seed) + f) + s),   split(z) = mix(z, 1),
+
+``mix(key, c)`` being splitmix64's finaliser of ``key + c * golden`` (Steele, Lea & Flood,
+*Fast splittable pseudorandom number generators*, OOPSLA 2014), all arithmetic modulo 2^64.
+So a frame's numbers depend on nothing but (seed, frame, stage): not on the frames fitted
+beside it, the chunking, ``--jobs`` or the path that runs it (the driver, or one frame's
+:class:`hybridfit.optimizer.Task`). The numbers of a key's stream are
+:mod:`hybridfit.fitting.streams`'.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_S30, _S27, _S31 = np.uint64(30), np.uint64(27), np.uint64(31)
+
+
+@nb.njit(cache=True, inline="always")
+def mix(key, counter):
+    """splitmix64's finaliser of ``key + counter * golden`` (uint64)."""
+    z = key + np.uint64(counter) * _GOLDEN
+    z = (z ^ (z >> _S30)) * _M1
+    z = (z ^ (z >> _S27)) * _M2
+    return z ^ (z >> _S31)
+
+
+@nb.njit(cache=True)
+def _split(z):
+    return mix(z, 1)
+
+
+@nb.njit(cache=True)
+def stage_key(seed, frame, stage):
+    """The key (uint64) of stage ``stage`` of frame ``frame`` of a fit with seed ``seed``."""
+    return _split(_split(_split(np.uint64(seed)) + np.uint64(frame)) + np.uint64(stage))
+
+
+@nb.njit(cache=True)
+def _stage_keys(seed, frames, stages, out):
+    for i in range(frames.shape[0]):
+        for s in range(stages):
+            out[i, s] = stage_key(seed, frames[i], s)
+
+
+def stage_keys(seed: int, frames, stages: int) -> np.ndarray:
+    """(F, stages) uint64: :func:`stage_key` of every stage of frames (F,)."""
+    frames = np.asarray(frames, dtype=np.int64)
+    out = np.empty((len(frames), int(stages)), dtype=np.uint64)
+    _stage_keys(np.uint64(seed), frames, int(stages), out)
+    return out
