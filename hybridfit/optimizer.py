@@ -258,7 +258,9 @@ class Optimizer(Plugin, abc.ABC):
         if steps is None:
             raise NotImplementedError(f"optimizer {self.name or type(self).__name__} has neither batch_steps nor "
                                       f"minimize")
-        key = task.key if task.key is not None else rng.integers(0, 2**64, dtype=np.uint64)
+        key = task.key
+        if key is None:
+            key = rng.integers(0, 2**64, dtype=np.uint64)
         run_steps(self, steps, task, np.array([key], dtype=np.uint64))
 
     def check_budget(self, task: Task) -> None:

@@ -125,8 +125,9 @@ def test_a_fit_and_its_angles_from_outside_the_checkout(env):
     header = (work / "angles.csv").read_text().splitlines()[0]
     assert header.startswith("frame,failed,x_mm,y_mm,z_mm,qw,qx,qy,qz,thumb_cmc_flexion_deg,")
     for folder, (kind, name) in EXAMPLES.items():
-        given = "tripod.npz" if kind == "model" else "frames.npz"
-        if kind == "model":
+        given = "frames.npz"
+        if kind == "model":  # proposals of the model's own points
+            given = "tripod.npz"
             _check([hybridfit, "synth", "proposals", "--frames", "2", "--model", name, "--out", given], work, variables)
         out = _check([hybridfit, "fit", given, "--budget", "300", f"--{kind}", name, "--out", f"fit-{name}.npz"],
                      work, variables)

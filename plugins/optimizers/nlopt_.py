@@ -84,7 +84,7 @@ class NLopt(Optimizer):
             raise HybridfitError(f"{self.name}: needs finite bounds on every parameter of task {task.name}")
         span = upper - lower
 
-        raised, running = [], []  # an exception from the task (not NLopt's), and the solver running
+        raised = []  # an exception from the task (the objective's, a budget overrun): not NLopt's
 
         def objective(x, grad):
             if raised:  # stopped, but some algorithms (CRS2's first population) call on
@@ -95,14 +95,13 @@ class NLopt(Optimizer):
                 return float(task.evaluate(np.clip(x, lower, upper)[None])[0])
             except BaseException as err:  # the objective's error, a budget overrun: re-raised below
                 raised.append(err)
-                running[-1].force_stop()
+                opt.force_stop()  # the run now in progress
                 return math.inf
 
         start = task.x0.copy()
         while task.remaining > 0:  # the last run may be cut short by maxeval: still valid samples
             opt = nlopt.opt(getattr(nlopt, ALGORITHMS[s.algorithm]), task.dim)
             opt.set_min_objective(objective)
-            running.append(opt)
             opt.set_lower_bounds(lower)
             opt.set_upper_bounds(upper)
             opt.set_maxeval(task.remaining)
