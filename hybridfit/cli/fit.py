@@ -16,8 +16,6 @@ from ..datasets.folder import load_dataset
 from ..metrics import summary
 from ..objective import dataset_observations
 from ..fitting.setup_check import check_setup
-from ..fitting import stops
-from ..fitting.refine import refine_fit
 from ..fitting.tracking import track
 from ._common import add_fit_options, add_plugin_options, declare_paths, plugin_kwargs
 
@@ -44,8 +42,9 @@ def register(sub) -> None:
                    help="the hand of the data: right or left (the model's mirror image), or auto (default): the "
                    "model as configured, or its mirror image where that fits a check on a few frames clearly "
                    "better (said on stderr)")
-    p.add_argument("--no-polish", action="store_true", help="skip the final least-squares polish of every fitted "
-                   "frame (hybridfit.fitting.refine), with --track too")
+    p.add_argument("--no-polish", action="store_true", help="skip the polish of every fitted frame (a robust "
+                   "least-squares on the model's rigid hand, hybridfit.fitting.polish): the optimiser's result at "
+                   "exactly --budget evaluations, as studies comparing optimisers use it")
     p.add_argument("--dataset", help="the proposals' skeleton when the npz has no joint_names (and its derived "
                    "points for its model): icvl, nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file "
                    "(default: the npz's dataset, which propose writes for real data)")
@@ -71,7 +70,8 @@ def run(args) -> int:
     if not args.depth:  # the hand and the geometry, on a few frames (hybridfit.fitting.setup_check)
         plugins["model_config"] = check_hand_and_geometry(args, data, names, plugins, dataset)
     common = dict(joint_names=names, budget=args.budget, seed=args.seed, search_radius_mm=args.search_radius,
-                  progress=sys.stderr.isatty(), observations=depth.get("observations"), **plugins)
+                  progress=sys.stderr.isatty(), observations=depth.get("observations"), polish=not args.no_polish,
+                  **plugins)
     if args.track:
         result = track(data["proposals"], data["confidences"], first_params=depth.get("first_params"),
                        settings={"on_lost": args.on_lost}, **common)
@@ -85,12 +85,6 @@ def run(args) -> int:
                 print(f"{int((~err.result.failed).sum())} frames fitted before the plugin error saved to {args.out}",
                       file=sys.stderr)
             raise
-    if not args.no_polish and not result.interrupted:  # a tracked sequence too, once tracked
-        try:  # a stop signal waits for the polish (seconds), then the polished frames are written
-            with stops.deferred():
-                result = refine_fit(result, data["proposals"], data["confidences"], **common)
-        except KeyboardInterrupt:
-            result.interrupted = True
     save_npz(args.out, **result.to_npz(), **extra)
     F, done = len(result.failed), ~result.failed
     print(f"fitted {int(done.sum())}/{F} frames -> {args.out}")

@@ -79,7 +79,8 @@ def _fit_result(data: dict[str, np.ndarray], where: str, model: Any) -> FitResul
         evaluations=data.get("evaluations", np.zeros(F, np.int64)),
         joint_names=tuple(str(n) for n in data.get("joint_names", ())), failed=failed,
         errors={int(f): str(m) for f, m in zip(frames_with_errors, messages)},
-        inliers=data.get("inliers"), parameter_names=names,
+        inliers=data.get("inliers"), parameter_names=names, model=str(data.get("model", "")),
+        model_settings=str(data.get("model_settings", "{}")),
     )
 
 

@@ -41,6 +41,7 @@ from ..problem import Problem, prepare_frames
 from ..stages import structure_of
 from . import stops
 from .evaluator import KernelScorer, NumpyScorer
+from .polish import polish
 
 #: columns of the integer stage table: budget, rows per ask, whether the stage owns every
 #: point, and [lo, hi) ranges of ``indices`` for its parameters, points and owned points
@@ -275,11 +276,13 @@ class Driver:
 
     model, objective, optimizer: plugins for which :func:`supports` holds; point_names: the
     proposals' Q points; budget: evaluations per frame; seed: stage s of frame i draws from
-    ``stage_key(seed, i, s)``."""
+    ``stage_key(seed, i, s)``; polish: then polish each fit (:mod:`.polish`) and score the
+    polished pose over every point (the frame's loss)."""
 
     def __init__(self, model, objective, optimizer, point_names, budget: int, seed: int,
-                 search_radius_mm: float = 60.0) -> None:
+                 search_radius_mm: float = 60.0, polish: bool = False) -> None:
         self.model, self.objective, self.optimizer = model, objective, optimizer
+        self.polish = polish
         self.names = tuple(point_names)
         self.budget, self.seed, self.search_radius_mm = int(budget), int(seed), float(search_radius_mm)
         structure = structure_of(model, self.names)  # computed once per model and points
@@ -390,6 +393,13 @@ class Driver:
             run_schedule(lay.optimizer, lay.steps, scorer, lay.stages, lay.indices, lay.settings,
                          _require(chunk.x0[sel], np.float64), _require(chunk.lower[sel], np.float64),
                          _require(chunk.upper[sel], np.float64), _require(keys, np.uint64), out_params, out_loss)
+            if self.polish and self.tree is not None:
+                out_params[:] = polish(self.model, out_params, proposals, weights, self.names)
+                P, every = out_params.shape[1], np.arange(len(self.names), dtype=np.int64)
+                stage = scorer.prepare(out_params, np.arange(P, dtype=np.int64), every, every, 1)
+                again = np.empty((len(out_params), 1))
+                scorer.score(stage, _require(out_params.reshape(len(out_params), 1, P), np.float64), every, again)
+                out_loss[:] = again[:, 0]
         except (HybridfitError, PluginError, KeyboardInterrupt):
             raise
         except Exception as err:  # a plugin's bug: it propagates, naming the plugins

@@ -18,7 +18,6 @@ import numpy as np
 from ..datasets.camera import Intrinsics
 from ..datasets.protocol import DepthDataset
 from .frames import FitResult, fit
-from .refine import refine_fit
 from ..forest import Forest, Proposals, dataset_masks
 
 EMPTY_FRAME = "no foreground pixels"
@@ -40,8 +39,8 @@ class HybridEstimator:
     mean-shift (paper: 200); stride: pixel grid step of the dense sampling; bandwidth_mm:
     test-time mean-shift bandwidth. model / objective / optimizer (registered names or
     instances) with their ``*_config`` settings, budget, seed, search_radius_mm and jobs are
-    passed to ``hybridfit.fit``; ``polish``: then polish the fits as ``hybridfit fit`` does
-    (:func:`hybridfit.fitting.refine.refine_fit`).
+    passed to ``hybridfit.fit``, and so is ``polish`` (the polish of every fit, as
+    ``hybridfit fit`` does by default: :mod:`hybridfit.fitting.polish`).
     """
 
     def __init__(self, forest: Forest | str | os.PathLike, *, k: int = 3, proposal_set: int = 200, stride: int = 2,
@@ -82,10 +81,9 @@ class HybridEstimator:
         options = dict(model=self.model, objective=self.objective, optimizer=self.optimizer, budget=self.budget,
                        seed=self.seed, joint_names=proposals.joint_names, model_config=self.model_config,
                        objective_config=self.objective_config, optimizer_config=self.optimizer_config,
-                       search_radius_mm=self.search_radius_mm, jobs=self.jobs, progress=progress)
+                       search_radius_mm=self.search_radius_mm, jobs=self.jobs, progress=progress,
+                       polish=self.polish)
         res = fit(proposals.proposals, proposals.confidences, **options)
-        if self.polish:  # as `hybridfit fit` does
-            res = refine_fit(res, proposals.proposals, proposals.confidences, **options)
         for f in np.flatnonzero(proposals.empty):
             res.errors[int(f)] = EMPTY_FRAME
         return res

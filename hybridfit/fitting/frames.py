@@ -14,6 +14,7 @@ the plugins. An interrupt (Ctrl-C) stops the run and keeps every finished frame.
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -26,6 +27,7 @@ from tqdm.auto import tqdm
 
 from .. import registry
 from . import driver, stops
+from .polish import polish as polish_frames
 from ..errors import HybridfitError, PluginError
 from ..io import validate_proposals
 from ..metrics import inliers
@@ -52,7 +54,10 @@ class FitResult:
     (``joint_names``); model_joints (F, J, 3) mm; objective (F,) the minimised loss;
     evaluations (F,); failed (F,) bool with ``errors`` {frame: message}; inliers (F,) the
     number of points within ``inlier_distance_mm`` of one of their proposals (the
-    objective's ``d_max_mm`` when it has one, else 40 mm; 0 for failed frames)."""
+    objective's ``d_max_mm`` when it has one, else 40 mm; 0 for failed frames). ``model``
+    (the plugin name) and ``model_settings`` (its settings as JSON) rebuild the hand
+    (:meth:`hand`): ``model_joints`` are its forward kinematics of ``params``, one rigid
+    hand in every frame."""
 
     params: np.ndarray
     joints: np.ndarray
@@ -66,6 +71,14 @@ class FitResult:
     inliers: np.ndarray | None = None  # (F,) points within inlier_distance_mm of one of their proposals
     inlier_distance_mm: float = INLIER_DISTANCE_MM
     parameter_names: tuple[str, ...] = ()  # (P,) the model's names of the params' columns
+    model: str = ""  # the model plugin's name
+    model_settings: str = "{}"  # its settings, JSON
+
+    def hand(self):
+        """The model that fitted these frames, rebuilt from ``model`` and ``model_settings``."""
+        if not self.model:
+            raise HybridfitError("this fit does not name its model (written before hybridfit 0.10.0): fit it again")
+        return registry.create("model", self.model, json.loads(self.model_settings))
 
     def angles_deg(self) -> tuple[tuple[str, ...], np.ndarray]:
         """The joint angles: names (A,) and values (F, A) in degrees (NaN for failed frames),
@@ -87,6 +100,8 @@ class FitResult:
             "evaluations": self.evaluations,
             "joint_names": np.asarray(self.joint_names),
             "parameter_names": np.asarray(self.parameter_names, dtype=str),
+            "model": np.asarray(self.model),
+            "model_settings": np.asarray(self.model_settings),
             "failed": self.failed,
             "error_frames": np.asarray(frames, dtype=np.int64),
             "error_messages": np.asarray([self.errors[f] for f in frames], dtype=str),
@@ -106,15 +121,27 @@ class _Spec:
     seed: int
     point_names: tuple[str, ...]
     search_radius_mm: float
+    polish: bool = False
 
 
 def _fit_one(spec: _Spec, frame: int, proposals: np.ndarray, confidences: np.ndarray, observation=None):
     problem = Problem(spec.model, spec.objective, proposals, confidences, spec.point_names, spec.search_radius_mm,
                       observation)
     result = spec.optimizer.run(problem, spec.budget, spec.seed, frame)
-    points = problem.points(result.params[None])[0]
-    loss = result.loss if getattr(spec.objective, "additive", True) else float(problem.evaluate(result.params[None])[0])
-    return result.params, points, spec.model.forward(result.params), loss, result.evaluations
+    params, loss = finish_frame(problem, result, spec.polish)
+    return params, problem.points(params[None])[0], spec.model.forward(params), loss, result.evaluations
+
+
+def finish_frame(problem: Problem, result, polish: bool) -> tuple[np.ndarray, float]:
+    """(params (P,), loss) of one frame fitted on the Task path (``result``: its
+    OptimizeResult): polished when ``polish``, the loss the objective's at the final params."""
+    params, loss = result.params, result.loss
+    if polish:
+        params = polish_frames(problem.model, params[None], problem.proposals[None], problem.weights[None],
+                               problem.point_names)[0]
+    if polish or not getattr(problem.objective, "additive", True):
+        loss = float(problem.evaluate(params[None])[0])
+    return params, loss
 
 
 def _fit_chunk(spec: _Spec, frames: Sequence[int], proposals, confidences, observations=None):
@@ -236,6 +263,7 @@ def fit(
     jobs: int = 1,
     progress: bool = False,
     observations: Sequence[Any] | None = None,
+    polish: bool = True,
 ) -> FitResult:
     """Fit the model to each frame's proposals.
 
@@ -245,6 +273,11 @@ def fit(
     plugin instances. budget: objective evaluations per frame, honoured exactly.
     observations: per frame a ``hybridfit.objective.Observation`` (the depth), needed by
     objectives that ``observes_depth`` (``rendered-depth``, ``hybrid``).
+    polish: finish every fit with the polish (:mod:`hybridfit.fitting.polish`: a robust
+    least-squares on the model's own rigid hand, not counted in the budget; the loss stored is
+    the objective's at the polished pose). Not applied for objectives that observe depth (the
+    polish cannot see it) or models without a kinematic tree (a warning says so). False: the
+    optimiser's result as it is, at exactly ``budget`` evaluations (optimiser comparisons).
     """
     check_fit_options(budget, seed, search_radius_mm, jobs)
     model = registry.create("model", model, model_config)
@@ -260,7 +293,8 @@ def fit(
                              f"depth image: give the frames' depth (observations)")
     if observations is not None and len(observations) != F:
         raise HybridfitError(f"{len(observations)} observations for {F} frames of proposals")
-    spec = _Spec(model, objective, optimizer, int(budget), int(seed), names, float(search_radius_mm))
+    polish = polish and not getattr(objective, "observes_depth", False) and _polishable(model, names)
+    spec = _Spec(model, objective, optimizer, int(budget), int(seed), names, float(search_radius_mm), polish)
     problem = _first_problem(model, objective, proposals, confidences, names, search_radius_mm, observations)
     if problem is not None:  # a budget too small fails every frame: raised at once
         optimizer.check_budget(Task(problem, budget))
@@ -276,6 +310,7 @@ def fit(
         joint_names=names,
         failed=np.ones(F, dtype=bool),
         parameter_names=tuple(model.parameter_names),
+        **model_label(model),
     )
     done = np.zeros(F, dtype=bool)
 
@@ -301,7 +336,7 @@ def fit(
     found = None if observations is not None else driver.batched_layout(model, objective, optimizer, problem, budget)
     fitter = None
     if found is not None:
-        fitter = driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm)
+        fitter = driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm, polish)
         fitter.add_layout(problem, found)  # the first frame's plan, made once
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
@@ -352,6 +387,22 @@ def fit(
     finally:
         bar.close()
     return _with_inliers(result, objective, proposals, confidences)
+
+
+def model_label(model) -> dict[str, str]:
+    """``model`` and ``model_settings`` of a FitResult fitted with ``model`` (a plugin instance)."""
+    return {"model": _name(model), "model_settings": json.dumps(model.get_params(), sort_keys=True)}
+
+
+def _polishable(model, names) -> bool:
+    """Whether the polish can run on ``model`` (it needs a kinematic tree); warns when not."""
+    try:
+        tree = structure_of(model, names).tree() if callable(getattr(model, "kinematic_tree", None)) else None
+    except NotImplementedError:
+        tree = None
+    if tree is None:
+        warnings.warn(f"model {_name(model)} has no kinematic tree: its fits are not polished", stacklevel=3)
+    return tree is not None
 
 
 def _with_inliers(result: FitResult, objective, proposals, confidences) -> FitResult:

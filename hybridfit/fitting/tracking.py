@@ -24,7 +24,8 @@ from tqdm.auto import tqdm
 
 from .. import registry
 from ..errors import HybridfitError
-from .frames import INLIER_DISTANCE_MM, FitResult, _first_problem, check_fit_options
+from .frames import (INLIER_DISTANCE_MM, FitResult, _first_problem, _polishable, check_fit_options, finish_frame,
+                     model_label)
 from ..io import validate_proposals
 from ..metrics import inliers
 from ..optimizer import Task
@@ -79,9 +80,11 @@ def track(
     first_params: np.ndarray | None = None,
     settings: TrackingSettings | Mapping[str, Any] | None = None,
     progress: bool = False,
+    polish: bool = True,
 ) -> TrackResult:
     """Track a sequence: arguments as ``hybridfit.fit`` (proposals (F, Q, K, 3) mm in frame
-    order), plus first_params (P,) frame 0's initial guess and the tracking ``settings``."""
+    order; ``polish``: each frame's fit polished before the next starts from it), plus
+    first_params (P,) frame 0's initial guess and the tracking ``settings``."""
     check_fit_options(budget, seed, search_radius_mm, 1)
     settings = settings if isinstance(settings, TrackingSettings) else TrackingSettings(**(settings or {}))
     model = registry.create("model", model, model_config)
@@ -103,10 +106,11 @@ def track(
                          model_joints=np.full((F, J, 3), np.nan), objective=np.full(F, np.nan),
                          evaluations=np.zeros(F, np.int64), joint_names=names, failed=np.ones(F, bool),
                          lost=np.zeros(F, bool), started_from_proposals=np.zeros(F, bool),
-                         parameter_names=tuple(model.parameter_names))
+                         parameter_names=tuple(model.parameter_names), **model_label(model))
     problem = _first_problem(model, objective, proposals, confidences, names, search_radius_mm, observations)
     if problem is not None:  # a budget too small would fail every frame: raised at once
         optimizer.check_budget(Task(problem, budget))
+    polish = polish and not objective.observes_depth and _polishable(model, names)
     start = first_params
     t = 0
     try:
@@ -119,15 +123,15 @@ def track(
             except HybridfitError as err:  # this frame cannot be fitted: recorded, tracking goes on
                 result.errors[t] = str(err)
                 continue
-            result.params[t] = res.params
-            result.joints[t] = problem.points(res.params[None])[0]
-            result.model_joints[t] = model.forward(res.params)
-            result.objective[t] = res.loss if objective.additive else problem.evaluate(res.params[None])[0]
+            params, result.objective[t] = finish_frame(problem, res, polish)
+            result.params[t] = params
+            result.joints[t] = problem.points(params[None])[0]
+            result.model_joints[t] = model.forward(params)
             result.evaluations[t] = res.evaluations
             result.failed[t] = False
             result.lost[t] = nearest_proposal_distance(result.joints[t], proposals[t], confidences[t]) > \
                 settings.lost_distance_mm
-            start = None if result.lost[t] and settings.on_lost == "reinit" else res.params
+            start = None if result.lost[t] and settings.on_lost == "reinit" else params
     except KeyboardInterrupt:
         result.interrupted = True
         for f in range(t, F):

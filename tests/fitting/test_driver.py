@@ -135,10 +135,12 @@ def test_a_frame_does_not_depend_on_its_batch_or_threads(frames):
 def test_fit_gives_the_same_results_for_any_jobs_and_chunking(frames, chunk, monkeypatch):
     ref_params, ref_loss, _ = driver_path(frames, hybridfit.create("optimizer", "stepwise-pso"), 600, 5, np.arange(8))
     monkeypatch.setattr(fitting, "CHUNK", chunk)
-    one = hybridfit.fit(frames["proposals"], frames["confidences"], budget=600, seed=5)
+    raw = hybridfit.fit(frames["proposals"], frames["confidences"], budget=600, seed=5, polish=False)
+    assert np.array_equal(raw.params, ref_params) and np.array_equal(raw.objective, ref_loss)
+    one = hybridfit.fit(frames["proposals"], frames["confidences"], budget=600, seed=5)  # polished
     two = hybridfit.fit(frames["proposals"], frames["confidences"], budget=600, seed=5, jobs=2)
     assert np.array_equal(one.params, two.params) and np.array_equal(one.objective, two.objective)
-    assert np.array_equal(one.params, ref_params) and np.array_equal(one.objective, ref_loss)
+    assert not np.array_equal(one.params, raw.params)
     assert (one.evaluations == 600).all()
 
 
@@ -360,13 +362,15 @@ def test_the_task_path_fits_every_frame_as_the_driver_does_bit_for_bit(monkeypat
     bit for bit, and the same for Optimizer.run on one frame."""
     data = hybridfit.synthetic_proposals(5, k=3, seed=4)
     optimizer = hybridfit.create("optimizer", "stepwise-pso", config)
-    run = lambda: hybridfit.fit(data["proposals"], data["confidences"], budget=700, seed=7,  # noqa: E731
-                                optimizer=optimizer)
-    by_driver = run()
+    run = lambda polish: hybridfit.fit(data["proposals"], data["confidences"], budget=700, seed=7,  # noqa: E731
+                                       optimizer=optimizer, polish=polish)
+    by_driver, polished_by_driver = run(False), run(True)
     monkeypatch.setattr(driver, "batched_layout", lambda *args: None)  # every frame through its Task
-    by_task = run()
+    by_task, polished_by_task = run(False), run(True)
     assert np.array_equal(by_task.params, by_driver.params)
     assert np.array_equal(by_task.objective, by_driver.objective)
+    assert np.array_equal(polished_by_task.params, polished_by_driver.params)
+    np.testing.assert_allclose(polished_by_task.objective, polished_by_driver.objective, rtol=1e-12)
     problem = Problem(hybridfit.create("model", "hand26"), hybridfit.create("objective", "clamped-confidence"),
                       data["proposals"][3], data["confidences"][3], data["joint_names"])
     assert np.array_equal(optimizer.run(problem, 700, 7, 3).params, by_driver.params[3])

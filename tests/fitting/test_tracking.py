@@ -34,7 +34,8 @@ def test_frames_start_from_the_previous_fit_and_runs_repeat_bit_for_bit():
 def test_a_lost_fit_reinitialises_from_proposals_only_under_reinit(on_lost, restarted):
     props = TRUTH[:, :, None].copy()
     props[2:] += np.array([400.0, 0.0, 0.0])  # the hand jumps far beyond the search radius
-    res = run(props, first_params=POSES[0], settings={"on_lost": on_lost})
+    # unpolished: the polish would carry the fit onto the far proposals (it is not bound to the search box)
+    res = run(props, first_params=POSES[0], settings={"on_lost": on_lost}, polish=False)
     assert res.lost[2] and not res.lost[:2].any()
     assert bool(res.started_from_proposals[3]) is restarted
     assert bool(res.lost[3]) is not restarted
