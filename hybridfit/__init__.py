@@ -13,7 +13,6 @@ if TYPE_CHECKING:  # the same names for type checkers and the API docs (never im
     from .errors import HybridfitError
     from .fitting.estimator import HybridEstimator
     from .fitting.frames import FitResult, fit
-    from .fitting.refine import fit_and_refine
     from .model.base import HandModel, Stage
     from .objective import Objective
     from .optimizer import OptimizeResult, Optimizer, Task
@@ -28,7 +27,7 @@ if TYPE_CHECKING:  # the same names for type checkers and the API docs (never im
 #: start-up reaches the command line's handler
 _LAZY = {
     "HybridfitError": "errors", "HybridEstimator": "fitting.estimator", "FitResult": "fitting.frames",
-    "fit": "fitting.frames", "fit_and_refine": "fitting.refine", "HandModel": "model.base", "Stage": "model.base", "Objective": "objective",
+    "fit": "fitting.frames", "HandModel": "model.base", "Stage": "model.base", "Objective": "objective",
     "OptimizeResult": "optimizer", "Optimizer": "optimizer", "Task": "optimizer", "Plugin": "plugin",
     "Settings": "plugin", "Problem": "problem", "available": "registry", "create": "registry",
     "stress_proposals": "synthetic.stress", "synthetic_proposals": "synthetic.proposals",
@@ -57,7 +56,7 @@ __version__ = "0.9.0"
 
 __all__ = [
     "FitResult", "HandModel", "HybridEstimator", "HybridfitError", "Objective", "OptimizeResult", "Optimizer",
-    "Plugin", "Problem", "Settings", "Stage", "Task", "available", "create", "fit", "fit_and_refine", "stress_proposals",
+    "Plugin", "Problem", "Settings", "Stage", "Task", "available", "create", "fit", "stress_proposals",
     "synthetic_proposals",
     "__version__",
 ]

@@ -90,7 +90,6 @@ def test_on_a_hand_the_model_represents_the_fused_fit_beats_the_best_predictor()
     fitted with confidences from their agreement, the fit beats the best of them and the fit
     with equal confidences."""
     import hybridfit
-    from hybridfit.fitting.refine import fit_and_refine
     from hybridfit.synthetic.predictors import predictor_errors
 
     model = hybridfit.create("model", "hand26")
@@ -99,6 +98,6 @@ def test_on_a_hand_the_model_represents_the_fused_fit_beats_the_best_predictor()
     preds = truth[None] + predictor_errors(model, names, len(truth), np.random.default_rng(0))
     x = preds.transpose(1, 2, 0, 3)
     err = lambda p: np.linalg.norm(p - truth, axis=-1).mean()  # noqa: E731
-    fused = err(fit_and_refine(x, agreement_confidences(x), budget=1000).joints)
-    equal = err(fit_and_refine(x, np.ones(x.shape[:3]), budget=1000).joints)
+    fused = err(hybridfit.fit(x, agreement_confidences(x), budget=1000).joints)
+    equal = err(hybridfit.fit(x, np.ones(x.shape[:3]), budget=1000).joints)
     assert fused < min(err(p) for p in preds) and fused < equal, (fused, equal)
