@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -61,6 +63,9 @@ def test_estimate_end_to_end(forest_file, data, tmp_path, capsys):
         assert fits["joints"].shape == (3, 21, 3) and not fits["failed"].any()
         assert {"proposals", "confidences", "empty", "ground_truth", "params", "parameter_names"} <= set(fits.files)
         frames = fits["frames"].tolist()
+        hand = hybridfit.create("model", str(fits["model"]), json.loads(str(fits["model_settings"])))  # one rigid hand
+        np.testing.assert_allclose(hand.points(fits["params"], [str(n) for n in fits["joint_names"]]), fits["joints"],
+                                   atol=1e-6, rtol=0)
     assert main(["export-angles", str(out), "--out", str(tmp_path / "angles.csv")]) == 0
     rows = (tmp_path / "angles.csv").read_text().splitlines()
     assert [int(r.split(",")[0]) for r in rows[1:]] == frames  # the data set's frame indices
