@@ -105,6 +105,15 @@ def test_the_wheel_is_what_is_imported(env):
     assert out[5] == "LICENSE"
 
 
+def test_the_wheel_is_typed_and_knows_its_version(env):
+    """PEP 561: py.typed ships in the wheel, so type checkers and IDEs read hybridfit's annotations."""
+    python, hybridfit, work, variables = env
+    out = _check([python, "-c", "import hybridfit, pathlib; print((pathlib.Path(hybridfit.__file__).parent / "
+                  "'py.typed').is_file())"], work, variables)
+    assert out.strip() == "True"
+    assert _check([hybridfit, "--version"], work, variables).strip() == f"hybridfit {_checkout_version()}"
+
+
 def test_plugins_lists_every_plugin_from_the_wheel_and_the_example(env):
     _, hybridfit, work, variables = env
     out = _check([hybridfit, "plugins"], work, variables)

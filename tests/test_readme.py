@@ -34,9 +34,31 @@ def test_getting_started_gives_the_same_two_commands():
     assert code_blocks(page, "bash")[0] == readme_commands()
 
 
-def test_ci_runs_the_readme_commands_in_order():
+#: .ci/run's line before the README's commands: headless Chromium for tests/cli/test_view.py, guarded so that a
+#: machine without apt (or where it fails) still runs the tests (the browser tests are then skipped)
+CHROMIUM = ('if command -v apt-get >/dev/null 2>&1; then { apt-get update -qq && DEBIAN_FRONTEND=noninteractive '
+            'apt-get install -y -qq chromium >/dev/null; } || echo "chromium not installed: the browser tests will be '
+            'skipped"; fi')
+
+
+def test_ci_installs_chromium_then_runs_the_readme_commands_in_order():
     ci = [line for line in (ROOT / ".ci/run").read_text().splitlines() if line and not line.startswith(("#", "set ", "cd "))]
-    assert ci == readme_commands()
+    assert ci == [CHROMIUM, *readme_commands()]
+
+
+def test_the_chromium_line_never_fails_the_run(tmp_path):
+    """Without apt-get on the PATH, and with an apt-get that fails, the line exits 0 (set -e goes on)."""
+    import os
+
+    for body in (None, "exit 100"):
+        bin_dir = tmp_path / ("fails" if body else "none")
+        bin_dir.mkdir()
+        if body:
+            (bin_dir / "apt-get").write_text(f"#!/bin/sh\n{body}\n")
+            (bin_dir / "apt-get").chmod(0o755)
+        done = subprocess.run(["/bin/bash", "-euo", "pipefail", "-c", CHROMIUM], capture_output=True, text=True,
+                              env={**os.environ, "PATH": str(bin_dir)})
+        assert done.returncode == 0, done.stderr
 
 
 def test_readme_is_short():

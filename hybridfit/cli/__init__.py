@@ -3,6 +3,9 @@
 Each subcommand is one module of this package that defines ``register(subparsers)``; they
 are found by listing the package, so adding a command never edits this file.
 
+``hybridfit --version`` prints the version; a bare ``hybridfit`` prints the usage and the
+commands with their help (on stderr, exit code 2: a command is missing).
+
 Exit codes (``hybridfit.errors``): 0 done; 2 a user error (bad input or option, or an output
 that cannot be written: one line on stderr naming the file, key, field or frame; nothing
 written or overwritten); 3 the run finished but some frames or trials failed (the rest is
@@ -41,11 +44,17 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .. import __version__
+
     parser = _Parser(
         prog="hybridfit",
         description="3D hand pose by fitting an anatomically valid hand model to joint proposals.",
+        epilog="`hybridfit COMMAND --help` describes a command.",
     )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    parser.add_argument("--version", action="version", version=f"hybridfit {__version__}",
+                        help="print hybridfit's version and exit")
+    # not required: a bare `hybridfit` prints the usage and the commands (see _main), not a one-line error
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
     for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
         if info.name.startswith("_"):
             continue
@@ -118,8 +127,11 @@ def _main(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
     warnings.formatwarning = lambda msg, cat, *a, **k: f"hybridfit: warning: {msg}\n"
     try:
         args = parser.parse_args(argv)
-    except SystemExit as exit:  # --help, or an option error already printed as one line
+    except SystemExit as exit:  # --help, --version, or an option error already printed as one line
         return int(exit.code or 0)
+    if args.command is None:  # a bare `hybridfit`: the usage and the commands; a missing argument is a user error
+        print(parser.format_help(), end="", file=sys.stderr)
+        return EXIT_USER_ERROR
     try:
         from ._common import check_declared
 

@@ -1,5 +1,6 @@
 """``hybridfit export-angles``: fits (.npz) -> a CSV table of each frame's position,
-orientation and joint angles in degrees (``hybridfit.fitting.angles``)."""
+orientation and joint angles in degrees (``hybridfit.fitting.angles``). An alias of
+``hybridfit export --out FILE.csv``: both call ``export_angles``."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ from ._common import declare_paths
 
 def register(sub) -> None:
     p = sub.add_parser("export-angles",
-                       help="write each frame's position, orientation and joint angles (degrees) as CSV")
+                       help="write each frame's position, orientation and joint angles (degrees) as CSV "
+                       "(the same as `hybridfit export --out FILE.csv`)")
     p.add_argument("fits", help="npz from `hybridfit fit` or `estimate` (params, parameter_names, failed)")
     p.add_argument("--out", required=True, help="CSV file: frame, failed, x_mm, y_mm, z_mm, qw, qx, qy, qz, then "
                    "<parameter name>_deg for every joint angle; a failed frame's cells are empty")

@@ -45,3 +45,46 @@ def test_show_bad_input_exits_with_code_2(dataset, tmp_path, capsys, args, match
 def test_show_names_a_missing_data_set(tmp_path, capsys):
     assert main(["show", str(tmp_path / "none"), "--out", str(tmp_path / "x.png")]) == 2
     assert "no such data set folder" in capsys.readouterr().err
+
+
+def test_show_animates_frames_a_to_b_as_a_gif(dataset, tmp_path, capsys):
+    ds = load_dataset(dataset)
+    fits = tmp_path / "fits.npz"
+    joints = ds.joints_xyz + np.random.default_rng(1).normal(0, 5, ds.joints_xyz.shape)
+    joints[1] = np.nan  # a failed fit: that frame shows no estimate
+    np.savez(fits, joints=joints)
+    gif = tmp_path / "anim.gif"
+    assert main(["show", str(dataset), "--frames", "1:3", "--out", str(gif), "--fits", str(fits)]) == 0
+    assert "wrote 2 GIF frames (frames 1 to 2)" in capsys.readouterr().out
+    with Image.open(gif) as im:
+        assert im.format == "GIF" and im.n_frames == 2 and im.size[0] > 400
+    assert main(["show", str(dataset), "--frames", ":", "--out", str(gif)]) == 0
+    with Image.open(gif) as im:
+        assert im.n_frames == 3
+
+
+@pytest.mark.parametrize("args, match", [
+    (["--frames", "1:3", "--out", "{tmp}/x.png"], "an animation is written as a GIF"),
+    (["--frames", "1:3", "--frame", "1", "--out", "{tmp}/x.gif"], "not both"),
+    (["--frames", "5:9", "--out", "{tmp}/x.gif"], "no frames selected out of 3"),
+])
+def test_show_frames_refused_in_one_line(dataset, tmp_path, capsys, args, match):
+    assert main(["show", str(dataset)] + [a.format(tmp=tmp_path) for a in args]) == 2
+    assert match in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_legend_shows_the_skeleton_lines(dataset):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hybridfit.cli.show import _Overlays, _parents, figure
+
+    ds = load_dataset(dataset)
+    args = type("Args", (), {"proposals": None, "fits": None})()
+    fig = figure(ds, 0, _parents(ds, "hand26"), _Overlays(args, ds))
+    (handle,) = fig.axes[0].get_legend().legend_handles
+    assert handle.get_label() == "ground truth" and handle.get_linestyle() == "-" and handle.get_marker() == "o"
+    plt.close(fig)

@@ -1,0 +1,36 @@
+"""``hybridfit export``: a fits file (.npz) as JSON, BVH or CSV, the format taken from
+``--out``'s extension (:mod:`hybridfit.exports`)."""
+
+from __future__ import annotations
+
+from ..exports import export, export_format
+from ._common import declare_paths, positive_float
+
+
+def register(sub) -> None:
+    p = sub.add_parser("export", help="write fits as JSON, BVH or CSV (the format from --out's extension)")
+    p.add_argument("fits", help="npz from `hybridfit fit` or `estimate`; for .json and .bvh, one that names "
+                   "its model (an older hybridfit's file: re-run `hybridfit fit`)")
+    p.add_argument("--out", required=True, help="FILE.json: per frame the named joints (mm) and angles (degrees), "
+                   "with the model and its settings; FILE.bvh: the model's skeleton and every frame's rotations "
+                   "(mm, camera coordinates; failed frames hold the previous pose); FILE.csv: the angle table "
+                   "of `hybridfit export-angles`")
+    p.add_argument("--fps", type=positive_float, default=30.0, help="frame rate of a .bvh (its Frame Time is "
+                   "1/fps; default 30)")
+    p.add_argument("--model", help="for .csv only: the model that made a fits file without parameter_names "
+                   "(hybridfit 0.3.0 and older), e.g. hand26")
+    declare_paths(p, inputs=("fits",), outputs=("--out",))
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    export_format(args.out)  # an unknown extension: refused before anything is read
+    done = export(args.fits, args.out, model=args.model, fps=args.fps)
+    failed = ""
+    if done.failed:
+        shown = ", ".join(str(f) for f in done.failed[:10]) + (f" and {len(done.failed) - 10} more"
+                                                                 if len(done.failed) > 10 else "")
+        held = "; they hold the previous pose" if done.format == "BVH" else ", marked"
+        failed = f" ({len(done.failed)} failed: {shown}{held})"
+    print(f"wrote {done.frames} frames{failed} as {done.format} -> {args.out}")
+    return 0
