@@ -238,37 +238,68 @@ def write_error(path, err: OSError) -> WriteError:
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike):
-    """Yield a hidden temporary path in ``path``'s folder; on success it replaces ``path``,
-    on failure it is removed (an existing ``path`` is never left half-written)."""
+def _replacing(path: str | os.PathLike):
+    """(fd, tmp): a new temporary file made exclusively (``tempfile.mkstemp``: ``O_EXCL``, a
+    random name, never a guessable one, so no planted link is followed) in ``path``'s folder,
+    with the usual permissions; on success it replaces ``path`` (``os.replace``: a link at
+    ``path`` is itself replaced, never written through), on failure it is removed. The
+    caller closes ``fd``."""
     path = check_output(path, "output")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".hybridfit-", suffix=".tmp", dir=path.parent)
-        os.close(fd)
+        fd, tmp = tempfile.mkstemp(prefix=f".hybridfit-{os.getpid()}-", suffix=".tmp", dir=path.parent)
     except OSError as err:
         raise write_error(path, err) from None
+    tmp = Path(tmp)
     try:
-        yield Path(tmp)
-        os.chmod(tmp, 0o666 & ~_UMASK)
+        if hasattr(os, "fchmod"):
+            os.fchmod(fd, 0o666 & ~_UMASK)  # mkstemp's 0600 -> what a plain open would give
+        yield fd, tmp
         os.replace(tmp, path)
     except OSError as err:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         if isinstance(err, WriteError):
             raise
         raise write_error(path, err) from None
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike):
+    """Yield a hidden temporary path in ``path``'s folder, created exclusively (see
+    :func:`atomic_open`); on success it replaces ``path``, on failure it is removed (an
+    existing ``path`` is never left half-written). For writers that take a file name."""
+    with _replacing(path) as (fd, tmp):
+        os.close(fd)
+        yield tmp
+
+
+@contextlib.contextmanager
+def atomic_open(path: str | os.PathLike, mode: str = "w", **kwargs):
+    """Write ``path`` atomically through a file object (``open``'s ``mode``, "w" or "wb",
+    and keywords such as ``newline``): the one way hybridfit writes an output file.
+
+    The object is a hidden temporary file in ``path``'s folder, created exclusively
+    (``tempfile.mkstemp``, ``O_EXCL``) under a random name, so a link planted at any name
+    there is never followed; when the block ends it is closed and replaces ``path`` with
+    ``os.replace`` (a link at ``path`` is itself replaced, never written through). On any
+    failure it is removed, ``path`` is left as it was, and an ``OSError`` becomes a one-line
+    :class:`WriteError` naming ``path``."""
+    if mode not in ("w", "wb"):
+        raise ValueError(f"atomic_open writes a new file: mode 'w' or 'wb', not {mode!r}")
+    with _replacing(path) as (fd, tmp):
+        with os.fdopen(fd, mode, **kwargs) as fh:
+            yield fh
 
 
 def save_npz(path: str | os.PathLike, **arrays) -> None:
     """Write an .npz atomically: a hidden temporary file in the same folder, renamed into
     place, so an existing file is replaced only by a complete one (and the temporary file is
     removed on failure)."""
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
+    with atomic_open(path, "wb") as fh:
+        np.savez(fh, **arrays)
 
 
 def frame_slice(text: str | None, n: int, option: str = "--frames") -> slice:

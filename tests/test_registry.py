@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import tomllib
 import warnings
 
 import pytest
@@ -123,3 +124,136 @@ def test_the_registry_writes_no_names_onto_classes():
 def test_a_registered_subclass_of_a_registered_plugin_has_its_own_name(broken_distribution):
     fine = registry.get("optimizer", "fine-opt")
     assert fine.name == "fine-opt" and registry.get("optimizer", "pso").name == "pso"
+
+
+def make_distribution(root, name: str, entry_points: str, modules: dict[str, str]):
+    """A throwaway installed distribution ``name`` under ``root`` (a ``*.dist-info`` folder
+    with its entry_points.txt, beside the plugin modules); put ``root`` on sys.path to install it."""
+    dist = root / f"{name}-1.0.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text(entry_points)
+    for module, text in modules.items():
+        (root / f"{module}.py").write_text(text)
+
+
+@pytest.fixture
+def install(tmp_path):
+    """install(name, entry_points, modules): a throwaway distribution first on sys.path, removed after."""
+    roots, modules_made = [], []
+
+    def install(name, entry_points, modules):
+        root = tmp_path / name
+        make_distribution(root, name, entry_points, modules)
+        sys.path.insert(0, str(root))
+        roots.append(str(root))
+        modules_made.extend(modules)
+        registry.refresh()
+
+    yield install
+    for root in roots:
+        sys.path.remove(root)
+    for module in modules_made:
+        sys.modules.pop(module, None)
+    registry.refresh()
+    from hybridfit.study import cache
+
+    cache.code_versions.cache_clear()
+
+
+FINE_OPTIMIZER = ("from hybridfit_plugins.optimizers.pso import PSO\n"
+                  "class Optimizer(PSO):\n    '''A third-party optimiser.'''\n")
+
+
+def test_a_plugin_exiting_at_import_is_a_plugin_error_and_listed_as_broken(install, capsys):
+    install("exitplugins", "[hybridfit.objectives]\nexit-obj = exitplugins_exit:Objective\n"
+            "[hybridfit.optimizers]\nbase-opt = exitplugins_base:Optimizer\n", {
+                "exitplugins_exit": "import sys\nsys.exit(3)\n",
+                "exitplugins_base": "class Odd(BaseException):\n    pass\nraise Odd('odd')\n"})
+    for get in (lambda: registry.get("objective", "exit-obj"), lambda: hybridfit.create("objective", "exit-obj")):
+        with pytest.raises(PluginError, match=r"objective plugin 'exit-obj' \(hybridfit.objectives = "
+                                              r"exitplugins_exit:Objective\) failed to import: SystemExit: 3"):
+            get()
+    with pytest.raises(PluginError, match=r"optimizer plugin 'base-opt' .* failed to import: Odd: odd"):
+        registry.get("optimizer", "base-opt")
+    from hybridfit.cli import main
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(["plugins"]) == 0
+    assert {"exit-obj", "base-opt"} <= {w.message.args[0].split("'")[1] for w in caught}
+    out = capsys.readouterr().out
+    assert "hybridfit.optimizers:" in out and "pso" in out  # every group listed, after the broken one
+    line = next(ln for ln in out.splitlines() if "exit-obj" in ln)
+    assert "[exitplugins]" in line and "FAILED TO IMPORT (SystemExit: 3)" in line
+    assert "FAILED TO IMPORT (Odd: odd)" in next(ln for ln in out.splitlines() if "base-opt" in ln)
+    with warnings.catch_warnings():  # an unrelated use of plugins never imports it
+        warnings.simplefilter("error")
+        from hybridfit.study.cache import code_versions
+
+        code_versions.cache_clear()
+        assert "exitplugins" in code_versions()
+        assert registry.create("objective", "clamped-confidence") is not None
+
+
+def test_a_keyboard_interrupt_at_a_plugins_import_is_not_a_plugin_error(install):
+    install("ctrlcplugins", "[hybridfit.objectives]\nctrlc-obj = ctrlcplugins_mod:Objective\n",
+            {"ctrlcplugins_mod": "raise KeyboardInterrupt\n"})
+    with pytest.raises(KeyboardInterrupt):
+        registry.get("objective", "ctrlc-obj")
+
+
+def test_a_third_party_plugin_cannot_take_a_built_ins_name(install, capsys):
+    install("hijack", "[hybridfit.optimizers]\npso = hijack_mod:Optimizer\nhijack-opt = hijack_mod:Optimizer\n"
+            "[hybridfit.models]\nhand26 = hijack_mod:Model\n", {"hijack_mod": FINE_OPTIMIZER + "Model = Optimizer\n"})
+    builtin = "hybridfit_plugins.optimizers.pso"
+    with pytest.warns(UserWarning, match=r"optimizer 'pso' is also registered by hijack \(hijack_mod:Optimizer\); "
+                                         r"the built-in is used"):
+        assert registry.get("optimizer", "pso").__module__ == builtin
+    assert "hijack_mod" not in sys.modules
+    with pytest.warns(UserWarning, match="hand26"):
+        assert registry.get("model", "hand26").__module__ == "hybridfit_plugins.models.hand26"
+    assert registry.names("optimizer").count("pso") == 1
+    assert registry.get("optimizer", "hijack-opt").__module__ == "hijack_mod"  # its other names work
+    from hybridfit.cli import main
+
+    assert main(["plugins"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    pso = [ln for ln in lines if ln.split()[:1] == ["pso"]]
+    assert len(pso) == 2 and "[hybridfit]" in pso[0]
+    assert "[hijack]" in pso[1] and "CONFLICT" in pso[1] and "built-in" in pso[1]
+
+
+def test_two_distributions_registering_one_name_are_refused_by_name(install):
+    install("twina", "[hybridfit.optimizers]\ntwin-opt = twina_mod:Optimizer\n", {"twina_mod": FINE_OPTIMIZER})
+    install("twinb", "[hybridfit.optimizers]\ntwin-opt = twinb_mod:Optimizer\n", {"twinb_mod": FINE_OPTIMIZER})
+    assert "twin-opt" in registry.names("optimizer")
+    with pytest.raises(HybridfitError, match=r"optimizer 'twin-opt' is registered by 2 distributions \(twin[ab] "
+                                             r"\(twin[ab]_mod:Optimizer\), twin[ab] .*uninstall"):
+        registry.get("optimizer", "twin-opt")
+    assert "twina_mod" not in sys.modules and "twinb_mod" not in sys.modules
+
+
+def test_plugins_are_imported_by_name_only_when_used(install, tmp_path, capsys):
+    install("slowplugins", "[hybridfit.optimizers]\nslow-opt = slowplugins_slow:Optimizer\n"
+            "[hybridfit.objectives]\nslow-obj = slowplugins_obj:Objective\n",
+            {"slowplugins_slow": FINE_OPTIMIZER, "slowplugins_obj": "raise RuntimeError('imported')\n"})
+    from hybridfit.cli import main
+    from hybridfit.io import save_npz
+    from hybridfit.study import parse_spec
+    from hybridfit.study.cache import code_versions
+    from tests.study.conftest import TINY
+
+    assert {"slow-opt", "pso"} <= set(registry.names("optimizer"))
+    for kind, name in (("model", "hand26"), ("objective", "clamped-confidence"), ("optimizer", "stepwise-pso")):
+        registry.create(kind, name)
+        registry.name_of(registry.get(kind, name))
+    parse_spec(tomllib.loads(TINY), "tiny.toml")  # a study file's plugins are validated
+    code_versions.cache_clear()
+    assert "slowplugins" in code_versions()  # the distribution's code is in the cache keys, unimported
+    save_npz(tmp_path / "p.npz", **hybridfit.synthetic_proposals(2, k=2, seed=1))
+    assert main(["fit", str(tmp_path / "p.npz"), "--out", str(tmp_path / "f.npz"), "--budget", "200"]) == 0
+    assert "slowplugins_slow" not in sys.modules
+    with pytest.warns(UserWarning, match="slow-obj"):  # `hybridfit plugins` imports them all, to report on them
+        assert main(["plugins"]) == 0
+    assert "slowplugins_slow" in sys.modules and "slow-obj" in capsys.readouterr().out

@@ -1,5 +1,7 @@
 """``hybridfit plugins``: list the registered models, objectives and optimizers (a plugin whose
-optional library is missing as unavailable, with the line that installs it)."""
+optional library is missing as unavailable, with the line that installs it; one that fails to
+import as broken; an entry point that takes a built-in's name, or a name another distribution
+registers too, as a conflict). It imports every plugin, to report on it; no other command does."""
 
 from __future__ import annotations
 
@@ -17,7 +19,9 @@ def run(args) -> int:
     for kind, group in registry.GROUPS.items():
         print(f"{group}:")
         for info in registry.available(kind):
-            if info.error:
+            if info.conflict:
+                status = f"CONFLICT: {info.conflict}"
+            elif info.error:
                 status = f"FAILED TO IMPORT ({info.error})"
             elif info.unavailable:
                 status = f"UNAVAILABLE: {info.unavailable}"

@@ -39,7 +39,7 @@ def run(args) -> int:
     if out.exists() and not out.is_dir():
         raise HybridfitError(f"--out {out}: is a file; a study writes a folder")
     if args.report_only:
-        if not (out / "study.db").is_file():
+        if not (out / "study.db").is_file() and not (out / "study.db").is_symlink():
             raise HybridfitError(f"{out}: no study.db to report from")
         print(f"report -> {write_report(out, study)}")
         return 0

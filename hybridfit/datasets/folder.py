@@ -19,9 +19,15 @@ training grid in well under a second instead of seconds of PNG decoding). Withou
 (data sets written by other tools, or after deleting them) frames are decoded from the PNGs
 in a thread pool.
 
-:func:`write_dataset` writes into a hidden temporary folder and renames it into place, with
-meta.json written last, so a folder that has a meta.json is complete. :func:`load_dataset`
-checks every file is present and reports a missing or corrupt file by name.
+:func:`write_dataset` writes into a hidden temporary folder made exclusively beside the
+target (``tempfile.mkdtemp``), then renames it into place; over an existing data set it moves
+in the data set's own files only (meta.json, labels.npz, the caches and the frame PNGs),
+leaving anything else the folder holds (the user's fits, notes) where it is, with meta.json
+moved in last, so a folder that has a meta.json is complete (an interrupted replacement
+leaves the old meta.json as ``.meta.json.incomplete``: still recognised as a data set, to be
+written again). Any other existing non-empty folder is refused before any work
+(:func:`check_writable`). :func:`load_dataset` checks every file is present and reports a
+missing or corrupt file by name.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ import json
 import re
 import os
 import shutil
+import tempfile
 import zipfile
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -41,12 +48,90 @@ from pydantic import ValidationError
 
 from .camera import Intrinsics, xyz_to_uvd
 from ..errors import HybridfitError
-from ..io import WriteError, process_alive, write_error
+from ..io import _UMASK, WriteError, process_alive, write_error
 
 FORMAT = "hybridfit-dataset"
 VERSION = 1
 _LABEL_KEYS = ("joints_xyz", "joints_uvd", "params", "intrinsics", "files")
 _THREADS = min(8, os.cpu_count() or 1)
+
+
+#: the files of a data set besides its frame PNGs (depth/NAME, parts/NAME), meta.json last
+_OWN_FILES = ("labels.npz", "depth.npy", "parts.npy")
+#: where an interrupted replacement keeps the old meta.json (so the folder stays recognised)
+_INCOMPLETE = ".meta.json.incomplete"
+_FRAME_FILE = re.compile(r"^\d{6}\.png$")
+
+
+def _ours(meta_path: Path) -> bool:
+    """Whether ``meta_path`` is a regular file holding a hybridfit data set's meta (its format)."""
+    if meta_path.is_symlink() or not meta_path.is_file():
+        return False
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(meta, dict) and meta.get("format") == FORMAT
+
+
+def is_dataset(path) -> bool:
+    """Whether the folder ``path`` holds a hybridfit data set (or one whose replacement was
+    interrupted): its meta.json names the format."""
+    path = Path(path)
+    return path.is_dir() and (_ours(path / "meta.json") or _ours(path / _INCOMPLETE))
+
+
+def check_writable(path) -> Path:
+    """Refuse, before any work, a ``path`` that :func:`write_dataset` would not write: a file,
+    or an existing non-empty folder that is not a hybridfit data set (the user's own files:
+    nothing of theirs is ever replaced or deleted), or a data set whose depth/ or parts/ is
+    not a plain folder. One line naming the path."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise HybridfitError(f"{path}: exists and is not a hybridfit data set; refusing to overwrite it "
+                             "(a data set is a folder)")
+    if path.is_dir() and any(path.iterdir()):
+        if not is_dataset(path):
+            raise HybridfitError(f"{path}: exists and is not a hybridfit data set; refusing to overwrite it: "
+                                 "give a new or empty folder")
+        for sub in ("depth", "parts"):
+            if (path / sub).is_symlink() or ((path / sub).exists() and not (path / sub).is_dir()):
+                raise HybridfitError(f"{path / sub}: not a plain folder; refusing to replace the data set {path}")
+    return path
+
+
+def _old_frames(path: Path) -> set[str] | None:
+    """The frame file names of the data set at ``path`` (None when its labels are unreadable)."""
+    try:
+        with np.load(path / "labels.npz", allow_pickle=False) as npz:
+            return {str(f) for f in npz["files"]}
+    except Exception:  # missing, corrupt or of another layout: fall back to the frame names' pattern
+        return None
+
+
+def _move_in(tmp: Path, path: Path) -> None:
+    """Replace the data set in the existing folder ``path`` by the one written in ``tmp``,
+    touching the data set's own files only (see the module docstring)."""
+    old = _old_frames(path)
+    if (path / "meta.json").exists():  # from here on the folder is no complete data set
+        os.replace(path / "meta.json", path / _INCOMPLETE)
+    for name in _OWN_FILES:
+        if (tmp / name).exists():
+            os.replace(tmp / name, path / name)
+        elif (path / name).is_file() or (path / name).is_symlink():  # a stale cache would be read instead
+            (path / name).unlink()
+    for sub in ("depth", "parts"):
+        target = path / sub
+        if not target.exists():
+            os.replace(tmp / sub, target)
+            continue
+        for f in target.iterdir():
+            if (f.name in old if old is not None else _FRAME_FILE.match(f.name)) and not f.is_dir():
+                f.unlink()
+        for f in (tmp / sub).iterdir():
+            os.replace(f, target / f.name)
+    os.replace(tmp / "meta.json", path / "meta.json")
+    (path / _INCOMPLETE).unlink(missing_ok=True)
 
 
 def _frame_name(i: int) -> str:
@@ -66,7 +151,8 @@ def write_dataset(path, depth: np.ndarray, parts: np.ndarray, joints_xyz: np.nda
     depth (F, H, W) uint16 mm, parts (F, H, W) uint8, joints_xyz (F, J, 3) mm (finite),
     params (F, P) or None, intrinsics for every frame (H, W must match), joint_names (J,),
     meta: "generator", "config", "seed" and any further JSON-serialisable keys. An existing
-    data set at ``path`` is replaced; any other existing non-empty folder is refused.
+    data set at ``path`` is replaced, its own files only (the folder's other files are kept);
+    any other existing non-empty folder is refused (:func:`check_writable`).
     ``cache`` also writes the packed depth.npy and parts.npy for fast bulk loading.
     """
     path = Path(path)
@@ -94,14 +180,15 @@ def write_dataset(path, depth: np.ndarray, parts: np.ndarray, joints_xyz: np.nda
         text = json.dumps(header, indent=1)
     except (TypeError, ValueError) as err:
         raise HybridfitError(f"{path}: meta is not JSON-serialisable ({err})") from None
-    if path.exists() and not (path / "meta.json").is_file() and (not path.is_dir() or any(path.iterdir())):
-        raise HybridfitError(f"{path}: exists and is not a hybridfit data set; refusing to overwrite it")
+    check_writable(path)
 
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     remove_stale_partials(path)
-    shutil.rmtree(tmp, ignore_errors=True)
+    tmp = None
     try:
-        (tmp / "depth").mkdir(parents=True)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.partial-{os.getpid()}-", dir=path.parent))
+        os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp's 0700 -> what a plain mkdir gives (a new data set keeps it)
+        (tmp / "depth").mkdir()
         (tmp / "parts").mkdir()
 
         def save(i: int) -> None:
@@ -122,19 +209,19 @@ def write_dataset(path, depth: np.ndarray, parts: np.ndarray, joints_xyz: np.nda
             np.save(tmp / "depth.npy", depth)
             np.save(tmp / "parts.npy", parts)
         (tmp / "meta.json").write_text(text)
-        if path.exists():
-            old = path.with_name(f".{path.name}.old-{os.getpid()}")
-            path.rename(old)
-            tmp.rename(path)
-            shutil.rmtree(old, ignore_errors=True)
+        check_writable(path)  # (again: the folder may have changed meanwhile)
+        if path.is_dir():
+            _move_in(tmp, path)
         else:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp.rename(path)
+            os.rename(tmp, path)
+            tmp = None
     except BaseException as err:  # a Ctrl-C or stop signal included: no hidden folder is left
-        shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(err, OSError) and not isinstance(err, WriteError):
             raise write_error(path, err) from None
         raise
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
     return path
 
 
@@ -143,11 +230,14 @@ def remove_stale_partials(path: Path) -> None:
     the data set ``path`` left when it was killed (its process is gone)."""
     if not path.parent.is_dir():
         return
-    pattern = re.compile(rf"^\.{re.escape(path.name)}\.(partial|old)-(\d+)$")
+    pattern = re.compile(rf"^\.{re.escape(path.name)}\.(partial|old)-(\d+)(-.*)?$")
     for entry in path.parent.iterdir():
         m = pattern.match(entry.name)
         if m and not process_alive(int(m.group(2))):
-            shutil.rmtree(entry, ignore_errors=True)
+            if entry.is_symlink() or not entry.is_dir():
+                entry.unlink(missing_ok=True)
+            else:
+                shutil.rmtree(entry, ignore_errors=True)
 
 
 def _read_png(path: Path, shape: tuple[int, int], dtype) -> np.ndarray:

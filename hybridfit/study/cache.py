@@ -3,9 +3,10 @@
 An entry is ``ROOT/KIND/KEY[SUFFIX]``, KEY a hash of everything that determines it, the
 versions of hybridfit and of every plugin distribution and a hash of their Python sources
 included (``code_versions``), so an upgrade, or an edit of an installed checkout,
-recomputes instead of reusing what other code made. It is built under a temporary
-name holding the builder's PID (``.tmp-PID-...``) in the same folder and renamed into place,
-so a killed run leaves no half-written entry, and the temporary files and folders of runs
+recomputes instead of reusing what other code made. It is built in a private temporary
+folder made exclusively (``tempfile.mkdtemp``: a random name holding the builder's PID,
+``.tmp-PID-...``, mode 0700) beside it and renamed into place, so no link planted in the
+cache is followed and a killed run leaves no half-written entry, and the temporary files and folders of runs
 that are gone are removed when a cache is opened; two runs building the same entry at once
 both succeed (the second rename finds it in place and discards its own copy).
 """
@@ -19,12 +20,12 @@ import json
 import os
 import re
 import shutil
-import uuid
+import tempfile
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Callable
 
-from ..io import process_alive  # noqa: F401  (the study lock uses it too)
+from ..io import atomic_open, process_alive  # noqa: F401  (the study lock uses process_alive too)
 from .expand import digest
 
 
@@ -47,7 +48,8 @@ class Cache:
         if path.exists():
             return key, path
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}-{path.name}")
+        scratch = Path(tempfile.mkdtemp(prefix=f".tmp-{os.getpid()}-", dir=path.parent))
+        tmp = scratch / path.name
         try:
             make(tmp)
             _write_json(path.parent / f"{key}.payload.json", payload)
@@ -58,8 +60,7 @@ class Cache:
                 if not path.exists():
                     raise
         finally:
-            if tmp.exists():
-                _remove(tmp)
+            _remove(scratch)
         self.made.append((kind, key))
         return key, path
 
@@ -73,9 +74,10 @@ def code_versions() -> dict[str, str]:
 
     packages: dict[str, set[str]] = {"hybridfit": {"hybridfit"}}
     for kind in ("model", "objective", "optimizer"):
-        for info in registry.available(kind):
-            if info.distribution != "?":
-                packages.setdefault(info.distribution, set()).add(info.value.split(":")[0].split(".")[0])
+        for ep in registry.entry_points(kind).values():  # read from the metadata: no plugin is imported
+            dist = registry.distribution(ep)
+            if dist != "?":
+                packages.setdefault(dist, set()).add(ep.value.split(":")[0].split(".")[0].strip())
     out = {}
     for name in sorted(packages):
         try:
@@ -103,26 +105,26 @@ def source_hash(packages: list[str]) -> str:
     return h.hexdigest()[:12]
 
 
-_TEMPORARY = re.compile(r"^\.?\.tmp-(\d+)-|\.partial-(\d+)$")
+_TEMPORARY = re.compile(r"^\.?\.tmp-(\d+)-|\.(?:partial|old)-(\d+)(?:-|$)|^\.hybridfit-(\d+)-")
 
 
 def remove_stale(root: Path) -> int:
-    """Remove temporary entries (``.tmp-PID-*``, ``*.partial-PID``) under ``root/KIND/``
-    whose process is gone (a killed run); returns how many."""
+    """Remove temporary entries (``.tmp-PID-*``, ``*.partial-PID[-*]``, ``.hybridfit-PID-*``)
+    under ``root/KIND/`` whose process is gone (a killed run); returns how many."""
     removed = 0
     for entry in root.glob("*/.*") if root.is_dir() else []:
         m = _TEMPORARY.search(entry.name)
-        if m and not process_alive(int(m.group(1) or m.group(2))):
+        if m and not process_alive(int(next(g for g in m.groups() if g))):
             _remove(entry)
             removed += 1
     return removed
 
 
 def _write_json(path: Path, payload: Any) -> None:
-    tmp = path.with_name(f".tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}-{path.name}")
-    tmp.write_text(json.dumps(payload, indent=1, sort_keys=True, default=str))
-    os.replace(tmp, path)
+    with atomic_open(path, "w") as fh:
+        fh.write(json.dumps(payload, indent=1, sort_keys=True, default=str))
 
 
 def _remove(path: Path) -> None:
-    shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+    """Remove a file or a folder (a link itself, never what it points to)."""
+    shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink(missing_ok=True)

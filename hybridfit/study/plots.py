@@ -9,12 +9,14 @@ per_joint: mean error per joint. Error bars: standard deviation over seeds.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
+from ..io import atomic_open
 from ..metrics import SUCCESS_THRESHOLDS_MM as THRESHOLDS
 
 SWEEP_AXES = {"k": "proposals per joint k", "proposal_set": "|P~|: votes per joint into mean-shift",
@@ -38,10 +40,51 @@ def _varying(rows: list[dict], skip: str | None = None) -> list[str]:
     return [k for k in keys if k != skip and len({str(f.get(k)) for f in flats}) > 1]
 
 
+#: a setting in a variant's name as the study expands a grid: ``optimizer_config.schedule=joint``
+_SETTING = re.compile(r"^([A-Za-z_]\w*(?:\.\w+)*)=(.*)$")
+
+
+def _setting_words(key: str) -> str:
+    """A setting's dotted key in words: ``optimizer_config.schedule`` -> 'optimizer schedule',
+    ``optimizer_config.optimizer`` -> 'optimizer', ``search_radius_mm`` -> 'search radius mm'."""
+    words: list[str] = []
+    for part in key.split("."):
+        part = part.removesuffix("_config").replace("_", " ")
+        if not words or part != words[-1]:
+            words.append(part)
+    return " ".join(words)
+
+
+def legend_label(variant: str) -> str:
+    """A variant's name for a legend: as the study file names it, with the settings a grid adds to
+    it (``optimizer_config.schedule=joint``) in words (``optimizer schedule: joint``)."""
+    parts = []
+    for part in variant.split(", "):
+        m = _SETTING.match(part)
+        parts.append(f"{_setting_words(m[1])}: {m[2]}" if m else part)
+    return ", ".join(parts)
+
+
+def _common_words(names: list[str]) -> str:
+    """The words every name starts with ("joint" of "joint 91x91 (8281)" and "joint (3400)"),
+    without a trailing bracket or punctuation; '' when they share none."""
+    split = [n.split() for n in names]
+    common = []
+    for words in zip(*split):
+        if len(set(words)) > 1:
+            break
+        common.append(words[0])
+    while common and not common[-1].strip("([{,;:-+/"):
+        common.pop()
+    return " ".join(common).rstrip(",;:")
+
+
 def _series(rows: list[dict], x: str) -> dict[str, list[dict]]:
-    """Fitted variants grouped by their settings other than ``x``, labelled with the variant
-    name the study file gives (without the ``x=value`` part the sweep adds) when the group's
-    variants share one, else with the settings that define the group."""
+    """Fitted variants grouped by their settings other than ``x``, labelled (in words, see
+    :func:`legend_label`) with the variant name the study file gives (without the ``x=value`` part the
+    sweep adds) when the group's variants share one, else with the words their names begin
+    with ("joint" for "joint 91x91 (8281)" and "joint (3400)"), else with the settings that
+    define the group."""
     vary = _varying(rows, x)
     members: dict[str, list[dict]] = {}
     for r in rows:
@@ -49,10 +92,11 @@ def _series(rows: list[dict], x: str) -> dict[str, list[dict]]:
         members.setdefault(json.dumps([str(f.get(k)) for k in vary]), []).append(r)
     groups: dict[str, list[dict]] = {}
     for key, rs in members.items():
-        names = {", ".join(p for p in r["variant"].split(", ") if not p.startswith(f"{x}=")) for r in rs}
+        names = list(dict.fromkeys(", ".join(p for p in r["variant"].split(", ") if not p.startswith(f"{x}="))
+                                   for r in rs))
         defining = ", ".join(f"{k}={v}" for k, v in zip(vary, json.loads(key)) if v != "None")
-        label = names.pop() if len(names) == 1 else defining
-        groups[label or "Optimised"] = rs
+        name = names[0] if len(names) == 1 else _common_words(names) or defining
+        groups[legend_label(name) or "Optimised"] = rs
     return groups
 
 
@@ -64,8 +108,10 @@ def _subplots(*grid, figsize, **kwargs):
 
 
 def _save(fig, out: Path, name: str) -> str:
+    """Write the figure as ``out/name`` (PNG) atomically (:func:`hybridfit.io.atomic_open`)."""
     fig.tight_layout()
-    fig.savefig(out / name, dpi=110)
+    with atomic_open(out / name, "wb") as fh:
+        fig.savefig(fh, format="png", dpi=110)
     return name
 
 
@@ -74,7 +120,7 @@ def plot_success(out: Path, rows: list[dict]) -> str:
     colors = matplotlib.colormaps["tab20" if len(rows) > 10 else "tab10"].colors
     for i, r in enumerate(rows):
         style = {"oracle": "--", "top1": ":"}.get(r["method"], "-")
-        ax.plot(THRESHOLDS, r["curve"], style, color=colors[i % len(colors)], lw=1.8, label=r["variant"])
+        ax.plot(THRESHOLDS, r["curve"], style, color=colors[i % len(colors)], lw=1.8, label=legend_label(r["variant"]))
     ax.set(xlabel="distance threshold (mm)", ylabel="share of frames with all joints within threshold",
            title="Success rate (worst joint within threshold; dashed: Oracle, dotted: top-1)", xlim=(0, 80),
            ylim=(0, 1.01))
@@ -85,6 +131,11 @@ def plot_success(out: Path, rows: list[dict]) -> str:
 
 def plot_sweep(out: Path, rows: list[dict], x: str, metric: str = "mean_error_mm") -> str:
     """Error (and for budgets time) against a swept setting; baselines as their own lines."""
+    return _save(sweep_figure(rows, x, metric), out, f"error_vs_{x}.png")
+
+
+def sweep_figure(rows: list[dict], x: str, metric: str = "mean_error_mm") -> Figure:
+    """The figure of :func:`plot_sweep`."""
     fits = [r for r in rows if r["method"] == "fit"]
     panels = 2 if x == "budget" else 1
     fig, axes = _subplots(1, panels, figsize=(6.5 * panels, 4.8), squeeze=False)
@@ -110,21 +161,50 @@ def plot_sweep(out: Path, rows: list[dict], x: str, metric: str = "mean_error_mm
         if x in ("budget", "proposal_set"):
             a.set_xscale("log")
             a.minorticks_off()
-        crowded = len(ticks) > 4 or (len(ticks) > 1 and x != "k" and max(ticks) / min(ticks) < 4 * len(ticks))
-        a.set_xticks(ticks, [str(t) for t in ticks], rotation=45 if crowded else 0, ha="right" if crowded else "center",
-                     fontsize=8)
+        a.set_xticks(ticks, [str(t) for t in ticks], fontsize=8)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     if panels == 2:
         ax2 = axes[0, 1]
         for label, rs in _series(fits, x).items():
             rs = sorted(rs, key=lambda r: r["settings"][x])
-            ax2.errorbar([r["settings"][x] for r in rs], [1000 * r["time_per_frame_s_mean"] for r in rs],
-                         yerr=[1000 * r["time_per_frame_s_std"] for r in rs], fmt="o-", capsize=4, label=label)
+            ms = np.array([1000 * r["time_per_frame_s_mean"] for r in rs])
+            std = np.array([1000 * r["time_per_frame_s_std"] for r in rs])
+            ax2.errorbar([r["settings"][x] for r in rs], ms, yerr=[np.minimum(std, ms), std], fmt="o-", capsize=4,
+                         label=label)  # a time is never below 0 ms
         ax2.set(xlabel=SWEEP_AXES[x], ylabel="time per frame (ms, one core)", title="Fitting time vs budget")
         ax2.grid(alpha=0.3)
         ax2.legend(fontsize=8)
-    return _save(fig, out, f"error_vs_{x}.png")
+    fig.tight_layout()
+    for a in axes[0]:
+        _share_close_ticks(fig, a, ticks)
+    return fig
+
+
+#: the least space between two x tick labels, pixels
+TICK_GAP_PX = 4
+
+
+def _share_close_ticks(fig, ax, ticks: list) -> None:
+    """Label every x tick so that no two labels overlap: ticks too close for their labels to
+    stand side by side (budgets 8281 and 8301 on a log axis) share one label, "8281/8301",
+    at the first of them; the other keeps its tick mark."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    groups = [[t] for t in ticks]
+    while True:
+        text = {g[0]: "/".join(str(t) for t in g) for g in groups}
+        ax.set_xticks(ticks, [text.get(t, "") for t in ticks], fontsize=8)
+        canvas.draw()
+        renderer = canvas.get_renderer()
+        shown = {t.get_text(): t.get_window_extent(renderer) for t in ax.get_xticklabels() if t.get_text()}
+        boxes = [shown[text[g[0]]] for g in groups]
+        close = [i for i in range(len(groups) - 1) if boxes[i].x1 + TICK_GAP_PX > boxes[i + 1].x0]
+        if not close:
+            return
+        i = close[0]
+        groups[i:i + 2] = [groups[i] + groups[i + 1]]
 
 
 def plot_variants(out: Path, rows: list[dict]) -> str:
@@ -136,7 +216,7 @@ def plot_variants(out: Path, rows: list[dict]) -> str:
     ax.barh(y, means, xerr=[r["mean_error_mm_std"] for r in rows], color=colors, capsize=3)
     labels = [ax.text(m + max(means) * 0.02 + r["mean_error_mm_std"], yi, f"{m:.1f} mm, success@40 "
                       f"{r['success_40mm_mean']:.2f}", va="center", fontsize=7) for yi, r, m in zip(y, rows, means)]
-    ax.set_yticks(y, [r["variant"] for r in rows], fontsize=7)
+    ax.set_yticks(y, [legend_label(r["variant"]) for r in rows], fontsize=7)
     ax.set(xlabel="mean joint error (mm)", title="Mean joint error per variant (bars: std over seeds)",
            xlim=(0, max(means) * 1.45))
     ax.grid(axis="x", alpha=0.3)
@@ -167,7 +247,8 @@ def plot_per_joint(out: Path, rows: list[dict], limit: int) -> str:
     fig, ax = _subplots(figsize=(max(8, 0.45 * len(names) + 2), 4.8))
     width = 0.8 / len(shown)
     for i, r in enumerate(shown):
-        ax.bar(np.arange(len(names)) + (i - (len(shown) - 1) / 2) * width, r["per_joint"], width, label=r["variant"])
+        ax.bar(np.arange(len(names)) + (i - (len(shown) - 1) / 2) * width, r["per_joint"], width,
+               label=legend_label(r["variant"]))
     ax.set_xticks(np.arange(len(names)), names, rotation=60, ha="right", fontsize=8)
     ax.set(ylabel="mean error (mm)", title="Mean error per joint")
     ax.grid(axis="y", alpha=0.3)

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from ..io import atomic_open
 from ..metrics import SUCCESS_THRESHOLDS_MM as THRESHOLDS
 from ..metrics import fingertips, success_rate
 from .spec import METRICS, Study
@@ -103,14 +104,12 @@ CSV_SETTINGS = ("k", "proposal_set", "budget", "model", "objective", "optimizer"
 def write_csv(path: Path, rows: list[dict]) -> None:
     header = ["variant", "method", *CSV_SETTINGS, "seeds", "frames"] + [f"{m}_{s}" for m in METRICS
                                                                          for s in ("mean", "std")]
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as fh:
+    with atomic_open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         for r in rows:
             w.writerow([r["variant"], r["method"], *(_setting(r, k) for k in CSV_SETTINGS), r["seeds"], r["frames"]]
                        + [f"{r[f'{m}_{s}']:.6g}" for m in METRICS for s in ("mean", "std")])
-    os.replace(tmp, path)
 
 
 def _cell(r: dict, m: str) -> str:
@@ -125,7 +124,11 @@ def _cell(r: dict, m: str) -> str:
 
 
 def write_report(out: str | os.PathLike, study: Study | None = None) -> Path:
-    """Write results.csv, the plots and report.md into ``out`` from its study.db; returns report.md."""
+    """Write results.csv, the plots and report.md into ``out`` from its study.db; returns report.md.
+
+    Each file is written atomically through :func:`hybridfit.io.atomic_open` (a temporary file
+    made exclusively under a random name, then renamed into place): no link planted in the
+    folder, at a temporary or a final name, is ever written through."""
 
     out = Path(out)
     store = Store(out / DB_NAME)
@@ -162,7 +165,6 @@ def write_report(out: str | os.PathLike, study: Study | None = None) -> Path:
     for title, name in figures:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     path = out / "report.md"
-    tmp = path.with_name("report.md.tmp")
-    tmp.write_text("\n".join(lines))
-    os.replace(tmp, path)
+    with atomic_open(path, "w") as fh:
+        fh.write("\n".join(lines))
     return path

@@ -4,6 +4,11 @@ each result as it arrives, then write the report.
 The output folder holds ``study.db`` (``store``), ``cache/`` (``cache``, unless elsewhere),
 the report files and, while a run is on, ``study.lock`` with the run's PID: a second run
 on the same folder is refused unless the lock's process is gone (a stale lock is replaced).
+
+The output folder is a study's or a new one (:func:`check_folder`): a missing or empty folder
+starts a study, a folder with a ``study.db`` written by hybridfit resumes it, and any other
+folder (the user's own ``results.csv``, ``report.md`` or figures, say) is refused before
+anything is written to it, since the report would replace those files.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ from .data import StudyData, baseline_errors
 from .executors import make_executor
 from .expand import Trial, digest, expand, trials
 from .spec import Study
-from .store import DB_NAME, Store, storage_error
+from .store import COMPANIONS, DB_NAME, Store, check_database, storage_error
 
 LOCK_NAME = "study.lock"
 
@@ -66,6 +71,8 @@ def study_lock(out: Path):
 
 
 def _lock_alive(path: Path) -> bool:
+    if path.is_symlink():  # never ours (planted): removed itself, never read or written through
+        return False
     try:
         pid_text, host = path.read_text().split()[:2]
         pid = int(pid_text)
@@ -76,7 +83,32 @@ def _lock_alive(path: Path) -> bool:
     return process_alive(pid)
 
 
+def check_folder(out: str | os.PathLike) -> None:
+    """Refuse, before anything is written, an output folder that is not a study's: the
+    folder must be missing, empty, or hold a study database written by hybridfit (a
+    ``study.db`` with its schema version; an older or foreign one is refused too). A folder
+    holding nothing but hybridfit's own ``study.db`` files and a stale ``study.lock`` (a run
+    killed at its start) is a study's."""
+    out = Path(out)
+    if not out.exists() and not out.is_symlink():
+        return
+    if not out.is_dir():
+        raise HybridfitError(f"{out}: is a file; a study writes a folder")
+    db = out / DB_NAME
+    if (db.exists() or db.is_symlink()) and check_database(db) is not None:
+        return  # a study's folder: resume it
+    ours = {DB_NAME, *(DB_NAME + c for c in COMPANIONS), LOCK_NAME}
+    others = sorted(p.name for p in out.iterdir() if p.name not in ours)
+    if others:
+        shown = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
+        raise HybridfitError(f"{out}: not a study's folder (it holds {shown}, and no {DB_NAME} written by "
+                             "hybridfit); a study would overwrite files there: give a new or empty --out folder")
+
+
 _WARM: set[str] = set()
+#: frames of the untimed warm-up fit: a 1-frame fit leaves kernels whose arrays have another
+#: layout for more frames (pso_tell) to compile in the timed fit
+WARM_UP_FRAMES = 2
 
 
 def run_trial(settings: dict, model_config: dict, seed: int, data: dict) -> dict:
@@ -84,7 +116,8 @@ def run_trial(settings: dict, model_config: dict, seed: int, data: dict) -> dict
 
     Returns per-frame errors (F, J) mm against the ground truth (NaN for failed frames),
     objective, evaluations, failed, messages and the trial's wall time per frame (after
-    one untimed warm-up frame per worker and settings, so JIT compilation is not timed)."""
+    an untimed warm-up fit of WARM_UP_FRAMES frames per worker and settings, so JIT compilation
+    is not timed: one frame would not do, numba compiles some kernels again for more frames)."""
     tracking = settings.get("tracking")
     frames = np.arange(len(data["proposals"]))[::tracking["frame_step"] if tracking else 1]
     data = {key: ([value[f] for f in frames] if key == "observations" else value[frames])
@@ -97,6 +130,7 @@ def run_trial(settings: dict, model_config: dict, seed: int, data: dict) -> dict
                       objective_config=settings["objective_config"], optimizer=settings["optimizer"],
                       optimizer_config=settings["optimizer_config"], budget=settings["budget"], seed=seed,
                       joint_names=[str(n) for n in data["joint_names"]], search_radius_mm=settings["search_radius_mm"],
+                      polish=settings.get("polish", True),
                       observations=[data["observations"][f] for f in frames] if "observations" in data else None)
         if tracking:  # one sequence: frame t starts from frame t-1's fit
             first = data["params"][frames[0]] if tracking["first_frame"] == "ground-truth" else None
@@ -106,7 +140,7 @@ def run_trial(settings: dict, model_config: dict, seed: int, data: dict) -> dict
 
     warm = digest([settings, model_config])
     if warm not in _WARM and len(keep):
-        run(keep[:1])
+        run(keep[:WARM_UP_FRAMES])
         _WARM.add(warm)
     # a fit gets every frame, so frame f's random stream is [seed, f] whichever frames are empty
     # (empty frames have all-0 confidences and fail at once); a track skips them
@@ -190,6 +224,7 @@ def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: 
 def _run_study(study: Study, out: Path, *, jobs, executor, scheduler, cache_dir, progress, report, dask_processes,
                log, keep_going) -> RunSummary:
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
+    check_folder(out)
     with study_lock(out):
         store = Store(out / DB_NAME)
         try:

@@ -6,6 +6,12 @@ failed trial. ``frames``: one row per trial and frame (errors per joint as a JSO
 mean and worst joint error, objective, evaluations, time, the frame's own error).
 Only the study's main process writes; each finished trial is one transaction, so a run
 killed at any moment keeps every finished trial and never a half-written one.
+
+An existing database is inspected read-only before anything is written to it
+(:func:`check_database`): one that is not a study database, one from before schema
+versioning (no ``schema_version``, or tables lacking the current columns), or of another
+version is refused with one line naming it, and left as it was. The database is never
+opened through a symbolic link.
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from __future__ import annotations
 import json
 import sqlite3
 import time
+import urllib.parse
 from pathlib import Path
 from typing import Any
 
@@ -72,24 +79,96 @@ def storage_error(path: Path, err: sqlite3.Error) -> WriteError | None:
     return WriteError(28 if "full" in msg else 30, f"{path}: cannot write the study database: {msg}")
 
 
+def _columns(schema: str) -> dict[str, set[str]]:
+    """{table: its columns} of a CREATE TABLE script such as ``_SCHEMA``."""
+    db = sqlite3.connect(":memory:")
+    try:
+        db.executescript(schema)
+        return {t: {row[1] for row in db.execute(f"PRAGMA table_info({t})")}
+                for (t,) in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    finally:
+        db.close()
+
+
+#: the tables of the current schema and their columns
+COLUMNS = _columns(_SCHEMA)
+#: the files SQLite keeps beside a database
+COMPANIONS = ("-wal", "-shm", "-journal")
+
+
+def _refuse_links(path: Path) -> None:
+    for p in (path, *(path.with_name(path.name + c) for c in COMPANIONS)):
+        if p.is_symlink():
+            raise HybridfitError(f"{p}: is a symbolic link; hybridfit never opens a study database through a link "
+                                 "(it would write where the link points): remove it or use another --out folder")
+
+
+def check_database(path: str | Path) -> int | None:
+    """The schema version of the existing study database at ``path``, read without writing
+    anything to it; None when it holds no tables yet (a new, empty file). A file that is not
+    a study database, one from before schema versioning (no ``schema_version``, or tables
+    without the current columns: older hybridfit stamped version 1 on such files) or of
+    another version is a HybridfitError naming it (one line)."""
+    path = Path(path)
+    _refuse_links(path)
+    uri = f"file:{urllib.parse.quote(str(path.absolute()))}?mode=ro"
+    try:
+        db = sqlite3.connect(uri, uri=True, timeout=5)
+    except sqlite3.Error as err:
+        raise HybridfitError(f"{path}: cannot open the study database ({err})") from None
+    try:
+        tables = {t: {row[1] for row in db.execute(f"PRAGMA table_info({t})")}
+                  for (t,) in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'").fetchall()}
+        raw = None
+        if "meta" in tables and "key" in tables["meta"] and "value" in tables["meta"]:
+            row = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
+            raw = None if row is None else row[0]
+    except sqlite3.DatabaseError as err:
+        raise HybridfitError(f"{path}: not a readable study database ({err})") from None
+    finally:
+        db.close()
+    if not tables:
+        return None
+    if raw is None:
+        if "trials" not in tables:
+            raise HybridfitError(f"{path}: not a hybridfit study database (tables: {', '.join(sorted(tables))}); "
+                                 "use another --out folder")
+        raise HybridfitError(f"{path}: a study database from before schema versioning (no schema_version), which "
+                             f"this hybridfit cannot read; it was left as it was: use another --out folder")
+    try:
+        version = int(json.loads(raw))
+    except (ValueError, TypeError, OverflowError):
+        raise HybridfitError(f"{path}: not a hybridfit study database (schema_version {raw!r}); "
+                             "use another --out folder") from None
+    if version != SCHEMA_VERSION:
+        raise HybridfitError(f"{path}: study database schema version {version}, this hybridfit "
+                             f"reads version {SCHEMA_VERSION}; use another --out folder")
+    missing = [f"{t}.{c}" for t, cols in COLUMNS.items() for c in sorted(cols - tables.get(t, set()))]
+    if missing:
+        raise HybridfitError(f"{path}: a study database from before schema versioning (no column "
+                             f"{', '.join(missing[:3])}{', ...' if len(missing) > 3 else ''}; an older hybridfit "
+                             f"stamped version {version} on it), which this hybridfit cannot read; it was left as it "
+                             "was: use another --out folder")
+    return version
+
+
 class Store:
-    """The SQLite study database at ``path`` (created with the current schema if new)."""
+    """The SQLite study database at ``path`` (created with the current schema if new; an
+    existing one is checked by :func:`check_database` before anything is written to it)."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        found = check_database(self.path) if self.path.exists() or self.path.is_symlink() else None
+        _refuse_links(self.path)
         self.db = sqlite3.connect(self.path, timeout=30, isolation_level=None)
         self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=NORMAL")
         self.db.execute("PRAGMA foreign_keys=ON")
-        for stmt in filter(str.strip, _SCHEMA.split(";")):
-            self.db.execute(stmt)
-        found = self.get_meta("schema_version")
-        if found is None:
+        if found is None:  # a new database
+            for stmt in filter(str.strip, _SCHEMA.split(";")):
+                self.db.execute(stmt)
             self.set_meta("schema_version", SCHEMA_VERSION)
-        elif int(found) != SCHEMA_VERSION:
-            raise HybridfitError(f"{self.path}: study database schema version {found}, this hybridfit "
-                                 f"reads version {SCHEMA_VERSION}; use another --out folder")
 
     def close(self) -> None:
         self.db.close()

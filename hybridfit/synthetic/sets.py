@@ -12,7 +12,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..datasets.camera import Intrinsics, xyz_to_uvd
-from ..datasets.folder import write_dataset
+from ..datasets.folder import check_writable, write_dataset
 from ..errors import HybridfitError
 from ..io import check_memory
 from ..model.render import Renderer
@@ -84,17 +84,21 @@ def _make(out, config: _Common, params: np.ndarray, generator: str, progress: bo
 
 def make_train(out, config: GridConfig | Mapping | None = None, *, progress: bool = False,
                frames: Sequence[int] | None = None) -> Path:
-    """Render and write the training grid data set to the folder ``out``; with ``frames``
+    """Render and write the training grid data set to the folder ``out`` (an existing data set
+    there is replaced, its own files only; another non-empty folder is refused); with ``frames``
     (indices into the grid) only those frames, in that order (without sensor noise they are
     the same images as in the whole grid)."""
     config = parse_config(GridConfig, config)
+    check_writable(out)  # before any work: a folder that is not a data set is refused
     params = grid_poses(config)
     return _make(out, config, params if frames is None else params[np.asarray(frames, np.int64)],
                  "hybridfit.synthetic.sets.make_train", progress)
 
 
 def make_test(out, config: SequenceConfig | Mapping | None = None, *, progress: bool = False) -> Path:
-    """Render and write the TrackSeq-like test sequence data set to the folder ``out``."""
+    """Render and write the TrackSeq-like test sequence data set to the folder ``out`` (an
+    existing data set there is replaced, its own files only; another non-empty folder is refused)."""
     config = parse_config(SequenceConfig, config)
+    check_writable(out)  # before any work: a folder that is not a data set is refused
     _check_size(config, config.frames)
     return _make(out, config, sequence_poses(config), "hybridfit.synthetic.sets.make_test", progress)

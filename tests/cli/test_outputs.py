@@ -156,7 +156,7 @@ def _full_disk(kind, tmp_path, frames_file, monkeypatch):
            "export-results": tmp_path / "fitted.txt"}.get(kind, tmp_path / "out.npz")
     if kind == "synth test":
         (out / "depth").mkdir(parents=True)
-        (out / "meta.json").write_text("{}")  # an earlier data set
+        (out / "meta.json").write_text('{"format": "hybridfit-dataset", "version": 1}')  # an earlier data set
     else:
         out.write_bytes(b"an earlier output")
     argv = {"fit": ["fit", str(frames_file), "--out", str(out), "--budget", "100"],
@@ -175,7 +175,7 @@ def test_a_full_disk_is_one_line_naming_the_path(tmp_path, frames_file, capsys, 
     assert f"{out}: cannot write: No space left on device (nothing was replaced)" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # no temporary file or folder left
     if kind == "synth test":
-        assert (out / "meta.json").read_text() == "{}"
+        assert (out / "meta.json").read_text() == '{"format": "hybridfit-dataset", "version": 1}'
     else:
         assert out.read_bytes() == b"an earlier output"
 

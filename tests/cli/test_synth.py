@@ -50,3 +50,37 @@ def test_bad_input_exits_with_code_2(tmp_path, capsys, args, match):
     err = capsys.readouterr().err
     assert match in err and err.count("\n") == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_synth_test_over_a_data_set_replaces_only_its_own_files(tmp_path):
+    out = tmp_path / "seq"
+    assert main(["synth", "test", "--out", str(out), "--frames", "3", "--seed", "1"]) == 0
+    users = {"notes.txt": "my notes", "fits/fit.npz": "my fits", "depth/README": "mine too"}
+    for name, text in users.items():
+        (out / name).parent.mkdir(exist_ok=True)
+        (out / name).write_text(text)
+    assert main(["synth", "test", "--out", str(out), "--frames", "2", "--seed", "2"]) == 0
+    for name, text in users.items():
+        assert (out / name).read_text() == text, name
+    ds = load_dataset(out)
+    assert ds.frames == 2 and ds.meta["seed"] == 2 and len(ds.depths()) == 2
+    assert sorted(p.name for p in (out / "depth").iterdir()) == ["000000.png", "000001.png", "README"]
+    assert sorted(p.name for p in (out / "parts").iterdir()) == ["000000.png", "000001.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]  # no temporary folder left
+
+
+@pytest.mark.parametrize("meta", [None, '{"project": "my hand captures"}'])
+def test_synth_test_refuses_a_folder_that_is_not_a_data_set_before_any_work(tmp_path, capsys, monkeypatch, meta):
+    import hybridfit.synthetic.sets as sets
+
+    mine = tmp_path / "captures"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("my notes")
+    if meta is not None:
+        (mine / "meta.json").write_text(meta)
+    monkeypatch.setattr(sets, "render_poses", lambda *a, **k: pytest.fail("rendered before refusing"))
+    assert main(["synth", "test", "--out", str(mine), "--frames", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(mine) in err and "not a hybridfit data set" in err
+    assert sorted(p.name for p in mine.iterdir()) == sorted(["notes.txt"] + (["meta.json"] if meta else []))
+    assert (mine / "notes.txt").read_text() == "my notes"

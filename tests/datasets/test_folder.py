@@ -169,3 +169,28 @@ def test_a_png_of_the_wrong_size_is_named(dataset):
     Image.fromarray(np.zeros((10, 10), np.uint8)).save(dataset / "parts" / "000001.png")
     with pytest.raises(HybridfitError, match=r"parts/000001.png: expected a 320x240 uint8 image"):
         load_dataset(dataset).parts(1)
+
+
+def test_a_replacement_keeps_other_files_and_an_interrupted_one_can_be_redone(tmp_path, rendered, monkeypatch):
+    import hybridfit.datasets.folder as folder
+
+    path = write(tmp_path / "ds", rendered)
+    (path / "fits.npz").write_text("the user's")
+    depth, parts, joints, params, names = rendered
+    real = os.replace
+
+    def fail_on_labels(src, dst):
+        if str(dst).endswith("labels.npz"):
+            raise OSError(28, "No space left on device")
+        return real(src, dst)
+
+    monkeypatch.setattr(folder.os, "replace", fail_on_labels)
+    with pytest.raises(HybridfitError, match="cannot write"):
+        write_dataset(path, depth[:2], parts[:2], joints[:2], params[:2], Intrinsics(), names, {})
+    monkeypatch.undo()
+    with pytest.raises(HybridfitError, match="meta.json: missing"):  # never taken for complete
+        load_dataset(path)
+    write_dataset(path, depth[:2], parts[:2], joints[:2], params[:2], Intrinsics(), names, {})  # still ours
+    assert load_dataset(path).frames == 2 and (path / "fits.npz").read_text() == "the user's"
+    assert sorted(os.listdir(path)) == ["depth", "depth.npy", "fits.npz", "labels.npz", "meta.json", "parts", "parts.npy"]
+    assert sorted(os.listdir(tmp_path)) == ["ds"]
