@@ -1,4 +1,5 @@
-"""``hybridfit calibrate``: fit the hand model's geometry to a dataset's annotated frames."""
+"""``hybridfit calibrate``: fit the hand model's geometry to a dataset's annotated frames, or
+(``--proposals``) to a sequence's own proposals when it has no annotations (self-calibration)."""
 
 from __future__ import annotations
 
@@ -8,43 +9,59 @@ import sys
 
 import numpy as np
 
-from ..fitting.calibrate import calibrate, to_toml
-from ..datasets.skeletons import dataset_model_config, skeleton
+from ..fitting.calibrate import calibrate, self_calibrate, to_toml
+from ..datasets.skeletons import dataset_model_config, fit_settings, skeleton
 from ..errors import HybridfitError
-from ..io import atomic_path, frame_slice
-from ._common import (MODEL_KEY, check_plugin, declare_paths, fraction, load_model_toml, non_negative_int, positive_int,
-                      read_results, seed_int)
+from ..io import atomic_path, frame_slice, load_proposals
+from ._common import (FRAMES_HELP, MODEL_KEY, check_plugin, declare_paths, fraction, frames_range, load_model_toml,
+                      non_negative_int, positive_int, read_results, seed_int, budget_int)
 
 #: the model ``hybridfit calibrate`` calibrates unless told otherwise: on the tuning data (ICVL frames
 #: 0-99, every 20th NYU actor-2 frame) it refines strong predictors at a lower cost than hand26
 CALIBRATED_MODEL = "hand27"
+#: share of the frames held out by default (with --ground-truth)
+HOLDOUT = 0.2
 
 
 def register(sub) -> None:
-    p = sub.add_parser("calibrate", help="estimate the hand model's bone lengths and geometry from annotated frames")
-    p.add_argument("--dataset", required=True, help="skeleton of the ground truth: icvl, nyu, nyu36, "
-                   "msra, mediapipe, mano or a skeleton .toml file")
-    p.add_argument("--ground-truth", required=True, metavar="LABELS", help="ground truth in the common results format")
-    p.add_argument("--frames", metavar="START:STOP", help="frames to use (default: all): up to 80 of them spanning "
-                   "the pose range calibrate, --holdout of them, spread over them, are held out")
-    p.add_argument("--holdout", type=fraction, default=0.2, metavar="FRACTION",
+    p = sub.add_parser("calibrate", help="estimate the hand model's bone lengths and geometry from annotated frames, "
+                       "or from a sequence's own proposals (--proposals)")
+    p.add_argument("--dataset", help="skeleton of the ground truth (or of the proposals, when their npz names none): "
+                   "icvl, nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--ground-truth", metavar="LABELS", help="ground truth in the common results format")
+    src.add_argument("--proposals", metavar="FILE.npz", help="self-calibration: a proposals file of one subject "
+                     "without ground truth (as `hybridfit fit` reads it); the skeleton comes from its most confident "
+                     "proposals over up to 100 frames spanning its pose range")
+    p.add_argument("--frames", type=frames_range, metavar="START:STOP", help=f"frames to use: {FRAMES_HELP} "
+                   "(default: all): up to 80 of them spanning "
+                   "the pose range calibrate, --holdout of them, spread over them, are held out (--proposals: up to "
+                   "100 of them with confident proposals, none held out)")
+    p.add_argument("--holdout", type=fraction, metavar="FRACTION",
                    help="share of the frames, spread over them, held out to measure the fit error of the calibrated "
-                        "model on frames it was not calibrated on (default 0.2; 0: none)")
+                        "model on frames it was not calibrated on (default 0.2; 0: none; --ground-truth only)")
     p.add_argument("--out", required=True, metavar="MODEL.toml", help="model config to write")
     p.add_argument("--model", help="hand model plugin (default: the one --model-config names, else hand27, which "
                    "follows real annotations closer than hand26: docs/results.md, Real hands); the model config "
                    "written names it, so `hybridfit fit --model-config` fits with it")
     p.add_argument("--model-config", metavar="TOML", help="the model's other settings (geometry starts at its prior)")
     p.add_argument("--hand", choices=("auto", "right", "left"), default="auto", help="handedness (default: the better fit)")
-    p.add_argument("--rounds", type=non_negative_int, default=2, help="pose-fit / geometry alternations (default 2)")
-    p.add_argument("--budget", type=positive_int, default=3400, help="evaluations per frame of each pose fit")
-    p.add_argument("--seed", type=seed_int, default=0)
-    p.add_argument("--jobs", type=positive_int, default=1)
-    declare_paths(p, inputs=("--ground-truth", "--model-config"), outputs=("--out",))
+    p.add_argument("--rounds", type=non_negative_int, help="pose-fit / geometry alternations (default 2; "
+                   "--proposals: 3)")
+    p.add_argument("--budget", type=budget_int, default=3400, help="evaluations per frame of each pose fit")
+    p.add_argument("--seed", type=seed_int, default=0, help="random seed of the pose fits (and of the held-out "
+                   "check's simulated predictor), >= 0 (default 0)")
+    p.add_argument("--jobs", type=positive_int, default=1, help="parallel fitting processes for the pose fits "
+                   "(default 1; results do not depend on it)")
+    declare_paths(p, inputs=("--ground-truth", "--proposals", "--model-config"), outputs=("--out",))
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if args.proposals is not None:
+        return run_self(args)
+    if args.dataset is None:
+        raise HybridfitError("--ground-truth needs --dataset (the skeleton of the ground truth)")
     sk = skeleton(args.dataset)
     truth = read_results(args.ground_truth, args.dataset)
     frames = np.arange(len(truth))[frame_slice(args.frames, len(truth))]
@@ -54,9 +71,10 @@ def run(args) -> int:
     check_plugin("model", args.model, config, args.model_config)  # a typo names the file and the closest key
     start = dataset_model_config(args.model, config, args.dataset)
     mirror = {"auto": None, "right": False, "left": True}[args.hand]
+    rounds = {} if args.rounds is None else {"rounds": args.rounds}
     result = calibrate(truth, sk.model_names, model=args.model, model_config=start, mirror=mirror,
-                       holdout=args.holdout, rounds=args.rounds, budget=args.budget, seed=args.seed, jobs=args.jobs,
-                       progress=sys.stderr.isatty(), log=lambda m: print(f"  {m}"))
+                       holdout=HOLDOUT if args.holdout is None else args.holdout, budget=args.budget, seed=args.seed,
+                       jobs=args.jobs, progress=sys.stderr.isatty(), log=lambda m: print(f"  {m}"), **rounds)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     cal, held = frames[result.calibration_frames], frames[result.heldout_frames]
@@ -82,6 +100,57 @@ def run(args) -> int:
         print("per point held out (mm): " + ", ".join(
             f"{n} {e:.1f}" for n, e in zip(sk.names, np.asarray(result.per_point_heldout))))
     return 0
+
+
+def run_self(args) -> int:
+    """``--proposals``: self-calibration (no ground truth)."""
+    if args.holdout is not None:
+        raise HybridfitError("--holdout: with --proposals nothing is held out (there is no ground truth to measure "
+                             "it against)")
+    data = load_proposals(args.proposals)
+    dataset = args.dataset or (str(data["dataset"]) if "dataset" in data else None)
+    frames = np.arange(len(data["proposals"]))[frame_slice(args.frames, len(data["proposals"]))]
+    args.model, config = load_model_toml(args.model_config, args.model)
+    args.model = args.model or CALIBRATED_MODEL
+    check_plugin("model", args.model, config, args.model_config)
+    names, start = fit_settings(data.get("joint_names"), data["proposals"].shape[1], dataset, args.model, config,
+                                args.proposals)
+    names = names or list(_model_joints(args.model, start))
+    mirror = {"auto": None, "right": False, "left": True}[args.hand]
+    options = {"objective": str(data["objective"])} if "objective" in data else {}  # the objective `fit` uses
+    rounds = {} if args.rounds is None else {"rounds": args.rounds}
+    result = self_calibrate(data["proposals"][frames], data["confidences"][frames], names, model=args.model,
+                            model_config=start, mirror=mirror, budget=args.budget, seed=args.seed, jobs=args.jobs,
+                            fit_options=options, progress=sys.stderr.isatty(), log=lambda m: print(f"  {m}"), **rounds)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    cal = frames[result.frames]
+    where = (f"{len(cal)} frames spanning the poses of frames {frames[0]}-{frames[-1]} (of {result.eligible} with "
+             f"proposals for most points, those the hand follows best)")
+    residual = (f"fit {result.residual_before:.2f} mm from the top proposals before, {result.residual_after:.2f} mm "
+                f"after (median)")
+    header = (f"# {args.model} self-calibrated by `hybridfit calibrate --proposals` on {where} of {args.proposals} "
+              f"(no ground truth)\n# {residual}\n")
+    with atomic_path(out) as tmp:
+        tmp.write_text(header + to_toml({MODEL_KEY: args.model, **result.settings}))
+    print(f"self-calibrated on {len(cal)} frames{_hand(result.settings, args.model)}: {residual}; "
+          f"proposals' noise about {result.noise_mm:.1f} mm per coordinate -> {out}")
+    point_names = skeleton(dataset).names if dataset else names
+    print("per point after, median from the top proposals (mm): " + ", ".join(
+        f"{n} {e:.1f}" for n, e in zip(point_names, np.asarray(result.per_point_after))))
+    if "ground_truth" in data:  # a check only: self-calibration never reads it
+        truth = data["ground_truth"][cal]
+        before, after = (float(np.nanmean(np.linalg.norm(p - truth, axis=-1)))
+                         for p in (result.points_before, result.points_after))
+        print(f"against the file's ground_truth (not used to calibrate): mean fit error {before:.2f} mm before, "
+              f"{after:.2f} mm after on the calibration frames")
+    return 0
+
+
+def _model_joints(model: str, config: dict) -> tuple[str, ...]:
+    from .. import registry
+
+    return registry.create("model", model, config).joint_names
 
 
 def _hand(settings: dict, model: str) -> str:

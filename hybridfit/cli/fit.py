@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -15,9 +16,16 @@ from ..io import load_proposals, save_npz
 from ..datasets.folder import load_dataset
 from ..metrics import summary
 from ..objective import dataset_observations
+from ..fitting.calibrate import CONFIDENT_POINTS, self_calibrate, top_proposals
 from ..fitting.setup_check import check_setup
 from ..fitting.tracking import track
-from ._common import add_fit_options, add_plugin_options, declare_paths, plugin_kwargs
+from ._common import add_fit_options, add_plugin_options, check_plugin, declare_paths, plugin_kwargs
+from .calibrate import CALIBRATED_MODEL
+
+#: ``--calibrate auto`` self-calibrates only with at least this many frames with proposals for most points
+#: (``fitting.calibrate.CONFIDENT_POINTS`` of them; fewer: the model as configured, with a warning when it
+#: fits the proposals badly)
+AUTO_MIN_FRAMES = 30
 
 
 def register(sub) -> None:
@@ -45,6 +53,13 @@ def register(sub) -> None:
     p.add_argument("--no-polish", action="store_true", help="skip the polish of every fitted frame (a robust "
                    "least-squares on the model's rigid hand, hybridfit.fitting.polish): the optimiser's result at "
                    "exactly --budget evaluations, as studies comparing optimisers use it")
+    p.add_argument("--calibrate", choices=("auto", "self", "none"), default="auto",
+                   help="the subject's skeleton: auto (default): self-calibrated from the proposals themselves (as "
+                   "`hybridfit calibrate --proposals` does, no ground truth) when they come from a real data set "
+                   "(the npz names a dataset, or --dataset is given), no --model-config is given and at least "
+                   f"{AUTO_MIN_FRAMES} frames have proposals for {CONFIDENT_POINTS * 100:.0f}%% of their points; self: "
+                   "always; none: the model as configured. "
+                   f"Self-calibration fits {CALIBRATED_MODEL} unless --model names another")
     p.add_argument("--dataset", help="the proposals' skeleton when the npz has no joint_names (and its derived "
                    "points for its model): icvl, nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file "
                    "(default: the npz's dataset, which propose writes for real data)")
@@ -60,6 +75,10 @@ def run(args) -> int:
     plugins = plugin_kwargs(args)
     extra = {}
     dataset = args.dataset or (str(data["dataset"]) if "dataset" in data else None)  # propose writes it
+    args.self_calibrating = wants_calibration(args, data, dataset)
+    if args.self_calibrating and args.model is None and args.model_config is None:
+        plugins["model"] = CALIBRATED_MODEL  # what `hybridfit calibrate` calibrates
+        check_plugin("model", plugins["model"], plugins["model_config"], None)
     names, plugins["model_config"] = fit_settings(data.get("joint_names"), data["proposals"].shape[1], dataset,
                                                   plugins["model"], plugins["model_config"], args.proposals)
     if dataset:
@@ -69,6 +88,12 @@ def run(args) -> int:
     depth = depth_frames(args, len(data["proposals"]))
     if not args.depth:  # the hand and the geometry, on a few frames (hybridfit.fitting.setup_check)
         plugins["model_config"] = check_hand_and_geometry(args, data, names, plugins, dataset)
+    if args.self_calibrating:
+        try:
+            plugins["model_config"] = calibrate_skeleton(args, data, names, plugins, dataset)
+        except KeyboardInterrupt:  # a stop signal during the self-calibration: nothing fitted, nothing written
+            print("interrupted during the self-calibration: nothing fitted", file=sys.stderr)
+            return EXIT_INTERRUPTED
     common = dict(joint_names=names, budget=args.budget, seed=args.seed, search_radius_mm=args.search_radius,
                   progress=sys.stderr.isatty(), observations=depth.get("observations"), polish=not args.no_polish,
                   **plugins)
@@ -103,7 +128,10 @@ def run(args) -> int:
 def check_hand_and_geometry(args, data: dict, names, plugins: dict, dataset: str | None) -> dict:
     """The model settings to fit with: ``--hand`` applied, or (auto) the mirror image where the
     check finds the data is of the other hand; one warning line for each finding (the other
-    hand; with a dataset and no --model-config, a fit far from the proposals: calibrate)."""
+    hand; with a dataset and no --model-config, a fit far from the proposals: calibrate).
+    When the skeleton is then self-calibrated (``args.self_calibrating``), that calibration
+    chooses the hand (--hand auto) on many more frames and the geometry is its business: the
+    check only looks for points no hand explains (wrong names or units)."""
     key = registry.get("model", plugins["model"]).mirror_setting
     config = dict(plugins["model_config"])
     if args.hand != "auto":
@@ -111,9 +139,10 @@ def check_hand_and_geometry(args, data: dict, names, plugins: dict, dataset: str
             raise HybridfitError(f"--hand {args.hand}: model {plugins['model']} has no mirror setting (one hand only)")
         config[key] = args.hand == "left"
     options = {k: plugins[k] for k in ("objective", "objective_config", "optimizer", "optimizer_config")}
+    calibrating = getattr(args, "self_calibrating", False)
     try:
         found = check_setup(data["proposals"], data["confidences"], model=plugins["model"], model_config=config,
-                            joint_names=names, try_mirror=args.hand == "auto", seed=args.seed,
+                            joint_names=names, try_mirror=args.hand == "auto" and not calibrating, seed=args.seed,
                             search_radius_mm=args.search_radius, **options)
     except HybridfitError:  # the check is advice (an optimiser needing more than its budget, say): the fit
         return config       # itself reports any error of the input or options
@@ -128,13 +157,55 @@ def check_hand_and_geometry(args, data: dict, names, plugins: dict, dataset: str
         warnings.warn(f"{args.proposals}: the fit lies a median {found.best_mm:.1f} mm from the top proposals on "
                       f"{len(found.frames)} frames, further than any hand's geometry explains: are the joint_names "
                       "those of the proposals, in their order, and the proposals in millimetres?")
-    elif found.far and dataset and args.model_config is None:
+    elif found.far and dataset and args.model_config is None and not calibrating:
         sk = skeleton(dataset).dataset
         warnings.warn(f"the fit lies a median {found.best_mm:.1f} mm from the top proposals on {len(found.frames)} "
                       f"frames: the {plugins['model']} model's geometry does not match the {sk} annotations; "
                       f"calibrate it first: hybridfit calibrate --dataset {dataset} --ground-truth LABELS --model "
                       f"{plugins['model']} --out {sk}-{plugins['model']}.toml, then fit with --model-config {sk}-{plugins['model']}.toml")
     return config
+
+
+def wants_calibration(args, data: dict, dataset: str | None) -> bool:
+    """Whether to self-calibrate the skeleton (``--calibrate``; auto: a real data set's
+    proposals, no --model-config, at least AUTO_MIN_FRAMES frames with proposals for
+    CONFIDENT_POINTS of their points)."""
+    if args.calibrate != "auto":
+        return args.calibrate == "self"
+    if not dataset or args.model_config is not None:
+        return False
+    top, share = top_proposals(data["proposals"], data["confidences"])
+    eligible = int(((share > 0).mean(1) >= CONFIDENT_POINTS).sum())
+    return eligible >= AUTO_MIN_FRAMES
+
+
+def calibrate_skeleton(args, data: dict, names, plugins: dict, dataset: str | None) -> dict:
+    """The model settings with the skeleton self-calibrated on the proposals
+    (:func:`hybridfit.fitting.calibrate.self_calibrate`, as `hybridfit calibrate --proposals`
+    does with the same options); one line on stderr says so and how to keep it."""
+    model, config = plugins["model"], dict(plugins["model_config"])
+    key = registry.get("model", model).mirror_setting
+    mirror = None if args.hand == "auto" or key is None else config[key]
+    options = {"objective": str(data["objective"])} if "objective" in data else {}  # as `hybridfit calibrate` fits
+    names = list(names) if names is not None else list(registry.create("model", model, config).joint_names)
+    result = self_calibrate(data["proposals"], data["confidences"], names, model=model, model_config=config,
+                            mirror=mirror, budget=args.budget, seed=args.seed, jobs=args.jobs, fit_options=options,
+                            progress=sys.stderr.isatty())
+    keep = f"{Path(args.proposals).stem}-{model}.toml"
+    command = " ".join(["hybridfit calibrate --proposals", args.proposals]
+                       + ([f"--dataset {args.dataset}"] if args.dataset else [])
+                       + ([f"--model {model}"] if args.model else [])
+                       + ([f"--model-config {args.model_config}"] if args.model_config else [])
+                       + ([f"--hand {args.hand}"] if args.hand != "auto" else [])
+                       + ([f"--budget {args.budget}"] if args.budget != 3400 else [])
+                       + ([f"--seed {args.seed}"] if args.seed else [])
+                       + [f"--out {keep}"])
+    hand = "" if key is None else f"{'left' if result.settings[key] else 'right'}-hand "
+    print(f"hybridfit: the {hand}{model} skeleton was self-calibrated on {len(result.frames)} frames of the proposals "
+          f"(its fit {result.residual_before:.1f} -> {result.residual_after:.1f} mm from the top proposals, median); "
+          f"to keep it: {command}, then fit with --model-config {keep} (--calibrate none: the model as configured)",
+          file=sys.stderr)
+    return result.settings
 
 
 def depth_frames(args, frames: int) -> dict:

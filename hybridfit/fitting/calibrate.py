@@ -1,4 +1,7 @@
-"""Calibrate a hand model's geometry to annotated frames, through the HandModel interface.
+"""Calibrate a hand model's geometry, through the HandModel interface: to annotated frames
+(:func:`calibrate`), or to a sequence's own proposals when it has no annotations
+(:func:`self_calibrate`). Either way the result is one rigid skeleton, the subject's: every
+fit with it is a hand its model and parameters fully describe (no per-frame stretch).
 
 Works for any model that declares its calibratable geometry (``HandModel.geometry()`` and
 ``with_geometry()``); handedness goes through ``mirror_setting``, dataset points through
@@ -23,18 +26,17 @@ the model's joints and derived points. From ground-truth points (F, Q, 3) mm:
    ``(g - s mean) / (s std)`` for lengths (proportions pulled towards the literature's,
    the size free) and ``(g - mean) / std`` for weights.
 5. **Refit** the poses with :func:`hybridfit.fit` on the new model and repeat (``rounds``).
-6. **Centre the bones** (``centre_rounds`` times, :func:`centre_bones`): the least squares
-   fits one rigid skeleton, but every fit (and the floor) is polished with per-frame bone
-   freedom around the subject's bones at a prior cost; where the frames need a bone
-   shorter or longer in most of them, the subject's bone becomes the median of the lengths
-   the polish chose on the calibration frames, so the freedom and its prior are centred on
-   what the frames need.
 
-Reported errors are those of :func:`hybridfit.fit` followed by the least-squares polish
-with its default per-frame bone and palm freedom
-(:func:`hybridfit.fitting.refine.fit_and_refine`), what a user gets: on the calibration frames before and after, and on the held-out frames
-after (the floor), with the cost of refining a strong predictor there
-(:func:`refining_cost`).
+Reported errors are those of :func:`hybridfit.fit` with its default polish (a robust
+least-squares on the model's own rigid hand, :mod:`hybridfit.fitting.polish`), what a user
+gets: on the calibration frames before and after, and on the held-out frames after (the
+floor), with the cost of refining a strong predictor there (:func:`refining_cost`).
+
+Self-calibration (:func:`self_calibrate`, ``hybridfit calibrate --proposals``, ``hybridfit
+fit --calibrate``) runs the same least squares with each point's most confident proposal as
+a noisy annotation weighted by its confidence, under a robust (soft-L1) loss, on frames
+screened for proposals a hand can follow and spread over the poses; without ground truth it
+reports the fit's distance from those proposals (see its doc).
 """
 
 from __future__ import annotations
@@ -50,7 +52,6 @@ from tqdm.auto import tqdm
 from .. import registry
 from ..errors import HybridfitError
 from .frames import fit
-from .refine import BONE_TOLERANCE, BONE_WEIGHT, PALM_TOLERANCE_MM, PALM_WEIGHT, refine
 from ..model.base import Geometry, HandModel
 
 
@@ -181,37 +182,14 @@ def _configured(model: HandModel, values: np.ndarray) -> HandModel:
 
 
 def _fit_error(truth, names, model, budget, seed, jobs, progress, given=None):
-    """hybridfit.fit of ``given`` (default: the truth) as k = 1 proposals, then the
-    least-squares polish; errors against the truth."""
+    """hybridfit.fit of ``given`` (default: the truth) as k = 1 proposals, with its default
+    polish (what a user gets); (mean error, the FitResult, (F, Q) errors) against the truth."""
     given = truth if given is None else given
     proposals, confidences = given[:, :, None, :], np.ones(given.shape[:2] + (1,))
     r = fit(proposals, confidences, model=model, joint_names=names, budget=budget, seed=seed, jobs=jobs,
             progress=progress)
-    polished = refine(model, r.params, proposals, confidences, names, bone_tolerance=BONE_TOLERANCE,
-                      bone_weight=BONE_WEIGHT, palm_tolerance_mm=PALM_TOLERANCE_MM, palm_weight=PALM_WEIGHT)
-    err = np.linalg.norm(polished.points(model, names) - truth, axis=-1)
-    return float(np.nanmean(err)), polished, err
-
-
-def centre_bones(model: HandModel, bone_factors: np.ndarray, free: np.ndarray | None = None) -> HandModel:
-    """``model`` (a configured instance) with every geometry entry in millimetres along a
-    bone (its ``ends`` a joint's parent and the joint) scaled by the median over the frames
-    of that joint's bone factor, bone_factors (F, J) (:class:`refine.Polished`), within the
-    entry's bounds; entries not ``free`` (G,) bool, and frames that are NaN, are left alone."""
-    geo = model.geometry()
-    index = {n: i for i, n in enumerate(model.joint_names)}
-    parents = np.asarray(model.parents)
-    factors = np.asarray(bone_factors, dtype=np.float64)
-    factors = factors[np.isfinite(factors).all(1)]
-    if not len(factors):
-        return model
-    median = np.median(factors, axis=0)
-    values = geo.values.astype(np.float64).copy()
-    for i, (a, b) in enumerate(geo.ends):
-        bone = a in index and b in index and parents[index[b]] == index[a]
-        if bone and geo.scaled[i] and (free is None or free[i]):
-            values[i] = np.clip(values[i] * median[index[b]], geo.lower[i], geo.upper[i])
-    return _configured(model, np.round(values, 4))
+    err = np.linalg.norm(r.joints - truth, axis=-1)
+    return float(np.nanmean(err)), r, err
 
 
 def refining_cost(truth, names, model, *, error_mm: float = PREDICTOR_MM, seed: int = 0, budget: int = 3400,
@@ -227,14 +205,20 @@ def refining_cost(truth, names, model, *, error_mm: float = PREDICTOR_MM, seed: 
     return float(np.linalg.norm(given - truth, axis=-1).mean()), refined
 
 
-def _least_squares(truth, names, model, free, scale, g, params, noise_mm, max_nfev, progress):
-    """Jointly refine log scale, the free geometry entries and every frame's pose."""
+def _least_squares(truth, names, model, free, scale, g, params, noise_mm, max_nfev, progress, weights=None,
+                   f_scale_mm=None):
+    """Jointly refine log scale, the free geometry entries and every frame's pose to the
+    points truth (F, Q, 3) mm; weights (F, Q) each point's weight (0: missing; default 1);
+    f_scale_mm: a robust loss (soft-L1, quadratic below it; default: plain least squares).
+    Returns (scale, geometry, (F, P) poses, (F, Q) distances of the points from truth)."""
     geo = model.geometry()
     F, Q, _ = truth.shape
     P = model.n_params
     Gf = int(free.sum())
     lower_p, upper_p = model.bounds()
     bar = tqdm(desc="geometry", unit=" evaluations", disable=not progress, leave=False)
+    root = np.ones((F, Q, 1)) if weights is None else np.sqrt(np.asarray(weights, dtype=np.float64))[..., None]
+    target = np.nan_to_num(truth)
 
     def unpack(z):
         s = float(np.exp(z[0]))
@@ -258,7 +242,7 @@ def _least_squares(truth, names, model, free, scale, g, params, noise_mm, max_nf
         pts = last[key].points(poses, names)  # derived-point weights are geometry too
         q = np.linalg.norm(poses[:, 3:7], axis=1) - 1.0
         prior = np.where(sc, (full[free] - s * mean) / (s * sd), (full[free] - mean) / sd)
-        return np.concatenate([(pts - truth).ravel() / noise_mm, prior, 10.0 * q])
+        return np.concatenate([(root * (pts - target)).ravel() / noise_mm, prior, 10.0 * q])
 
     n_data, n_var = F * Q * 3, 1 + Gf + F * P
     S = lil_matrix((n_data + Gf + F, n_var), dtype=np.int8)
@@ -278,24 +262,49 @@ def _least_squares(truth, names, model, free, scale, g, params, noise_mm, max_nf
     with np.errstate(invalid="ignore"):
         eps = np.nan_to_num(1e-7 * (hi - lo), nan=0.0, posinf=0.0)
         z0 = np.clip(z0, lo + eps, hi - eps)
+    robust = {} if f_scale_mm is None else {"loss": "soft_l1", "f_scale": float(f_scale_mm) / noise_mm}
     try:
         sol = least_squares(residuals, z0, jac_sparsity=S.tocsr(), bounds=(lo, hi), method="trf",
-                            x_scale="jac", max_nfev=max_nfev, tr_solver="lsmr")
+                            x_scale="jac", max_nfev=max_nfev, tr_solver="lsmr", **robust)
     finally:
         bar.close()
     s, full, poses = unpack(sol.x)
-    err = np.linalg.norm(_configured(model, full).points(poses, names) - truth, axis=-1)
-    return s, full, float(err.mean())
+    dist = np.linalg.norm(_configured(model, full).points(poses, names) - truth, axis=-1)
+    return s, full, poses, dist
 
 
 def initial_scale(truth: np.ndarray, names: Sequence[str], model: HandModel) -> float:
-    """Ratio of the data's to the model's mean distance of the points from their centroid."""
+    """Ratio of the data's to the model's mean distance of the points from their centroid
+    (the median over the frames; points that are NaN, missing, are left out of both)."""
     ref = model.points(model.default_params(), names)[0]
+    truth = np.asarray(truth, dtype=np.float64)
+    seen = np.isfinite(truth).all(-1)  # (F, Q)
 
-    def spread(p):
-        return np.linalg.norm(p - p.mean(axis=-2, keepdims=True), axis=-1).mean(axis=-1)
+    def spread(p, mask):
+        centre = np.nansum(np.where(mask[..., None], p, 0.0), axis=-2, keepdims=True) / mask.sum(-1)[..., None, None]
+        d = np.linalg.norm(np.where(mask[..., None], p - centre, 0.0), axis=-1)
+        return d.sum(-1) / mask.sum(-1)
 
-    return float(np.median(spread(truth)) / spread(ref))
+    ok = seen.sum(-1) >= 2
+    if not ok.any():
+        raise HybridfitError("calibration: no frame has two or more points to measure the hand's size by")
+    return float(np.median(spread(truth[ok], seen[ok]) / spread(np.broadcast_to(ref, truth[ok].shape), seen[ok])))
+
+
+def _hands(base: HandModel, mirror: bool | None) -> list[bool | None]:
+    """The hands to try: [None] for a model without a mirror setting, else [mirror] or both."""
+    if mirror is not None and base.mirror_setting is None:
+        raise HybridfitError(f"model {base.name or type(base).__name__} has no mirror setting (handedness)")
+    return [None] if base.mirror_setting is None else [mirror] if mirror is not None else [False, True]
+
+
+def _hand_model(base: HandModel, hand: bool | None, g: np.ndarray) -> HandModel:
+    cand = base if hand is None else base.with_params(**{base.mirror_setting: hand})
+    return _configured(cand, g)
+
+
+def _hand_word(hand: bool | None) -> str:
+    return "model" if hand is None else "left" if hand else "right"
 
 
 def calibrate(
@@ -313,14 +322,12 @@ def calibrate(
     jobs: int = 1,
     noise_mm: float = 3.0,
     max_nfev: int = 60,
-    centre_rounds: int = 2,
     progress: bool = False,
     log=None,
 ) -> CalibrationResult:
     """Calibrate a model (a registered name or a configured instance, with ``model_config``)
     to truth (F, Q, 3) mm of the named model points (joints or derived points); see the
-    module doc. mirror: the hand (True: the model's mirror image) or None to choose;
-    centre_rounds: how often the bones are centred (step 6; 0: never)."""
+    module doc. mirror: the hand (True: the model's mirror image) or None to choose."""
     truth = np.asarray(truth, dtype=np.float64)
     names = tuple(point_names)
     if truth.ndim != 3 or truth.shape[1:] != (len(names), 3) or not len(truth):
@@ -339,35 +346,26 @@ def calibrate(
     scale = initial_scale(fit_truth, names, prior_model)
     g = _prior(geo, scale)  # the prior is the start
     say(f"initial scale {scale:.3f}; calibrating on {len(cal)} frames, {len(held)} held out")
-    if mirror is not None and base.mirror_setting is None:
-        raise HybridfitError(f"model {base.name or type(base).__name__} has no mirror setting (handedness)")
-    hands = [None] if base.mirror_setting is None else [mirror] if mirror is not None else [False, True]
     tried = {}
-    for m in hands:
-        cand = base if m is None else base.with_params(**{base.mirror_setting: m})
-        cand = _configured(cand, g)
+    for m in _hands(base, mirror):
+        cand = _hand_model(base, m, g)
         tried[m] = (cand, *_fit_error(fit_truth, names, cand, budget, seed, jobs, progress))
-        say(f"{'model' if m is None else 'left' if m else 'right'} hand, prior geometry: fit error {tried[m][1]:.2f} mm")
+        say(f"{_hand_word(m)} hand, prior geometry: fit error {tried[m][1]:.2f} mm")
     hand = min(tried, key=lambda k: tried[k][1])
-    current, before, polished, _ = tried[hand]
+    current, before, fitted, per = tried[hand]
+    after = before
     free = determined(current, geo, names)
     at_prior = tuple(n for n, f in zip(geo.names, free) if not f)
     if at_prior:
         say(f"kept at the prior (not determined by the points): {', '.join(at_prior)}")
     ls_err = np.nan
-    per = None
     for r in range(rounds):
-        scale, g, ls_err = _least_squares(fit_truth, names, current, free, scale, g, polished.params, noise_mm,
-                                          max_nfev, progress)
+        scale, g, _, dist = _least_squares(fit_truth, names, current, free, scale, g, fitted.params, noise_mm,
+                                           max_nfev, progress)
+        ls_err = float(dist.mean())
         current = _configured(current, np.round(g, 4))
-        after, polished, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
+        after, fitted, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
         say(f"round {r + 1}: scale {scale:.3f}, least-squares error {ls_err:.2f} mm, fit error {after:.2f} mm")
-    for r in range(centre_rounds):
-        current = centre_bones(current, polished.bone_factors, free)
-        after, polished, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
-        say(f"bones centred ({r + 1}): fit error {after:.2f} mm")
-    if per is None:
-        after, polished, per = _fit_error(fit_truth, names, current, budget, seed, jobs, progress)
     if len(held):
         heldout, _, per_held = _fit_error(truth[held], names, current, budget, seed, jobs, progress)
         per_held = np.nanmean(per_held, axis=0)
@@ -376,8 +374,238 @@ def calibrate(
         say(f"a {cost[0]:.2f} mm predictor on the held-out frames, fitted: {cost[1]:.2f} mm")
     else:
         heldout, per_held, cost = np.nan, np.full(len(names), np.nan), (np.nan, np.nan)
-    return CalibrationResult(current.get_params(), before, after, heldout, cal, held, ls_err, polished.params,
+    return CalibrationResult(current.get_params(), before, after, heldout, cal, held, ls_err, fitted.params,
                              np.nanmean(per, axis=0), per_held, scale, at_prior, *cost)
+
+
+# ------------------------------------------------------------------ self-calibration: no ground truth
+
+@dataclass
+class SelfCalibration:
+    """What :func:`self_calibrate` found, measured without ground truth. settings: the
+    calibrated model's settings; frames: the calibration frames (indices into the given
+    frames); eligible: how many frames had proposals for enough points to be screened;
+    residual_before / residual_after: the median distance (mm) of :func:`hybridfit.fit`'s
+    points (with its polish) from each point's most confident proposal, over the points with
+    one in the calibration frames, with the start (the scaled prior) and the calibrated
+    model; mean_before / mean_after: their confidence-weighted mean; per_point_after (Q,)
+    the median per point; noise_mm: the proposals' noise that median suggests (per
+    coordinate, as if Gaussian); scale: the whole-hand scale relative to the prior;
+    at_prior: geometry entries the points cannot determine (kept at the prior); params
+    (F_cal, P) the calibrated model's fitted poses of the calibration frames; points_before /
+    points_after (F_cal, Q, 3) mm the fitted points with the start and the calibrated model."""
+
+    settings: dict[str, Any]
+    frames: np.ndarray
+    eligible: int
+    residual_before: float
+    residual_after: float
+    mean_before: float
+    mean_after: float
+    per_point_after: np.ndarray
+    noise_mm: float
+    scale: float
+    at_prior: tuple[str, ...]
+    params: np.ndarray
+    points_before: np.ndarray
+    points_after: np.ndarray
+
+
+# The defaults below were chosen on ICVL frames 0-99 (the paper's proposals; calibrating on the whole
+# file's proposals, which needs no annotation, and measuring on the annotations of frames 0-99 only) and on
+# stress_proposals subjects (seeds 1-3) and synthetic_proposals (seeds 5, 7); docs/results.md.
+
+#: frames self-calibration calibrates on (spanning the poses of the screened frames it keeps)
+SELF_FRAMES = 100
+#: frames, spread evenly over those with proposals for enough points, that self-calibration screens
+SELF_CANDIDATES = 400
+#: the share of the screened frames that can calibrate: those whose proposals the start's fit follows best
+SELF_KEEP = 0.75
+#: least-squares / refit rounds of self-calibration
+SELF_ROUNDS = 3
+#: least-squares evaluations (and Jacobians) per round of self-calibration
+SELF_MAX_NFEV = 30
+#: soft-L1 scale (mm) of self-calibration's least squares: quadratic below it, linear above
+SELF_F_SCALE_MM = 10.0
+#: a frame can calibrate when at least this share of its points have a proposal with a confidence
+CONFIDENT_POINTS = 0.75
+#: the median of a 3D distance over its per-coordinate standard deviation, for Gaussian noise (chi, 3 dof)
+CHI3_MEDIAN = 1.5382
+
+
+def top_proposals(proposals: np.ndarray, confidences: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's most confident proposal: (F, Q, 3) mm (NaN where the point has no finite
+    proposal with a confidence) and its weight (F, Q): its share of the point's confidence
+    (0: missing; the first of equals)."""
+    return chosen_proposals(proposals, confidences)
+
+
+def chosen_proposals(proposals: np.ndarray, confidences: np.ndarray,
+                     points: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's chosen proposal and its weight, its share of the point's confidence: the
+    most confident one, or (``points`` (F, Q, 3) mm, a fitted hand's) the one nearest the
+    fitted point among those with a confidence (the mode the fit chose; weight 0 where the
+    point is not finite). (F, Q, 3) mm, NaN where missing, and (F, Q)."""
+    proposals = np.asarray(proposals, dtype=np.float64)
+    conf = np.where(np.isfinite(proposals).all(-1), np.nan_to_num(np.asarray(confidences, dtype=np.float64)), 0.0)
+    conf = np.maximum(conf, 0.0)
+    if points is None:
+        best = conf.argmax(-1)
+    else:
+        d = np.nan_to_num(np.linalg.norm(proposals - points[:, :, None], axis=-1), nan=np.inf)
+        best = np.where(conf > 0, d, np.inf).argmin(-1)
+    chosen = np.take_along_axis(proposals, best[..., None, None], axis=2)[:, :, 0]
+    total = conf.sum(-1)
+    share = np.divide(np.take_along_axis(conf, best[..., None], axis=2)[..., 0], total, out=np.zeros_like(total),
+                      where=total > 0)
+    if points is not None:
+        share = np.where(np.isfinite(points).all(-1), share, 0.0)
+    chosen[share <= 0] = np.nan
+    return chosen, share
+
+
+def _residual(points: np.ndarray, top: np.ndarray, weight: np.ndarray) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """(median, weighted mean, (Q,) median per point, (F, Q) distances) of points (F, Q, 3)
+    from the top proposals over the points with a weight; NaN where none."""
+    d = np.linalg.norm(points - top, axis=-1)
+    ok = (weight > 0) & np.isfinite(d)
+    if not ok.any():
+        return np.nan, np.nan, np.full(d.shape[1], np.nan), d
+    per = np.array([np.median(d[ok[:, q], q]) if ok[:, q].any() else np.nan for q in range(d.shape[1])])
+    mean = float(np.sum(np.where(ok, d * weight, 0.0)) / np.sum(np.where(ok, weight, 0.0)))
+    return float(np.median(d[ok])), mean, per, d
+
+
+def self_calibrate(
+    proposals: np.ndarray,
+    confidences: np.ndarray,
+    point_names: Sequence[str],
+    *,
+    model: Any = "hand27",
+    model_config: Mapping[str, Any] | None = None,
+    mirror: bool | None = None,
+    frames: int = SELF_FRAMES,
+    candidates: int = SELF_CANDIDATES,
+    keep: float = SELF_KEEP,
+    rounds: int = SELF_ROUNDS,
+    f_scale_mm: float = SELF_F_SCALE_MM,
+    noise_mm: float | None = None,
+    annotation: str = "fitted",
+    budget: int = 3400,
+    seed: int = 0,
+    jobs: int = 1,
+    max_nfev: int = SELF_MAX_NFEV,
+    fit_options: Mapping[str, Any] | None = None,
+    progress: bool = False,
+    log=None,
+) -> SelfCalibration:
+    """Calibrate a model's geometry (a registered name or a configured instance, with
+    ``model_config``) to a sequence of one subject without ground truth: its proposals
+    (F, Q, K, 3) mm and confidences (F, Q, K) of the named model points (joints or derived
+    points). The skeleton is the one hand that follows the proposals best over many frames.
+
+    1. **Screen**: up to ``candidates`` frames, spread evenly over those with a proposal with
+       a confidence for at least ``CONFIDENT_POINTS`` of their points, are fitted with
+       :func:`hybridfit.fit` (all the proposals, its default polish, ``fit_options``:
+       objective, optimizer, their configs, search_radius_mm) and the model's prior geometry
+       scaled to the proposals' size, for both hands unless ``mirror`` is given; the hand
+       whose fits lie closer to the most confident proposals (median) is kept.
+    2. **Choose the frames**: of the ``keep`` share of the screened frames whose fits lie
+       closest to their most confident proposals (frames whose proposals no hand follows are
+       left out), ``frames`` that span the poses: farthest-point sampling
+       (:func:`spanning_frames`) on the fitted hands, which are anatomical, not on the
+       proposals, whose extremes are their errors.
+    3. **Annotations**: each point's proposal the fitted hand chose (the one nearest its
+       fitted point; ``annotation="top"``: the most confident one), weighted by its share of
+       the point's confidence (points without a proposal are missing). With one proposal per
+       point both are that proposal.
+    4. ``rounds`` times: the regularised least squares of :func:`calibrate` over the
+       geometry, the scale and the poses, to those annotations with their weights under a
+       soft-L1 loss of scale ``f_scale_mm`` (a wrong mode or a lost finger is an outlier, not
+       a longer bone); the prior weighs against the points as against Gaussian noise of
+       ``noise_mm`` (default: estimated from the last fit's median distance from the most
+       confident proposals). Geometry the points cannot determine stays at the prior
+       (:func:`determined`). Then the frames are fitted again with :func:`hybridfit.fit` on
+       the new model, and the annotations chosen again.
+
+    Deterministic for a seed (and independent of ``jobs``). Raises KeyboardInterrupt when a
+    stop signal interrupts one of its fits."""
+    proposals = np.asarray(proposals, dtype=np.float64)
+    confidences = np.asarray(confidences, dtype=np.float64)
+    names = tuple(point_names)
+    if proposals.ndim != 4 or proposals.shape[1] != len(names) or proposals.shape[-1] != 3 \
+            or confidences.shape != proposals.shape[:3]:
+        raise HybridfitError(f"self-calibration needs proposals (frames, {len(names)}, K, 3) and confidences "
+                             f"(frames, {len(names)}, K), got {proposals.shape} and {confidences.shape}")
+    if annotation not in ("fitted", "top"):
+        raise HybridfitError(f"self-calibration: annotation must be 'fitted' or 'top', got {annotation!r}")
+    say = log or (lambda msg: None)
+    base = registry.create("model", model, model_config)
+    base.point_matrix(names)  # unknown point names fail here, once
+    geo = base.geometry()
+    top, share = top_proposals(proposals, confidences)
+    seen = share > 0
+    eligible = np.flatnonzero(seen.mean(1) >= CONFIDENT_POINTS)
+    if not len(eligible):
+        raise HybridfitError(f"self-calibration: no frame has proposals with a confidence for {CONFIDENT_POINTS:.0%} "
+                             f"of its points")
+    options = dict(fit_options or {})
+
+    def fit_frames(m, rows):
+        r = fit(proposals[rows], confidences[rows], model=m, joint_names=names, budget=budget, seed=seed, jobs=jobs,
+                progress=progress, **options)
+        if r.interrupted:  # a stop signal: no calibration (and no finished frames worth keeping)
+            raise KeyboardInterrupt("self-calibration interrupted")
+        return r, *_residual(r.joints, top[rows], share[rows])
+
+    def annotations(rows, points):
+        return (top[rows], share[rows]) if annotation == "top" else chosen_proposals(proposals[rows],
+                                                                                     confidences[rows], points)
+
+    # 1. screen: the hand, and the frames whose proposals it can follow
+    n = min(int(candidates), len(eligible))
+    pool = eligible[np.unique(np.floor(np.arange(n) * len(eligible) / n).astype(np.int64))]
+    prior_model = _configured(base, _prior(geo, 1.0))
+    scale = initial_scale(np.where(seen[pool, :, None], top[pool], np.nan), names, prior_model)
+    g = _prior(geo, scale)
+    say(f"initial scale {scale:.3f}; screening {len(pool)} of the {len(eligible)} frames with proposals for "
+        f"{CONFIDENT_POINTS:.0%} of their points")
+    tried = {}
+    for m in _hands(base, mirror):
+        cand = _hand_model(base, m, g)
+        tried[m] = (cand, *fit_frames(cand, pool))
+        say(f"{_hand_word(m)} hand, prior geometry: {tried[m][2]:.2f} mm from the top proposals (median)")
+    current, screen, *_, dist = tried[min(tried, key=lambda k: tried[k][2])]
+    # 2. the frames: the best-followed share, spanning the fitted poses
+    per_frame = np.array([np.median(d[s]) if s.any() else np.inf for d, s in zip(dist, seen[pool])])
+    per_frame[~np.isfinite(per_frame)] = np.inf
+    if not np.isfinite(per_frame).any():
+        raise HybridfitError("self-calibration: no frame could be fitted")
+    kept = np.flatnonzero(per_frame <= np.quantile(per_frame[np.isfinite(per_frame)], keep))
+    chosen = kept[spanning_frames(screen.joints[kept], frames)]
+    cal = pool[chosen]
+    params, points_before = screen.params[chosen], screen.joints[chosen]
+    before, mean_before, per, _ = _residual(points_before, top[cal], share[cal])
+    after, mean_after, points_after = before, mean_before, points_before
+    say(f"calibrating on {len(cal)} frames spanning the poses of the {len(kept)} whose proposals the hand follows "
+        f"best")
+    free = determined(current, geo, names)
+    at_prior = tuple(n for n, f in zip(geo.names, free) if not f)
+    if at_prior:
+        say(f"kept at the prior (not determined by the points): {', '.join(at_prior)}")
+    for r in range(rounds):
+        target, weight = annotations(cal, points_after)
+        noise = float(np.clip(after / CHI3_MEDIAN, 1.0, 30.0)) if noise_mm is None else float(noise_mm)
+        start = np.where(np.isfinite(params), params, current.default_params()[None])
+        scale, g, _, _ = _least_squares(target, names, current, free, scale, g, start, noise, max_nfev, progress,
+                                        weight, f_scale_mm)
+        current = _configured(current, np.round(g, 4))
+        fitted, after, mean_after, per, _ = fit_frames(current, cal)
+        params, points_after = fitted.params, fitted.joints
+        say(f"round {r + 1}: scale {scale:.3f}, fit {after:.2f} mm from the top proposals (median; "
+            f"{mean_after:.2f} mm mean)")
+    return SelfCalibration(current.get_params(), cal, len(eligible), before, after, mean_before, mean_after, per,
+                           float(after / CHI3_MEDIAN), scale, at_prior, params, points_before, points_after)
 
 
 def to_toml(settings: Mapping[str, Any]) -> str:

@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 from pydantic import Field
 
 import hybridfit
-from hybridfit.fitting.calibrate import (HELDOUT_GAP, _fit_error, calibrate, centre_bones, determined, spanning_frames,
-                                        split_frames, to_toml)
+from hybridfit.fitting.calibrate import (HELDOUT_GAP, calibrate, determined, self_calibrate, spanning_frames,
+                                        split_frames, to_toml, top_proposals)
 from hybridfit.datasets.skeletons import skeleton, with_derived_points
 from hybridfit.model.rotations import quaternion_matrix
 from hybridfit.model.base import Geometry, HandModel, Stage
@@ -72,8 +72,8 @@ def test_calibration_recovers_marker_offsets_across_the_bones():
     true = hybridfit.create("model", "hand26", {"bone_offsets": {"index_distal": [3.0, 0.0],
                                                                  "thumb_distal": [-2.5, 0.0]}})
     truth = true.points(_poses(true, 10, np.random.default_rng(1)), true.joint_names)
-    offsets = calibrate(truth, true.joint_names, mirror=False, rounds=1, budget=800, max_nfev=25,
-                        centre_rounds=0).settings["bone_offsets"]
+    offsets = calibrate(truth, true.joint_names, mirror=False, rounds=1, budget=800,
+                        max_nfev=25).settings["bone_offsets"]
     assert offsets["index_distal"][0] == pytest.approx(3.0, abs=1.0)
     assert offsets["thumb_distal"][0] == pytest.approx(-2.5, abs=1.0)
     assert max(np.abs(v).max() for b, v in offsets.items() if b not in ("index_distal", "thumb_distal")) < 0.5
@@ -248,29 +248,85 @@ def test_a_model_without_a_mirror_setting_refuses_a_hand():
         calibrate(_toy_truth(ToyHand.joint_names, 3), ToyHand.joint_names, model=ToyHand(), mirror=True)
 
 
-def test_centring_scales_each_bone_by_its_median_factor():
-    model = hybridfit.create("model", "hand26")
-    geo = model.geometry()
-    names = list(model.joint_names)
-    pip, tip = names.index("index_pip"), names.index("little_tip")
-    factors = np.ones((5, model.n_joints))
-    factors[:, pip] = [0.9, 0.9, 0.9, 1.1, 0.8]  # median 0.9
-    factors[:, tip] = [1.1] * 5
-    factors = np.vstack([factors, np.full((1, model.n_joints), np.nan)])  # a failed frame: ignored
-    free = np.ones(len(geo), bool)
-    free[geo.names.index("little_distal")] = False
-    centred = centre_bones(model, factors, free).geometry()
-    changed = {n: centred.values[i] / geo.values[i] for i, n in enumerate(geo.names)
-               if not np.isclose(centred.values[i], geo.values[i])}
-    assert changed == pytest.approx({"index_proximal": 0.9}, abs=1e-4)
+def test_reported_errors_are_those_of_the_default_fit(result):
+    """No per-frame stretch: the calibrated model is one rigid hand, and the error calibration
+    reports is what hybridfit.fit (with its default polish) gives with it."""
+    truth = _truth()[result.calibration_frames]
+    r = hybridfit.fit(truth[:, :, None], np.ones(truth.shape[:2] + (1,)), model="hand26", model_config=result.settings,
+                      joint_names=NAMES, budget=800)
+    assert np.linalg.norm(r.joints - truth, axis=-1).mean() == pytest.approx(result.error_after, abs=1e-9)
+    np.testing.assert_allclose(r.hand().points(r.params, NAMES), r.joints, atol=1e-6)
 
 
-def test_calibration_centres_the_bones_on_the_polish_s_median_lengths():
-    truth = _truth()
-    kw = dict(model_config=START, rounds=1, budget=800, max_nfev=25)
-    rigid = calibrate(truth, NAMES, centre_rounds=0, **kw)
-    model = hybridfit.create("model", "hand26", rigid.settings)
-    polished = _fit_error(truth[rigid.calibration_frames], NAMES, model, 800, 0, 1, False)[1]
-    free = determined(model, model.geometry(), NAMES)
-    expected = centre_bones(model, polished.bone_factors, free).get_params()
-    assert calibrate(truth, NAMES, centre_rounds=1, **kw).settings == expected
+# ------------------------------------------------------------------ self-calibration (no ground truth)
+
+def test_top_proposals_weigh_each_point_by_its_share_of_the_confidence():
+    proposals = np.arange(2 * 2 * 3 * 3, dtype=float).reshape(2, 2, 3, 3)
+    confidences = np.array([[[1.0, 3.0, 0.0], [0.0, 0.0, 0.0]], [[2.0, 2.0, 0.0], [5.0, 0.0, 0.0]]])
+    proposals[1, 1, 0] = np.nan  # a non-finite proposal has no confidence
+    top, weight = top_proposals(proposals, confidences)
+    np.testing.assert_array_equal(top[0, 0], proposals[0, 0, 1])
+    np.testing.assert_array_equal(top[1, 0], proposals[1, 0, 0])  # a tie: the first
+    assert np.isnan(top[0, 1]).all() and np.isnan(top[1, 1]).all()
+    np.testing.assert_allclose(weight, [[0.75, 0.0], [0.5, 0.0]])
+
+
+@pytest.fixture(scope="module")
+def subject():
+    """A 1.1-scale hand26 subject, noisy k = 3 proposals with decoys, a fifth of them the
+    most confident (no ground truth used to calibrate)."""
+    return hybridfit.synthetic_proposals(40, k=3, noise_mm=4.0, seed=5, model_config={"scale": 1.1})
+
+
+SELF = dict(model="hand26", frames=30, candidates=40, rounds=2, budget=600, max_nfev=15)
+
+
+@pytest.fixture(scope="module")
+def self_calibrated(subject):
+    return self_calibrate(subject["proposals"], subject["confidences"], subject["joint_names"], **SELF)
+
+
+def test_self_calibration_recovers_the_subject_s_skeleton(subject, self_calibrated):
+    r = self_calibrated
+    assert r.scale == pytest.approx(1.1, abs=0.04)
+    assert r.settings["mirror"] is False and len(r.frames) == 30 and r.eligible == 40
+    assert r.residual_after < r.residual_before and r.mean_after < r.mean_before
+    true = hybridfit.create("model", "hand26", {"scale": 1.1}).geometry()
+    got = hybridfit.create("model", "hand26", r.settings).geometry()
+    start = hybridfit.create("model", "hand26").geometry()
+    bones = [i for i, n in enumerate(true.names) if n.endswith(("metacarpal", "proximal", "middle", "distal"))]
+    assert np.abs(got.values[bones] - true.values[bones]).mean() < 0.5 * np.abs(start.values[bones]
+                                                                                - true.values[bones]).mean()
+    # fitted with it, the frames are closer to the truth than with the uncalibrated model
+    kw = dict(joint_names=subject["joint_names"], budget=600)
+    err = {}
+    for name, config in (("self", r.settings), ("none", {})):
+        f = hybridfit.fit(subject["proposals"], subject["confidences"], model="hand26", model_config=config, **kw)
+        err[name] = np.linalg.norm(f.joints - subject["ground_truth"], axis=-1).mean()
+    assert err["self"] < err["none"] - 0.5
+
+
+def test_self_calibration_is_deterministic_for_a_seed(subject, self_calibrated):
+    again = self_calibrate(subject["proposals"], subject["confidences"], subject["joint_names"], jobs=2, **SELF)
+    assert again.settings == self_calibrated.settings
+    np.testing.assert_array_equal(again.frames, self_calibrated.frames)
+
+
+def test_self_calibration_skips_frames_without_confident_points_and_finds_the_hand():
+    d = hybridfit.synthetic_proposals(40, k=3, noise_mm=3.0, seed=6, model_config={"mirror": True})
+    conf = d["confidences"].copy()
+    conf[:10, :8] = 0.0  # frames 0-9: eight of the 21 points without a proposal
+    r = self_calibrate(d["proposals"], conf, d["joint_names"], **{**SELF, "frames": 10, "rounds": 0})
+    assert r.eligible == 30 and r.frames.min() >= 10
+    assert r.settings["mirror"] is True  # the left hand, found without being told
+    assert r.residual_after == r.residual_before
+
+
+def test_self_calibration_refuses_proposals_without_confident_frames():
+    d = hybridfit.synthetic_proposals(3, k=3, seed=1)
+    conf = d["confidences"].copy()
+    conf[:, 5:] = 0.0
+    with pytest.raises(hybridfit.HybridfitError, match="no frame has proposals with a confidence for 75% of its points"):
+        self_calibrate(d["proposals"], conf, d["joint_names"], **SELF)
+    with pytest.raises(hybridfit.HybridfitError, match="self-calibration needs proposals"):
+        self_calibrate(d["proposals"][:, :5], d["confidences"], d["joint_names"], **SELF)
