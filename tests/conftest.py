@@ -14,6 +14,20 @@ def pytest_addoption(parser):
                      help="generated bad inputs per fuzz test (tests/cli/test_fuzz.py; default: a few, for CI)")
 
 
+def pytest_configure(config):
+    config.addinivalue_line("markers", "run_last: run after every other test (tests/test_install.py's slow ones)")
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """tests/test_install.py's quick tests first and its slow ones (``run_last``) last: the
+    fixture that builds the wheel's environment starts its compiled fit in the background
+    (numba compiling every kernel from scratch, a minute or more of one core), and the rest of
+    the suite runs meanwhile, on the other core."""
+    last = [item for item in items if item.get_closest_marker("run_last")]
+    first = [item for item in items if item.path.name == "test_install.py" and item not in last]
+    items[:] = first + [item for item in items if item not in first and item not in last] + last
+
+
 @pytest.fixture(scope="session", autouse=True)
 def ctrl_c_raises():
     """Python's own Ctrl-C handler, in this process and the commands tests start: a process

@@ -35,8 +35,9 @@ def test_points_can_be_derived_points(hand26, clamped):
     assert p.points(x[None]).shape == (1, 3, 3)
     stages = p.stage_points()
     assert [list(s[2]) for s in stages] == [[0], [2], [1], [], [], []]  # palm_centre scored with the palm
-    with pytest.raises(HybridfitError, match="'pinky' is neither a joint nor a derived point"):
-        Problem(hand26, clamped, pts[:, None, :], np.ones((3, 1)), ["pinky", "index_tip", "thumb_tip"])
+    with pytest.raises(HybridfitError, match="lacks 2 of the 3 points to fit: 'pinky', 'ring' \\(neither a joint "
+                       "nor a derived point of it"):
+        Problem(hand26, clamped, pts[:, None, :], np.ones((3, 1)), ["pinky", "index_tip", "ring"])
 
 
 def test_frame_without_any_proposal_is_an_error(hand26, clamped):

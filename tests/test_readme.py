@@ -1,12 +1,10 @@
-"""README.md: its two set-up commands are exactly what CI runs, it stays short, and its
-Python and command-line examples run."""
+"""README.md: its two set-up commands are exactly what CI runs and it stays short (its Python
+and command-line examples run and print what it shows: tests/test_doc_examples.py)."""
 
 from __future__ import annotations
 
 import re
-import shlex
 import subprocess
-import sys
 from pathlib import Path
 
 from hybridfit.cli import build_parser
@@ -72,19 +70,4 @@ def test_every_command_in_the_cli_page_table_exists():
     assert documented and documented <= commands, documented - commands
 
 
-def test_the_python_example_runs(tmp_path):
-    (example,) = code_blocks(README, "python")
-    done = subprocess.run([sys.executable, "-c", "\n".join(example)], cwd=tmp_path, capture_output=True, text=True,
-                          timeout=300)
-    assert done.returncode == 0, done.stderr
-    assert re.search(r"50 frames, mean joint error \d+\.\d\d mm\n\(50, 27\)", done.stdout), done.stdout
-
-
-def test_the_command_line_example_runs(tmp_path):
-    example = code_blocks(README, "bash")[1]
-    assert len(example) == 3 and all(line.startswith("hybridfit ") for line in example)
-    for line in example:
-        done = subprocess.run([sys.executable, "-m", "hybridfit", *shlex.split(line)[1:]], cwd=tmp_path,
-                              capture_output=True, text=True, timeout=300)
-        assert done.returncode == 0, (line, done.stderr)
-    assert "fits.npz" in done.stdout and "mean" in done.stdout
+# README's Python and command-line examples run, and print what README shows: tests/test_doc_examples.py

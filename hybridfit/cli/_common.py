@@ -91,7 +91,7 @@ def add_plugin_options(parser: argparse.ArgumentParser) -> None:
 
 def add_fit_options(parser: argparse.ArgumentParser) -> None:
     """--budget/--seed/--jobs/--search-radius: how every frame is fitted."""
-    parser.add_argument("--budget", type=positive_int, default=3400, help="objective evaluations per frame (default 3400)")
+    parser.add_argument("--budget", type=budget_int, default=3400, help="objective evaluations per frame (default 3400)")
     parser.add_argument("--seed", type=seed_int, default=0, help="random seed, >= 0 (default 0)")
     parser.add_argument("--jobs", type=positive_int, default=1, help="parallel fitting processes (results do not depend on it)")
     parser.add_argument("--search-radius", type=positive_float, default=60.0,
@@ -196,11 +196,36 @@ def _number(text: str, convert, ok, what: str):
     return value
 
 
+#: the largest integer any option takes (numpy's int64): beyond it an option is a typo
+MAX_INT = 2**63 - 1
+
+
+def _at_most(value: int, largest: int, what: str) -> int:
+    """``value`` if it is at most ``largest``; else an argparse error saying ``what``."""
+    if value > largest:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {value}")
+    return value
+
+
 def non_negative_int(text: str) -> int:
-    return _number(text, int, lambda v: v >= 0, "a non-negative integer")
+    value = _number(text, int, lambda v: v >= 0, "a non-negative integer")
+    return _at_most(value, MAX_INT, f"a non-negative integer up to {MAX_INT}")
 
 
-seed_int = non_negative_int
+def seed_int(text: str) -> int:
+    """A seed: an integer in [0, 2**64) (seeds are unsigned 64-bit integers)."""
+    from ..keys import MAX_SEED
+
+    return _at_most(_number(text, int, lambda v: v >= 0, "a non-negative integer"), MAX_SEED,
+                    f"a seed from 0 to 2**64 - 1 = {MAX_SEED}")
+
+
+def budget_int(text: str) -> int:
+    """A budget: objective evaluations per frame, 1 to 1,000,000,000."""
+    from ..keys import MAX_BUDGET
+
+    return _at_most(_number(text, int, lambda v: v >= 1, "a positive integer"), MAX_BUDGET,
+                    f"a budget from 1 to {MAX_BUDGET:,} evaluations")
 
 
 def fraction(text: str) -> float:
@@ -213,4 +238,30 @@ def positive_float(text: str) -> float:
 
 
 def positive_int(text: str) -> int:
-    return _number(text, int, lambda v: v >= 1, "a positive integer")
+    return _at_most(_number(text, int, lambda v: v >= 1, "a positive integer"), MAX_INT,
+                    f"a positive integer up to {MAX_INT}")
+
+
+#: the one meaning of ``--frames`` in every command that reads frames (``synth`` makes N frames)
+FRAMES_HELP = "START:STOP (frames START to STOP-1; either may be left out) or N (the first N, as :N)"
+
+
+def frames_range(text: str) -> str:
+    """``--frames``: ``START:STOP`` (either may be left out) or ``N``, short for ``:N`` (the
+    first N frames); the text as ``START:STOP`` for :func:`hybridfit.io.frame_slice`."""
+    parts = text.split(":")
+    try:
+        numbers = [int(p) if p.strip() else None for p in parts]
+    except ValueError:
+        numbers = []
+    if len(parts) == 1 and numbers and numbers[0] is not None and numbers[0] >= 1:
+        return f":{numbers[0]}"
+    if len(parts) == 2 and numbers:
+        return text
+    raise argparse.ArgumentTypeError(f"expected START:STOP or N (the first N frames), got {text!r}")
+
+
+def add_frames_option(parser, what: str = "frames to use") -> None:
+    """``--frames`` with its one meaning (:data:`FRAMES_HELP`), default all."""
+    parser.add_argument("--frames", type=frames_range, metavar="START:STOP", help=f"{what}: {FRAMES_HELP} "
+                        "(default: all)")

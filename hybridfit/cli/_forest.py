@@ -7,10 +7,13 @@ from __future__ import annotations
 import numpy as np
 
 
-def frame_indices(ds, frames: int | None) -> np.ndarray:
-    """The first ``frames`` frames of ``ds`` (all for None)."""
+def frame_indices(ds, frames: str | None) -> np.ndarray:
+    """The frames of ``ds`` that ``--frames`` selects (``START:STOP``, as ``_common.frames_range``
+    gives it; all for None)."""
+    from ..io import frame_slice
+
     n = len(ds)
-    return np.arange(n if frames is None else min(frames, n))
+    return np.arange(n)[frame_slice(frames, n)]
 
 
 def report_empty(empty: np.ndarray, indices: np.ndarray, err) -> None:

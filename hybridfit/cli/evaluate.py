@@ -24,7 +24,7 @@ from ..fitting.frames import INLIER_DISTANCE_MM
 from ..io import atomic_path, load_npz
 from ..plausible import check_hand_scale, check_unique_names
 from ..metrics import SUCCESS_THRESHOLDS_MM, fingertips, inliers, joint_errors, oracle, success_rate
-from ._common import check_image_format, declare_paths, read_results
+from ._common import FRAMES_HELP, check_image_format, declare_paths, frames_range, read_results
 
 REPORTED = (20, 40, 80)
 
@@ -49,6 +49,24 @@ def points_array(path: str, data: dict, key: str, allow_nan=None) -> np.ndarray:
     return a
 
 
+def check_objective(path: str, data: dict, failed, F: int) -> None:
+    """Refuse a fits file whose ``objective`` (the loss reached, per frame) is NaN or inf in a
+    frame it does not mark ``failed``: no fit ends there (hybridfit raises a plugin's
+    non-finite loss instead of storing it), so the file is damaged or not a fit's."""
+    if "objective" not in data:
+        return
+    objective = np.asarray(data["objective"])
+    if objective.shape != (F,) or objective.dtype.kind not in "iuf":
+        raise HybridfitError(f"{path}: 'objective' must be {F} numbers (one per frame), got {objective.dtype} "
+                             f"{objective.shape}")
+    bad = ~np.isfinite(objective.astype(float))
+    if failed is not None and np.shape(failed) == bad.shape:
+        bad &= ~np.asarray(failed, bool)
+    if bad.any():
+        raise HybridfitError(f"{path}: 'objective' has NaN or inf values in frame {int(np.argmax(bad))} "
+                             f"({int(bad.sum())} frames) not marked failed: not a fit's result (a damaged file?)")
+
+
 def point_names(path: str, data: dict, J: int) -> list[str] | None:
     """The npz's joint_names (plain strings), checked against J points."""
     if "joint_names" not in data:
@@ -68,6 +86,7 @@ def load_points(path: str, dataset: str | None) -> list[tuple[str, np.ndarray, l
         if "joints" in data:
             failed = np.asarray(data["failed"], bool) if "failed" in data else None
             joints = points_array(path, data, "joints", failed)
+            check_objective(path, data, failed, len(joints))
             return [(label, joints, point_names(path, data, joints.shape[1]))]
         if "proposals" in data:
             from ..io import load_proposals
@@ -161,8 +180,9 @@ def register(sub) -> None:
                    "nyu, nyu36, msra, mediapipe, mano or a skeleton .toml file")
     p.add_argument("--ground-truth", metavar="LABELS", help="ground truth results file")
     p.add_argument("--compare", nargs="+", default=[], metavar="FILE", help="further results files or npz to compare")
-    p.add_argument("--frames", metavar="START:STOP",
-                   help="evaluate only these frames of the ground truth (inputs with all frames are cut alike)")
+    p.add_argument("--frames", type=frames_range, metavar="START:STOP",
+                   help=f"frames of the ground truth to evaluate: {FRAMES_HELP} (default: all; inputs with all "
+                   "frames are cut alike)")
     p.add_argument("--plot", metavar="OUT.png", help="draw the success-rate curves (a PNG, or another format matplotlib writes)")
     declare_paths(p, inputs=("predictions", "data", "--ground-truth", "--compare"), outputs=("--plot",))
     p.set_defaults(func=run)
@@ -202,7 +222,8 @@ def run(args) -> int:
         per_joint.append(np.nanmean(e, axis=0))
         tip = f"{np.nanmean(e[:, tips]):.2f}" if tips else "-"
         rows.append([label, f"{np.nanmean(e):.2f}", tip] + [f"{curve[t]:.3f}" for t in REPORTED])
-    print(f"{len(truth)} frames, {truth.shape[1]} points; errors in mm; success = share of frames whose worst point is within")
+    print(f"{len(truth)} frames, {truth.shape[1]} points; errors in mm; success@D: the share of frames whose worst "
+          "point is within D mm")
     _table(["method", "mean", "fingertips"] + [f"success@{t}" for t in REPORTED], rows)
     print()
     _table(["point"] + [m[0] for m in methods],

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ..datasets.results import frames_of, read_proposals
 from ..io import frame_slice, save_npz
-from ._common import declare_paths
+from ._common import add_frames_option, declare_paths
 
 
 def register(sub) -> None:
@@ -19,7 +19,7 @@ def register(sub) -> None:
                    "with three or more, the inverse of each file's own error variance estimated from the "
                    "differences between files; equal for one or two)")
     q.add_argument("--ground-truth", metavar="LABELS", help="ground truth in the same format, stored for evaluation")
-    q.add_argument("--frames", metavar="START:STOP", help="keep only these frames (default: all)")
+    add_frames_option(q, "frames to keep")
     q.add_argument("--out", required=True, help="output npz: proposals (F,J,k,3) mm (camera coordinates), "
                    "confidences, joint_names, dataset, objective, ground_truth")
     declare_paths(q, inputs=("results", "--ground-truth"), outputs=("--out",))

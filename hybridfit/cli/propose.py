@@ -12,7 +12,7 @@ from ..fitting.estimator import HybridEstimator
 from ..errors import EXIT_INCOMPLETE, EXIT_OK
 from ..io import save_npz
 from ..metrics import joint_errors, oracle
-from ._common import declare_paths, positive_float, positive_int
+from ._common import add_frames_option, declare_paths, positive_float, positive_int
 from ._forest import frame_indices, report_empty
 
 
@@ -24,7 +24,7 @@ def add_proposal_options(p) -> None:
     g.add_argument("--bandwidth", type=positive_float, default=10.0, help="mean-shift bandwidth, mm (default 10)")
     g.add_argument("--foreground", choices=("auto", "labels", "depth", "segment"), default="auto",
                    help="hand pixels: part labels, depth > 0, or nearest-object segmentation (default auto: labels if the data has them)")
-    g.add_argument("--frames", type=positive_int, help="the first N frames only")
+    add_frames_option(g, "frames to use")
 
 
 def register(sub) -> None:

@@ -12,7 +12,7 @@ from ..datasets.camera import xyz_to_uvd
 from ..datasets.folder import load_dataset
 from ..errors import HybridfitError
 from ..io import atomic_path, frame_slice, load_npz, load_proposals
-from ._common import check_image_format, declare_paths, positive_float
+from ._common import FRAMES_HELP, check_image_format, declare_paths, frames_range, positive_float
 from .evaluate import save_figure
 
 #: pixels around the drawn points and the hand's depth pixels
@@ -24,8 +24,8 @@ def register(sub) -> None:
                        "skeleton and optional estimates")
     p.add_argument("dataset", help="data set folder")
     p.add_argument("--frame", type=int, help="the frame to draw as an image (default 0)")
-    p.add_argument("--frames", metavar="A:B", help="animate frames A to B-1 (START:STOP; either may be left out) as "
-                   "a GIF, one GIF frame per data frame; --out must end in .gif")
+    p.add_argument("--frames", type=frames_range, metavar="START:STOP", help="frames to animate as a GIF, one GIF frame "
+                   f"per data frame (--out must end in .gif): {FRAMES_HELP}")
     p.add_argument("--out", required=True, help="output image: PNG (or another format matplotlib writes) for "
                    "--frame, .gif for --frames")
     p.add_argument("--fps", type=positive_float, default=10.0, help="GIF frames per second (default 10)")

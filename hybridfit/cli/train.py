@@ -7,7 +7,7 @@ import time
 
 from ..datasets import open_dataset
 from ..forest import ForestConfig, train_forest_dataset
-from ._common import declare_paths, load_toml, positive_int, seed_int, validate_settings
+from ._common import add_frames_option, declare_paths, load_toml, positive_int, seed_int, validate_settings
 from ._forest import frame_indices
 
 
@@ -20,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--max-depth", type=positive_int, help="maximum tree depth (default 23)")
     p.add_argument("--pixels-per-frame", type=positive_int, help="training pixels per frame (default 400)")
     p.add_argument("--seed", type=seed_int, help="random seed, >= 0 (default 0)")
-    p.add_argument("--frames", type=positive_int, help="train on the first N frames only")
+    add_frames_option(p, "frames to train on")
     p.add_argument("--jobs", type=positive_int, help="trees grown in parallel (default: the available cores)")
     declare_paths(p, inputs=("data", "--config"), outputs=("--out",))
     p.set_defaults(func=run)

@@ -322,14 +322,29 @@ def fit_settings(names, n_points: int, dataset: str | None, model: str, model_co
         if names != list(instance.joint_names):
             try:
                 instance.point_matrix(names)
-            except HybridfitError as err:
-                whose = [n for n, k in SKELETONS.items() if set(k.model_names) == set(names) and n != (dataset or "")]
-                if whose:  # the whole file is another skeleton's, not one bad point
-                    given = f", not the {skeleton(dataset).dataset} skeleton's (--dataset {dataset})" if dataset else ""
-                    raise HybridfitError(f"{where}: joint_names are the {whose[0]} skeleton's points{given}: "
-                                         f"pass --dataset {whose[0]}") from None
-                raise HybridfitError(f"{where}: joint_names: {err}") from None
+            except HybridfitError as err:  # one message: the points the model lacks, and what gives them
+                lacking = [n for n in names if n not in instance.point_names]
+                raise HybridfitError(f"{where}: {err}{_missing_points_hint(lacking, instance, dataset)}") from None
     return names, model_config
+
+
+def _missing_points_hint(missing: list[str], model, dataset: str | None) -> str:
+    """What gives a model the points it lacks: the built-in skeletons that define them all as
+    derived points of its joints (``--dataset``), else another model or the model's own
+    derived-points setting. Never a skeleton that would not help (passing it would only move the error)."""
+    joints = set(model.joint_names)
+    them, points = ("it", "a derived point") if len(missing) == 1 else ("them", "derived points")
+    helping = [n for n, sk in SKELETONS.items()
+               if n != dataset and set(missing) <= set(sk.derived_weights)
+               and all(set(sk.derived_weights[m]) <= joints for m in missing)]
+    if helping:
+        return (f"; {' and '.join(helping)} define{'s' if len(helping) == 1 else ''} {them} as {points} of its "
+                f"joints: pass --dataset {helping[0]}")
+    setting = model.derived_points_setting
+    if setting is None:
+        return f"; fit with a model that has {them} (--model)"
+    return (f"; fit with a model that has {them} (--model), or define {them} as {points} of its joints (its "
+            f"{setting} setting, in --model-config)")
 
 
 def _of_size(n_points: int) -> list[str]:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
@@ -19,6 +19,12 @@ from ..datasets.camera import Intrinsics
 from ..datasets.protocol import DepthDataset
 from .frames import FitResult, fit
 from ..forest import Forest, Proposals, dataset_masks
+
+if TYPE_CHECKING:
+    from ..model.base import HandModel
+    from ..names import ModelName, ObjectiveName, OptimizerName
+    from ..objective import Objective
+    from ..optimizer import Optimizer
 
 EMPTY_FRAME = "no foreground pixels"
 
@@ -37,16 +43,19 @@ class HybridEstimator:
     forest: a ``Forest`` or the path of a forest file (loaded on first use); k: proposals per
     joint (paper: 3); proposal_set: |P~|, the most confident votes per joint that go into
     mean-shift (paper: 200); stride: pixel grid step of the dense sampling; bandwidth_mm:
-    test-time mean-shift bandwidth. model / objective / optimizer (registered names or
-    instances) with their ``*_config`` settings, budget, seed, search_radius_mm and jobs are
+    test-time mean-shift bandwidth. model / objective / optimizer (registered names, the
+    built-in ones listed by :mod:`hybridfit.names`, or instances) with their ``*_config`` settings, budget, seed, search_radius_mm and jobs are
     passed to ``hybridfit.fit``, and so is ``polish`` (the polish of every fit, as
     ``hybridfit fit`` does by default: :mod:`hybridfit.fitting.polish`).
     """
 
     def __init__(self, forest: Forest | str | os.PathLike, *, k: int = 3, proposal_set: int = 200, stride: int = 2,
-                 bandwidth_mm: float = 10.0, model: Any = "hand26", model_config: Mapping[str, Any] | None = None,
-                 objective: Any = "clamped-confidence", objective_config: Mapping[str, Any] | None = None,
-                 optimizer: Any = "stepwise-pso", optimizer_config: Mapping[str, Any] | None = None,
+                 bandwidth_mm: float = 10.0,
+                 model: ModelName | str | HandModel = "hand26", model_config: Mapping[str, Any] | None = None,
+                 objective: ObjectiveName | str | Objective = "clamped-confidence",
+                 objective_config: Mapping[str, Any] | None = None,
+                 optimizer: OptimizerName | str | Optimizer = "stepwise-pso",
+                 optimizer_config: Mapping[str, Any] | None = None,
                  budget: int = 3400, seed: int = 0, search_radius_mm: float = 60.0, jobs: int = 1,
                  polish: bool = True):
         self.forest = forest

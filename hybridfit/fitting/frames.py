@@ -16,16 +16,17 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import os
 import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numba as nb
 import numpy as np
 from tqdm.auto import tqdm
 
-from .. import registry
+from .. import registry, workers
 from . import driver, stops
 from .polish import polish as polish_frames
 from ..errors import HybridfitError, PluginError
@@ -35,6 +36,12 @@ from ..model.base import ANGLES
 from ..optimizer import Task
 from ..problem import Problem
 from ..stages import structure_of
+
+if TYPE_CHECKING:
+    from ..model.base import HandModel
+    from ..names import ModelName, ObjectiveName, OptimizerName
+    from ..objective import Objective
+    from ..optimizer import Optimizer
 
 
 #: frames per chunk of the driver (progress and Ctrl-C granularity; with jobs > 1, jobs
@@ -177,12 +184,15 @@ def _first_problem(model, objective, proposals, confidences, names, search_radiu
 
 def check_fit_options(budget: int, seed: int, search_radius_mm: float, jobs: int) -> None:
     """Raise a HybridfitError naming the first invalid option (before any work)."""
-    for name, value, ok in (("budget", budget, int(budget) == budget and budget >= 1),
-                            ("seed", seed, int(seed) == seed and seed >= 0),
+    from ..keys import MAX_BUDGET, MAX_SEED
+
+    for name, value, ok in (("budget", budget, int(budget) == budget and 1 <= budget <= MAX_BUDGET),
+                            ("seed", seed, int(seed) == seed and 0 <= seed <= MAX_SEED),
                             ("search_radius_mm", search_radius_mm, np.isfinite(search_radius_mm) and search_radius_mm > 0),
                             ("jobs", jobs, int(jobs) == jobs and jobs >= 1)):
         if not ok:
-            raise HybridfitError(f"{name} must be {'positive' if name != 'seed' else 'a non-negative integer'}, got {value!r}")
+            what = {"budget": f"an integer from 1 to {MAX_BUDGET:,}", "seed": "an integer from 0 to 2**64 - 1"}
+            raise HybridfitError(f"{name} must be {what.get(name, 'positive')}, got {value!r}")
 
 
 def check_scale(model, proposals: np.ndarray, confidences: np.ndarray, names: Sequence[str]) -> None:
@@ -250,9 +260,9 @@ def fit(
     proposals: np.ndarray,
     confidences: np.ndarray,
     *,
-    model: Any = "hand26",
-    objective: Any = "clamped-confidence",
-    optimizer: Any = "stepwise-pso",
+    model: ModelName | str | HandModel = "hand26",
+    objective: ObjectiveName | str | Objective = "clamped-confidence",
+    optimizer: OptimizerName | str | Optimizer = "stepwise-pso",
     budget: int = 3400,
     seed: int = 0,
     joint_names: Sequence[str] | None = None,
@@ -270,7 +280,9 @@ def fit(
     proposals: (F, J, K, 3) mm; confidences: (F, J, K) >= 0 (normalised per joint here);
     joint_names: the J proposal points as model joint or derived-point names (default: the
     model's joints in order). Plugins are registered names (with ``*_config`` settings) or
-    plugin instances. budget: objective evaluations per frame, honoured exactly.
+    plugin instances; any registered name works, the built-in ones are listed by the types
+    :data:`hybridfit.names.ModelName`, ``ObjectiveName`` and ``OptimizerName`` (``hybridfit
+    plugins`` lists every installed one). budget: objective evaluations per frame, honoured exactly.
     observations: per frame a ``hybridfit.objective.Observation`` (the depth), needed by
     objectives that ``observes_depth`` (``rendered-depth``, ``hybrid``).
     polish: finish every fit with the polish (:mod:`hybridfit.fitting.polish`: a robust
@@ -357,7 +369,8 @@ def fit(
             else:
                 chunks = np.array_split(np.arange(F), min(F, jobs * 8))
                 ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
-                with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=stops.ignored) as pool:
+                with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=workers.start,
+                                         initargs=(os.getpid(), stops.ignored)) as pool:  # workers leave with us
                     futures = [pool.submit(_fit_chunk, spec, list(c), proposals[c], confidences[c],
                                            None if observations is None else [observations[i] for i in c])
                                for c in chunks if len(c)]

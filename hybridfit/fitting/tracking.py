@@ -16,7 +16,7 @@ proposals instead of the lost fit; ``"continue"`` (FORTH) keeps tracking from it
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Literal, Mapping, Sequence
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -30,6 +30,12 @@ from ..io import validate_proposals
 from ..metrics import inliers
 from ..optimizer import Task
 from ..problem import Problem
+
+if TYPE_CHECKING:
+    from ..model.base import HandModel
+    from ..names import ModelName, ObjectiveName, OptimizerName
+    from ..objective import Objective
+    from ..optimizer import Optimizer
 
 
 class TrackingSettings(BaseModel):
@@ -66,9 +72,9 @@ def track(
     proposals: np.ndarray,
     confidences: np.ndarray,
     *,
-    model: Any = "hand26",
-    objective: Any = "clamped-confidence",
-    optimizer: Any = "stepwise-pso",
+    model: ModelName | str | HandModel = "hand26",
+    objective: ObjectiveName | str | Objective = "clamped-confidence",
+    optimizer: OptimizerName | str | Optimizer = "stepwise-pso",
     budget: int = 3400,
     seed: int = 0,
     joint_names: Sequence[str] | None = None,

@@ -83,6 +83,12 @@ class Geometry:
         return len(self.names)
 
 
+def missing_points_message(model: str, missing: Sequence[str], of: int, points: Sequence[str]) -> str:
+    """The one message for points to fit that a model lacks, naming every one of them."""
+    return (f"model {model} lacks {len(missing)} of the {of} points to fit: {', '.join(map(repr, missing))} "
+            f"(neither a joint nor a derived point of it; its points: {', '.join(points)})")
+
+
 class HandModel(Plugin, abc.ABC):
     """A kinematic hand model mapping (N, P) parameter vectors to (N, J, 3) joints in mm."""
 
@@ -184,18 +190,17 @@ class HandModel(Plugin, abc.ABC):
     def point_matrix(self, names: Sequence[str]) -> np.ndarray:
         """(Q, J) weights so that points = point_matrix @ joints for the named points."""
         index = {n: i for i, n in enumerate(self.joint_names)}
+        missing = [str(n) for n in names if n not in index and n not in self.derived_points]
+        if missing:
+            raise HybridfitError(missing_points_message(self.name or type(self).__name__, missing, len(names),
+                                                        self.point_names))
         M = np.zeros((len(names), self.n_joints))
         for q, name in enumerate(names):
             if name in index:
                 M[q, index[name]] = 1.0
-            elif name in self.derived_points:
+            else:
                 for joint, weight in self.derived_points[name].items():
                     M[q, index[joint]] += weight
-            else:
-                raise HybridfitError(
-                    f"point {name!r} is neither a joint nor a derived point of model "
-                    f"{self.name or type(self).__name__} (known: {', '.join(self.point_names)})"
-                )
         return M
 
     def points(self, params: np.ndarray, names: Sequence[str]) -> np.ndarray:

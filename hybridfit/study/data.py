@@ -211,13 +211,12 @@ class StudyData:
 
     def _train_subset(self) -> np.ndarray | None:
         """The grid frames the forest trains on (sorted), None for all."""
-        from ..synthetic.poses import grid_poses
+        from ..synthetic.poses import grid_poses, grid_subset
 
         d = self.data
-        n = len(grid_poses(d.train)) if isinstance(d, SyntheticDepthData) else None
-        if d.train_subset is None or n is None or d.train_subset >= n:
+        if not isinstance(d, SyntheticDepthData):
             return None
-        return np.sort(np.random.default_rng(d.forest.seed).choice(n, d.train_subset, replace=False))
+        return grid_subset(len(grid_poses(d.train)), d.train_subset, d.forest.seed)
 
     def forest_path(self) -> Path:
         """The trained forest (cached by its training data and config)."""

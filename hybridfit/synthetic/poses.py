@@ -147,6 +147,15 @@ def grid_poses(config: GridConfig | Mapping | None = None, model=None) -> np.nda
     return X
 
 
+def grid_subset(n: int, count: int | None, seed: int) -> np.ndarray | None:
+    """``count`` of a grid's ``n`` frames drawn at random (``numpy.random.default_rng(seed)``),
+    sorted: spread over every articulation and viewpoint, where the grid's first frames hold one
+    articulation of the first fingers. None (the whole grid) when ``count`` is None or at least ``n``."""
+    if count is None or count >= n:
+        return None
+    return np.sort(np.random.default_rng(seed).choice(n, count, replace=False))
+
+
 def _smooth(times: np.ndarray, key_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Segment index and smoothstep weight of each time between increasing key times."""
     i = np.clip(np.searchsorted(key_t, times, side="right") - 1, 0, len(key_t) - 2)

@@ -281,7 +281,7 @@ def test_an_unknown_point_name_is_plain_text_and_names_the_file(tmp_path, capsys
     path = tmp_path / "names.npz"
     np.savez(path, **{**d, "joint_names": np.asarray(names)})
     err = one_line_error(capsys, main(["fit", str(path), "--out", str(tmp_path / "o.npz")]))
-    assert "names.npz: joint_names: point 'wristt' is neither" in err and "np.str_" not in err
+    assert "names.npz: model hand26 lacks 1 of the 21 points to fit: 'wristt' (neither" in err and "np.str_" not in err
 
 
 # --------------------------------------------------------------- diagnostics

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -43,7 +45,43 @@ def test_a_file_without_joint_names_says_pass_dataset(icvl_proposals, capsys):
 def test_another_skeletons_points_name_that_skeleton(icvl_proposals, capsys, dataset):
     argv = ["fit", str(icvl_proposals / "no_dataset.npz"), "--out", str(icvl_proposals / "o.npz")]
     err = one_line_error(capsys, main(argv + (["--dataset", dataset] if dataset else [])))
-    assert "joint_names are the icvl skeleton's points" in err and "pass --dataset icvl" in err and "'icvl_palm'" not in err
+    assert "no_dataset.npz: model hand26 lacks 1 of the 16 points to fit: 'icvl_palm' (neither a joint nor a derived " \
+           "point of it; its points: wrist, " in err
+    assert err.rstrip().endswith("; icvl defines it as a derived point of its joints: pass --dataset icvl"), err
+    argv += ["--dataset", "icvl"]  # the advice works
+    assert main(argv + ["--budget", "300", "--calibrate", "none"]) == 0, capsys.readouterr().err
+
+
+TRIPOD = Path(__file__).resolve().parents[2] / "examples" / "hybridfit-tripod-hand" / "src"
+
+
+@pytest.fixture
+def tripod_model(monkeypatch):
+    """A registered model (the example package's tripod hand: wrist and three fingers) that lacks most of
+    hand26's points."""
+    from hybridfit import registry
+
+    monkeypatch.syspath_prepend(str(TRIPOD))
+    from hybridfit_tripod_hand import TripodHand
+
+    real = registry.get
+    monkeypatch.setattr(registry, "get", lambda kind, name: TripodHand if (kind, name) == ("model", "tripod-hand")
+                        else real(kind, name))
+
+
+@pytest.mark.parametrize("dataset", [None, "mediapipe", "mano"])
+def test_a_model_lacking_the_datas_points_gets_one_message_naming_them(tripod_model, tmp_path, capsys, dataset):
+    """Once "pass --dataset mano", then "pass --dataset mediapipe", then "mano" again (issue 32): now one
+    message, whatever --dataset says, naming every point the model lacks and no --dataset that would not help."""
+    np.savez(tmp_path / "p.npz", **hybridfit.synthetic_proposals(3, seed=3))  # hand26's 21 joints, named
+    argv = ["fit", str(tmp_path / "p.npz"), "--out", str(tmp_path / "o.npz"), "--model", "tripod-hand",
+            "--calibrate", "none"]
+    err = one_line_error(capsys, main(argv + (["--dataset", dataset] if dataset else [])))
+    lacking = ", ".join(repr(f"{f}_{j}") for f, joints in [("thumb", ("cmc", "mcp", "ip", "tip"))] + [
+        (f, ("mcp", "pip", "dip", "tip")) for f in ("index", "middle", "ring", "little")] for j in joints)
+    assert f"p.npz: model TripodHand lacks 20 of the 21 points to fit: {lacking} (neither a joint nor a derived " \
+           "point of it; its points: wrist, thumb1, thumb2, thumb3, index1, " in err, err
+    assert err.rstrip().endswith("; fit with a model that has them (--model)") and "--dataset" not in err, err
 
 
 @pytest.mark.parametrize("option", ["--model-config", "proposals", "--ground-truth"])

@@ -55,6 +55,15 @@ def test_propose_writes_a_valid_fit_input(forest_file, data, tmp_path, capsys):
         assert f["failed"].tolist() == [False] * 11 + [True] and f["inliers"][:11].min() > 0
 
 
+def test_propose_takes_a_range_of_frames(forest_file, data, tmp_path, capsys):
+    """--frames START:STOP, as in evaluate and calibrate (it took only N here; issue 32)."""
+    out = tmp_path / "proposals.npz"
+    assert main(["propose", str(forest_file), str(data), "--out", str(out), "--frames", "8:10"]) == 0
+    assert "proposals for 2 frames" in capsys.readouterr().out
+    with np.load(out) as z:
+        assert z["frames"].tolist() == [8, 9] and z["proposals"].shape[0] == 2
+
+
 def test_estimate_end_to_end(forest_file, data, tmp_path, capsys):
     out = tmp_path / "fits.npz"
     assert main(["estimate", str(forest_file), str(data), "--out", str(out), "--budget", "600", "--frames", "3"]) == 0

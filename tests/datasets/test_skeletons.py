@@ -378,5 +378,5 @@ def test_fit_settings_name_the_points_and_the_file():
     assert fit_settings(None, 21, None, "hand26", {}, "p.npz") == (None, {})
     with pytest.raises(hybridfit.HybridfitError, match=r"^p\.npz: 15 points, but the icvl skeleton has 16$"):
         fit_settings(None, 15, "icvl", "hand26", {}, "p.npz")
-    with pytest.raises(hybridfit.HybridfitError, match=r"^p\.npz: joint_names: point 'elbow'"):
+    with pytest.raises(hybridfit.HybridfitError, match=r"^p\.npz: model hand26 lacks 1 of the 2 points to fit: 'elbow' "):
         fit_settings(["wrist", "elbow"], 2, None, "hand26", {}, "p.npz")

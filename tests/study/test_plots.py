@@ -52,5 +52,55 @@ def test_a_series_of_differently_named_variants_is_labelled_by_its_settings():
             row("stepwise (3400)", 3400, "stepwise"), row("stepwise (8301)", 8301, "stepwise"),
             row("sweep, budget=300", 300, "refined"), row("sweep, budget=600", 600, "refined")]
     series = plots._series(rows, "budget")
-    assert set(series) == {"optimizer_config.schedule=joint", "optimizer_config.schedule=stepwise", "sweep"}
-    assert [r["settings"]["budget"] for r in series["optimizer_config.schedule=joint"]] == [8281, 3400]
+    assert set(series) == {"joint", "stepwise", "sweep"}  # the words the names share
+    assert [r["settings"]["budget"] for r in series["joint"]] == [8281, 3400]
+    rows[1]["variant"] = "all at once (3400)"  # names that share no words: the settings, in words
+    assert set(plots._series(rows, "budget")) == {"optimizer schedule: joint", "stepwise", "sweep"}
+
+
+def _row(variant, budget, schedule, error=5.0, ms=1.0, **settings):
+    return {"method": "fit", "variant": variant, "settings": {"budget": budget, "optimizer_config": {"schedule": schedule},
+                                                               **settings},
+            "mean_error_mm_mean": error, "mean_error_mm_std": 0.2, "time_per_frame_s_mean": ms / 1000,
+            "time_per_frame_s_std": 0.1 / 1000}
+
+
+def _legend(ax) -> list[str]:
+    return [t.get_text() for t in ax.get_legend().get_texts()]
+
+
+def test_legends_show_the_variants_names_or_their_settings_in_words():
+    """A grid's variants are named by their settings (budget.toml: "budget=300,
+    optimizer_config.schedule=joint"); no legend shows such an internal key (issue 32)."""
+    from hybridfit.study import plots
+
+    rows = [_row(f"budget={b}, optimizer_config.schedule={s}", b, s) for b in (300, 1200) for s in ("stepwise", "joint")]
+    fig = plots.sweep_figure(rows, "budget")
+    for ax in fig.axes:
+        assert sorted(_legend(ax)) == ["optimizer schedule: joint", "optimizer schedule: stepwise"]
+    assert plots.legend_label("budget=300, optimizer_config.optimizer=cmaes") == "budget: 300, optimizer: cmaes"
+    assert plots.legend_label("stepwise (3400, the paper's)") == "stepwise (3400, the paper's)"
+    assert plots.legend_label("k=3, model_config.scale=1.05") == "k: 3, model scale: 1.05"
+
+
+def test_close_budgets_share_one_tick_label_and_no_labels_overlap():
+    """stepwise_vs_joint's budgets 3400, 8281 and 8301: 8281 and 8301 printed on top of each other
+    on the log axis (issue 32)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from hybridfit.study import plots
+
+    rows = [_row("joint 91x91 (8281)", 8281, "joint"), _row("stepwise (8301)", 8301, "stepwise", stage_weights=[4]),
+            _row("joint (3400)", 3400, "joint"), _row("stepwise (3400)", 3400, "stepwise")]
+    fig = plots.sweep_figure(rows, "budget")
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.canvas.draw()
+    for ax in fig.axes:
+        labels = [t for t in ax.get_xticklabels() if t.get_text()]
+        assert [t.get_text() for t in labels] == ["3400", "8281/8301"]
+        boxes = sorted((t.get_window_extent(renderer) for t in labels), key=lambda b: b.x0)
+        assert all(a.x1 < b.x0 for a, b in zip(boxes, boxes[1:]))
+        assert [round(t) for t in ax.get_xticks()] == [3400, 8281, 8301]  # every budget keeps its tick
+    wide = [_row(f"budget={b}", b, "joint") for b in (300, 600, 1200, 2400, 3400, 6800, 13600)]
+    ax = plots.sweep_figure(wide, "budget").axes[0]
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["300", "600", "1200", "2400", "3400", "6800", "13600"]
