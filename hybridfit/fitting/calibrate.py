@@ -481,7 +481,7 @@ def self_calibrate(
     confidences: np.ndarray,
     point_names: Sequence[str],
     *,
-    model: Any = "hand27",
+    model: Any = "hand29",
     model_config: Mapping[str, Any] | None = None,
     mirror: bool | None = None,
     frames: int = SELF_FRAMES,

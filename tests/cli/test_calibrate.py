@@ -28,7 +28,7 @@ def test_calibrate_writes_a_usable_model_config(tmp_path, capsys):
 
 
 def test_the_model_config_names_its_model_and_fit_uses_it(tmp_path, capsys):
-    """calibrate's default model is hand27 (tuned: docs/results.md, Real hands), the file it
+    """calibrate's default model is hand29 (tuned: docs/results.md, Real hands), the file it
     writes names it, and fit takes the model from the file unless --model names another."""
     import numpy as np
 
@@ -36,14 +36,14 @@ def test_the_model_config_names_its_model_and_fit_uses_it(tmp_path, capsys):
     model, p, f = tmp_path / "model.toml", tmp_path / "p.npz", tmp_path / "f.npz"
     assert main(["calibrate", "--dataset", "icvl", "--ground-truth", str(gt), "--out", str(model), "--rounds", "0",
                  "--budget", "600", "--hand", "right"]) == 0
-    assert tomllib.loads(model.read_text())["model"] == "hand27" and model.read_text().startswith("# hand27 ")
+    assert tomllib.loads(model.read_text())["model"] == "hand29" and model.read_text().startswith("# hand29 ")
     assert main(["proposals", "from-results", "--dataset", "icvl", str(gt), "--out", str(p)]) == 0
     assert main(["fit", str(p), "--model-config", str(model), "--budget", "600", "--out", str(f)]) == 0
-    assert np.load(f)["params"].shape[1] == 28  # hand27's parameters, not hand26's 27
+    assert np.load(f)["params"].shape[1] == 30  # hand29's parameters, not hand26's 27
     capsys.readouterr()
     assert main(["fit", str(p), "--model-config", str(model), "--model", "hand26", "--budget", "600",
                  "--out", str(tmp_path / "g.npz")]) == 2
-    assert f"{model}: settings of model 'hand27' (its model key), not of --model hand26" in capsys.readouterr().err
+    assert f"{model}: settings of model 'hand29' (its model key), not of --model hand26" in capsys.readouterr().err
     assert not (tmp_path / "g.npz").exists()
     assert main(["fit", str(p), "--budget", "600", "--out", str(f)]) == 0
     assert np.load(f)["params"].shape[1] == 27  # without a calibration: hand26, the paper's
@@ -212,10 +212,10 @@ def test_the_papers_icvl_proposals_fitted_by_default_beat_their_top_1(tmp_path, 
     np.savez(tmp_path / "p.npz", proposals=proposals, confidences=confidences)
     f = tmp_path / "f.npz"
     assert main(["fit", str(tmp_path / "p.npz"), "--dataset", "icvl", "--out", str(f)]) == 0
-    assert "the left-hand hand27 skeleton was self-calibrated on 100 frames" in capsys.readouterr().err
+    assert "the left-hand hand29 skeleton was self-calibrated on 100 frames" in capsys.readouterr().err
     with np.load(f) as r:
         fitted = np.linalg.norm(r["joints"] - truth, axis=-1).mean()
-        assert str(r["model"]) == "hand27"
+        assert str(r["model"]) == "hand29"
     top1 = np.linalg.norm(proposals[:, :, 0] - truth, axis=-1).mean()
     assert fitted < top1 - 0.3, (fitted, top1)
 
