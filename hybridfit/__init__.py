@@ -9,6 +9,10 @@ optimisers (entry-point groups ``hybridfit.models``, ``hybridfit.objectives``,
 import importlib
 from typing import TYPE_CHECKING
 
+from . import _environment
+
+_environment.prepare()  # before numba is imported: NUMBA_NUM_THREADS, a cache folder that works
+
 if TYPE_CHECKING:  # the same names for type checkers and the API docs (never imported at run time)
     from .errors import HybridfitError
     from .fitting.estimator import HybridEstimator
@@ -52,7 +56,7 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
 
-__version__ = "0.9.0"
+__version__ = "0.10.0"
 
 __all__ = [
     "FitResult", "HandModel", "HybridEstimator", "HybridfitError", "Objective", "OptimizeResult", "Optimizer",

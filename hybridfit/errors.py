@@ -10,12 +10,19 @@ shape): it propagates, naming the plugin, and is never recorded as a frame's fai
 EXIT_OK = 0
 EXIT_USER_ERROR = 2  # bad input or options: one line on stderr, nothing written or overwritten
 EXIT_INCOMPLETE = 3  # the work ran, but some frames (fit/estimate/propose) or trials (study) failed; the rest is written
+EXIT_RESOURCES = 4  # the machine's limits: out of memory, no process can be started, numba's compiler cannot load; one line, the finished work stays written
 EXIT_INTERRUPTED = 130  # Ctrl-C (SIGINT): the finished work is written
 # SIGTERM -> 143, SIGHUP -> 129 (128 + the signal's number): stopped like Ctrl-C (``Terminated``)
 
 
 class HybridfitError(Exception):
     """A user error whose message names the problem (and the file, key or frame)."""
+
+
+class ResourceError(HybridfitError):
+    """The machine ran out of something (memory, processes) or cannot load hybridfit's compiler
+    (numba, llvmlite): not the input's fault and no bug. The CLI prints the message as one line
+    and exits with ``EXIT_RESOURCES`` (4); what was finished before stays written."""
 
 
 class UnknownPluginError(HybridfitError, KeyError):

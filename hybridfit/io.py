@@ -14,13 +14,14 @@ import struct
 import tempfile
 import zipfile
 import zlib
+from collections.abc import MutableMapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .errors import HybridfitError
-from .plausible import check_hand_scale, check_unique_names
+from .errors import HybridfitError, ResourceError
+from .plausible import check_hand_scale, check_magnitude, check_unique_names
 
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
@@ -43,9 +44,12 @@ def validate_proposals(proposals, confidences, joint_names=None, where: str = "p
     for name, arr in (("proposals", p), ("confidences", c)):
         if not np.issubdtype(arr.dtype, np.number):
             raise HybridfitError(f"{where}: '{name}' must be numeric, got dtype {arr.dtype}")
+        if arr.dtype.kind == "c":  # never cast silently: the imaginary part would be dropped
+            raise HybridfitError(f"{where}: '{name}' must be real numbers, got {arr.dtype}")
         bad = ~np.isfinite(arr).all(axis=tuple(range(1, arr.ndim)))
         if bad.any():
             raise HybridfitError(f"{where}: '{name}' has NaN or inf values (first in frame {int(np.argmax(bad))})")
+    check_magnitude(p, where, "proposals")
     neg = (c < 0).any(axis=(1, 2))
     if neg.any():
         raise HybridfitError(f"{where}: 'confidences' has negative values (first in frame {int(np.argmax(neg))})")
@@ -67,9 +71,20 @@ def require_file(path: str | os.PathLike, what: str = "file") -> Path:
     return path
 
 
-def load_npz(path: str | os.PathLike, kind: str = "") -> dict[str, np.ndarray]:
-    """All arrays of an .npz file (no pickles), with readable errors naming the file and what
-    it should be (e.g. kind="forest"). Never suggests unpickling."""
+def npz_member_limit() -> int:
+    """The most bytes one key of an .npz may hold once decompressed: half of this machine's
+    memory (16 GiB where the system does not say)."""
+    total = memory_bytes()
+    return total // 2 if total else 16 * 2**30
+
+
+def load_npz(path: str | os.PathLike, kind: str = "") -> "NpzData":
+    """The arrays of an .npz file (no pickles) as a mapping that decompresses a key only when it
+    is read (:class:`NpzData`), with readable errors naming the file, the key and what the file
+    should be (e.g. kind="forest"). Never suggests unpickling. A key is refused before it is
+    decompressed when its size (from the zip's directory, and from its array header) exceeds
+    :func:`npz_member_limit` or does not fit the bytes stored: a small file never costs
+    gigabytes of memory, and a key nobody reads costs nothing."""
     what = f"{kind} file" if kind else ".npz file"
     path = require_file(path, f"{kind} file" if kind else "file")
     expected = f"expected {'a hybridfit ' + kind if kind else 'an'} .npz file (a zip archive of arrays written by numpy.savez)"
@@ -77,21 +92,104 @@ def load_npz(path: str | os.PathLike, kind: str = "") -> dict[str, np.ndarray]:
         magic = fh.read(4)
     if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
         raise HybridfitError(f"{path}: not a readable {what} (not a zip archive); {expected}")
-    key = None
     try:
-        with np.load(path, allow_pickle=False) as data:
-            out = {}
-            for key in data.files:
-                out[key] = data[key]
-            return out
+        with zipfile.ZipFile(path) as zf:
+            members = {(info.filename[:-4] if info.filename.endswith(".npy") else info.filename): info
+                       for info in zf.infolist()}
+    except MemoryError:
+        raise ResourceError(f"{path}: out of memory reading the file's directory") from None
+    except (zipfile.BadZipFile, OSError, EOFError, KeyError, zlib.error, NotImplementedError, RuntimeError,
+            struct.error, ValueError, UnicodeDecodeError) as err:
+        raise HybridfitError(f"{path}: not a readable {what} (corrupt or truncated: {type(err).__name__}: {err})") from None
+    return NpzData(path, members, what, expected)
+
+
+class NpzData(MutableMapping):
+    """The keys of an .npz file (:func:`load_npz`), each decompressed when first read and then
+    kept: ``in``, iteration, ``len`` and ``sorted`` see every key without reading any. Values
+    may be replaced or added (they are then plain values); errors name the file and the key."""
+
+    def __init__(self, path: Path, members: dict[str, zipfile.ZipInfo], what: str, expected: str):
+        self._path, self._members, self._what, self._expected = path, members, what, expected
+        self._values: dict[str, Any] = {}
+        self._keys = list(members)
+
+    def __getitem__(self, key):
+        if key not in self._values:
+            if key not in self._members or key not in self._keys:
+                raise KeyError(key)
+            self._values[key] = _read_member(self._path, key, self._members[key], self._what, self._expected)
+        return self._values[key]
+
+    def __setitem__(self, key, value) -> None:
+        if key not in self._keys:
+            self._keys.append(key)
+        self._values[key] = value
+
+    def __delitem__(self, key) -> None:
+        if key not in self._keys:
+            raise KeyError(key)
+        self._keys.remove(key)
+        self._values.pop(key, None)
+
+    def __contains__(self, key) -> bool:
+        return key in self._keys
+
+    def __iter__(self):
+        return iter(list(self._keys))
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+    def __repr__(self) -> str:
+        return f"NpzData({str(self._path)!r}, keys={self._keys})"
+
+    def __reduce__(self):  # pickled (sent to a worker) as a plain dict, every key read
+        return dict, (list(self.items()),)
+
+
+def _read_member(path: Path, key: str, info: zipfile.ZipInfo, what: str, expected: str) -> np.ndarray:
+    """One key of an .npz, its sizes checked before anything is decompressed (see :func:`load_npz`)."""
+    limit = npz_member_limit()
+    if info.file_size > limit:
+        raise HybridfitError(f"{path}: key {key!r} holds {info.file_size / 2**20:,.0f} MiB once decompressed, more "
+                             f"than hybridfit reads per key ({limit / 2**20:,.0f} MiB, half of this machine's memory); "
+                             f"{expected}")
+    try:
+        with zipfile.ZipFile(path) as zf, zf.open(info) as fp:
+            try:
+                version = np.lib.format.read_magic(fp)
+            except ValueError:
+                raise HybridfitError(f"{path}: key {key!r} is not a numpy array; {expected}") from None
+            read_header = getattr(np.lib.format, "_read_array_header", None)  # every format version
+            if read_header is not None:
+                shape, _, dtype = read_header(fp, version)
+            else:
+                shape, _, dtype = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                   else np.lib.format.read_array_header_2_0)(fp)
+            if dtype.hasobject:
+                raise HybridfitError(f"{path}: key {key!r} holds Python objects, which hybridfit never loads; "
+                                     f"{expected} of numbers and strings")
+            need = int(np.prod(shape, dtype=object)) * dtype.itemsize
+            if need > info.file_size:
+                raise HybridfitError(f"{path}: not a readable {what} (corrupt or truncated: key {key!r} declares "
+                                     f"{need:,} bytes of data in {info.file_size:,})")
+        with zipfile.ZipFile(path) as zf, zf.open(info) as fp:
+            return np.lib.format.read_array(fp, allow_pickle=False)
+    except MemoryError:
+        raise ResourceError(f"{path}: out of memory reading key {key!r} ({info.file_size / 2**20:,.1f} MiB once "
+                            "decompressed); free memory or use a machine with more") from None
+    except HybridfitError:
+        raise
     except ValueError as err:
         if "pickle" in str(err):  # numpy suggests allow_pickle here: never pass that on
-            raise HybridfitError(f"{path}: {'key ' + repr(key) + ' ' if key else ''}holds Python objects, "
-                                 f"which hybridfit never loads; {expected} of numbers and strings") from None
-        raise HybridfitError(f"{path}: not a readable {what} ({err}); {expected}") from None
+            raise HybridfitError(f"{path}: key {key!r} holds Python objects, which hybridfit never loads; "
+                                 f"{expected} of numbers and strings") from None
+        raise HybridfitError(f"{path}: not a readable {what} (key {key!r}: {err}); {expected}") from None
     except (zipfile.BadZipFile, OSError, EOFError, KeyError, zlib.error, NotImplementedError, RuntimeError,
-            struct.error, SyntaxError, MemoryError, UnicodeDecodeError) as err:  # what zipfile and numpy raise
-        raise HybridfitError(f"{path}: not a readable {what} (corrupt or truncated: {type(err).__name__}: {err})") from None
+            struct.error, SyntaxError, UnicodeDecodeError, TypeError) as err:  # what zipfile and numpy raise
+        raise HybridfitError(f"{path}: not a readable {what} (corrupt or truncated: key {key!r}: "
+                             f"{type(err).__name__}: {err})") from None
 
 
 def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -118,6 +216,7 @@ def load_proposals(path: str | os.PathLike) -> dict[str, np.ndarray]:
         bad = ~np.isfinite(gt).all(axis=(1, 2))
         if bad.any():
             raise HybridfitError(f"{path}: 'ground_truth' has NaN or inf values (first in frame {int(np.argmax(bad))})")
+        check_magnitude(gt, str(path), "ground_truth")
         data["ground_truth"] = gt.astype(np.float64)
         check_hand_scale(data["ground_truth"], str(path), "ground_truth")
     return data

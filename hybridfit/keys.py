@@ -16,6 +16,12 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+#: the largest seed: seeds are unsigned 64-bit integers
+MAX_SEED = 2**64 - 1
+#: the largest budget (objective evaluations per frame): a billion, hours per frame; more
+#: is a typo, and would overflow the counters
+MAX_BUDGET = 10**9
+
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)

@@ -214,7 +214,15 @@ def kernel_loss(kernel: Callable, *frame_data) -> Loss:
 
 
 def normalise_confidences(confidences: np.ndarray) -> np.ndarray:
-    """(..., K) non-negative confidences -> weights summing to 1 over K (0 stays all-0)."""
+    """(..., K) non-negative confidences -> weights summing to 1 over K (0 stays all-0). A point
+    whose confidences' sum overflows (confidences near the largest float, 1.7e308) has them
+    divided by their largest first, so its weights do not all become 0."""
     c = np.asarray(confidences, dtype=np.float64)
-    total = c.sum(axis=-1, keepdims=True)
+    with np.errstate(over="ignore"):
+        total = c.sum(axis=-1, keepdims=True)
+    overflow = np.isinf(total)
+    if overflow.any() and np.isfinite(c).all():
+        top = np.where(overflow, c.max(axis=-1, keepdims=True), 1.0)
+        c = c / top
+        total = c.sum(axis=-1, keepdims=True)
     return np.divide(c, total, out=np.zeros_like(c), where=total > 0)

@@ -23,6 +23,9 @@ DEPTH_MM = (100.0, 10_000.0)
 OUTSIDE_IMAGE = 0.25
 #: the largest share of points left of or above the image (u < 0 or v < 0)
 NEGATIVE_PIXELS = 0.15
+#: no coordinate of a point (mm) reaches this far from the camera: 1 km (a hand before a depth
+#: camera is within metres; 1e300 is a corrupt file, and no fit of it means anything)
+MAX_COORDINATE_MM = 1e6
 
 
 def check_unique_names(names: Sequence[str], where: str, key: str = "joint_names") -> None:
@@ -33,6 +36,22 @@ def check_unique_names(names: Sequence[str], where: str, key: str = "joint_names
         first = [i for i, n in enumerate(names) if str(n) == twice[0]]
         raise HybridfitError(f"{where}: {key}: {twice[0]!r} is listed {counts[twice[0]]} times (points "
                              f"{', '.join(map(str, first))}); each point needs its own name")
+
+
+def check_magnitude(points: np.ndarray, where: str, key: str) -> None:
+    """Refuse (F, ...) coordinates (mm) beyond ``MAX_COORDINATE_MM`` (NaN is left to the
+    caller), naming the file, the key and the first such frame."""
+    p = np.asarray(points)
+    if not p.size or p.dtype.kind not in "iuf":
+        return
+    with np.errstate(invalid="ignore"):
+        far = (np.abs(p) > MAX_COORDINATE_MM).reshape(len(p), -1).any(axis=1)
+    if far.any():
+        f = int(np.argmax(far))
+        value = p[f][np.abs(p[f]) > MAX_COORDINATE_MM].flat[0]
+        raise HybridfitError(f"{where}: {key!r} has values beyond {MAX_COORDINATE_MM:.0e} mm ({float(value):.3g} in "
+                             f"frame {f}, {int(far.sum())} frames): not a hand before a camera (a corrupt file, or a "
+                             "unit far smaller than mm?)")
 
 
 def check_hand_scale(points: np.ndarray, where: str, key: str) -> None:

@@ -47,7 +47,7 @@ class Plugin:
         try:
             self.settings = self.Settings(**params)
         except ValidationError as err:
-            raise HybridfitError(f"{type(self).__name__} settings: {format_validation_error(err)}") from None
+            raise HybridfitError(f"{type(self).__name__} settings: {format_validation_error(err, self.Settings)}") from None
 
     def get_params(self) -> dict[str, Any]:
         """The settings as a plain dict (JSON/TOML friendly)."""
@@ -83,13 +83,32 @@ def _has_defaults(settings: type[Settings]) -> bool:
     return all(not f.is_required() for f in settings.model_fields.values())
 
 
-def format_validation_error(err: ValidationError) -> str:
-    """One line naming each offending field path and what is wrong with it."""
+def format_validation_error(err: ValidationError, cls: type[BaseModel] | None = None) -> str:
+    """One line naming each offending field path and what is wrong with it; with the settings
+    class ``cls``, an unknown setting gets the closest valid one (``did you mean 'x'?``)."""
     parts = []
     for e in err.errors():
         loc = ".".join(str(p) for p in e["loc"]) or "(settings)"
         msg = e["msg"]
         if e["type"] == "extra_forbidden":
-            msg = "unknown setting"
+            msg = "unknown setting" + closest_key(cls, e["loc"])
         parts.append(f"{loc}: {msg}")
     return "; ".join(parts)
+
+
+def closest_key(cls: type[BaseModel] | None, loc) -> str:
+    """`` (did you mean 'key'?)`` for the unknown key at ``loc`` of settings class ``cls`` (its
+    nested tables followed), or ''."""
+    import difflib
+    import typing
+
+    for part in loc[:-1] if cls is not None else ():
+        field = getattr(cls, "model_fields", {}).get(str(part))
+        inner = [] if field is None else [a for a in (field.annotation, *typing.get_args(field.annotation))
+                                          if isinstance(a, type) and issubclass(a, BaseModel)]
+        if not inner:
+            return ""
+        cls = inner[0]
+    names = [f.alias or n for n, f in getattr(cls, "model_fields", {}).items()]
+    close = difflib.get_close_matches(str(loc[-1]), names, n=1) if loc and names else []
+    return f" (did you mean {close[0]!r}?)" if close else ""

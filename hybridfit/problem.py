@@ -31,7 +31,17 @@ def checked_losses(out, n: int, objective) -> np.ndarray:
         out = np.asarray(out, dtype=np.float64)
     if out.shape != (n,):
         raise PluginError(f"{objective_label(objective)}: its bound loss returned shape {out.shape}, expected {(n,)}")
+    require_finite(out, objective)
     return out
+
+
+def require_finite(losses: np.ndarray, objective) -> None:
+    """A PluginError naming the objective when any of ``losses`` is NaN or infinite: a plugin's
+    bug, never a fit (a NaN is never the best loss, and a -inf would win over every real one)."""
+    if not np.isfinite(losses).all():
+        bad = np.asarray(losses)[~np.isfinite(losses)]
+        raise PluginError(f"{objective_label(objective)}: its loss is not finite ({float(bad.flat[0])} for "
+                          f"{bad.size} of {np.size(losses)} hypotheses); a loss must be a finite number")
 
 
 class Problem:
@@ -139,6 +149,7 @@ class Problem:
         tree_points(*tree.arrays, *tree.point_map, *setup, np.ascontiguousarray(params, dtype=np.float64), subset,
                     points)
         kernel(points, subset, self.proposals, self.weights, consts, out)
+        require_finite(out, self.objective)
         return out
 
     def _compiled(self):

@@ -9,10 +9,12 @@ commands with their help (on stderr, exit code 2: a command is missing).
 Exit codes (``hybridfit.errors``): 0 done; 2 a user error (bad input or option, or an output
 that cannot be written: one line on stderr naming the file, key, field or frame; nothing
 written or overwritten); 3 the run finished but some frames or trials failed (the rest is
-written, the failures listed); 130 interrupted by SIGINT (Ctrl-C), 143 by SIGTERM (``kill``,
-``timeout``, batch schedulers), 129 by SIGHUP (the terminal closed): 128 + the signal's
-number, as a shell reports it; each stops the run the same way, the finished frames are
-written and the rest marked; 141 the output pipe was closed (``| head``).
+written, the failures listed); 4 the machine's limits (out of memory, no worker process can be
+started, numba's compiler cannot load: one line; what was finished stays written); 130
+interrupted by SIGINT (Ctrl-C), 143 by SIGTERM (``kill``, ``timeout``, batch schedulers), 129
+by SIGHUP (the terminal closed): 128 + the signal's number, as a shell reports it; each stops
+the run the same way, the finished frames are written and the rest marked; 141 the output
+pipe was closed (``| head``).
 
 This module imports only the standard library at start-up: everything else is imported
 inside :func:`main`, with the stop signals held back until the imports are done, so that a
@@ -30,7 +32,8 @@ import sys
 import threading
 import warnings
 
-from ..errors import EXIT_INTERRUPTED, EXIT_USER_ERROR, HybridfitError, Terminated
+from .. import _environment
+from ..errors import EXIT_INTERRUPTED, EXIT_RESOURCES, EXIT_USER_ERROR, HybridfitError, ResourceError, Terminated
 
 
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, as a shell reports `cmd | head`
@@ -71,10 +74,26 @@ def _stop(signum, frame):
     raise Terminated(signum)
 
 
+#: below this address-space limit (``ulimit -v``) numpy, scipy and numba's compiler cannot load
+#: or run (measured peaks: 515 MiB at start-up, 700 MiB for a small fit, 980 MiB for one that
+#: compiles the kernels); below it OpenBLAS spins forever and LLVM aborts, neither catchable
+MIN_ADDRESS_SPACE = 2**30
+#: the commands that compile hybridfit's kernels on a first run (a few minutes, once)
+COMPILING = ("calibrate", "estimate", "fit", "propose", "study", "synth", "train")
+
+
 def main(argv: list[str] | None = None) -> int:
     try:  # first statement: a Ctrl-C from here on is handled
         Terminated.received = None
-        parser = _start_up()
+        for note in _environment.NOTES:  # what the environment check changed for numba (NUMBA_NUM_THREADS)
+            print(f"hybridfit: warning: {note}", file=sys.stderr)
+        _environment.NOTES.clear()
+        try:
+            _check_address_space()
+            parser = _start_up()
+        except ResourceError as err:
+            print(f"hybridfit: error: {_one_line(err)}", file=sys.stderr)
+            return EXIT_RESOURCES
         previous = _install(STOP_SIGNALS, _stop)
         try:
             return _main(parser, argv)
@@ -84,16 +103,56 @@ def main(argv: list[str] | None = None) -> int:
         return _interrupted(stop)
 
 
+def _check_address_space() -> None:
+    """Refuse, before loading anything, an address-space limit (``ulimit -v``) too low to load
+    numpy, scipy and numba's compiler: below it some of them spin forever instead of failing."""
+    try:
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    except (ImportError, AttributeError, OSError, ValueError):
+        return
+    if limit != resource.RLIM_INFINITY and 0 <= limit < MIN_ADDRESS_SPACE:
+        raise ResourceError(f"the address-space limit (ulimit -v) is {limit / 2**20:,.0f} MiB; hybridfit needs at "
+                            f"least {MIN_ADDRESS_SPACE // 2**20:,} MiB to load and run numpy, scipy and numba's "
+                            "compiler (llvmlite), which abort below it: raise it (ulimit -v unlimited)")
+
+
+def load_failure(err: BaseException) -> ResourceError | None:
+    """A one-line ResourceError for a failure to load a library for lack of memory or of a
+    cache folder (``ulimit -v``, a read-only install); None for other errors."""
+    from ..errors import PluginError
+
+    if isinstance(err, PluginError):  # a plugin's bug: its traceback
+        return None
+    text = str(err)
+    if isinstance(err, MemoryError) or any(m in text for m in ("failed to map segment", "annot allocate memory",
+                                                                "out of memory")):
+        return ResourceError(f"out of memory loading hybridfit's libraries (numpy, scipy, numba's compiler llvmlite: "
+                             f"{type(err).__name__}{': ' + _one_line(err) if text else ''}); raise the memory limit "
+                             "(ulimit -v) or free memory")
+    if isinstance(err, RuntimeError) and "cannot cache function" in text:
+        return ResourceError(f"numba has no writable folder for its cache of compiled code ({_one_line(err)}); set "
+                             "NUMBA_CACHE_DIR to a writable folder")
+    return None
+
+
 def _start_up() -> argparse.ArgumentParser:
     """Import the commands (numpy, pydantic, ...) with SIGINT, SIGTERM and SIGHUP held back:
     an interrupt inside a native module's import can turn into its own error (a panic, say)
-    instead of a KeyboardInterrupt. A signal that came meanwhile stops the run right after."""
+    instead of a KeyboardInterrupt. A signal that came meanwhile stops the run right after.
+    A library that cannot load for lack of memory or of a cache folder is a ResourceError."""
     held: list[int] = []
     previous = _install((signal.SIGINT, *STOP_SIGNALS), lambda signum, frame: held.append(signum))
     try:
         import pydantic  # noqa: F401  (imported here, under the held signals)
 
         parser = build_parser()
+    except (MemoryError, ImportError, OSError, RuntimeError) as err:
+        failure = load_failure(err)
+        if failure is None:
+            raise
+        raise failure from None
     finally:
         _install((signal.SIGINT, *STOP_SIGNALS), previous)
     if held:
@@ -136,17 +195,38 @@ def _main(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
         from ._common import check_declared
 
         check_declared(args)
+        if args.command in COMPILING and _environment.cache_is_cold():
+            where = os.environ.get("NUMBA_CACHE_DIR")
+            print("hybridfit: note: a first run: numba compiles hybridfit's kernels first, a few minutes once (later "
+                  f"runs reuse them{', cached in ' + where if where else ''})", file=sys.stderr, flush=True)
         code = int(args.func(args) or 0)
         if code == EXIT_INTERRUPTED and Terminated.received is not None:  # finished work written after a signal
             return Terminated(Terminated.received).exit_code
         return code
+    except ResourceError as err:  # out of memory, no processes: the machine's limits, not the input
+        print(f"hybridfit: error: {_one_line(err)}", file=sys.stderr)
+        return EXIT_RESOURCES
     except HybridfitError as err:
         print(f"hybridfit: error: {_one_line(err)}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except MemoryError:  # anywhere, also after the outputs were written (they stay)
+        print("hybridfit: error: out of memory (outputs written before it are kept); free memory, or raise the "
+              "limit (ulimit -v)", file=sys.stderr)
+        return EXIT_RESOURCES
     except ValidationError as err:
         print(f"hybridfit: error: {format_validation_error(err)}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except (ImportError, RuntimeError) as err:  # a library loaded by the command (numba) for lack of memory or cache
+        failure = load_failure(err)
+        if failure is None:
+            raise
+        print(f"hybridfit: error: {_one_line(failure)}", file=sys.stderr)
+        return EXIT_RESOURCES
     except OSError as err:  # a file the command reads or writes: one line naming it
+        failure = load_failure(err) if err.filename is None else None
+        if failure is not None:
+            print(f"hybridfit: error: {_one_line(failure)}", file=sys.stderr)
+            return EXIT_RESOURCES
         if isinstance(err, BrokenPipeError) and err.filename is None:
             _silence_stdout()
             return EXIT_BROKEN_PIPE

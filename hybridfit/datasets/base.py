@@ -122,15 +122,8 @@ class RealDataset(abc.ABC):
 
 def read_png_depth(path: Path) -> np.ndarray:
     """A 16-bit single-channel PNG -> (H, W) uint16."""
-    from PIL import Image
+    from .images import depth_mm, read_image
 
     if not path.is_file():
         raise HybridfitError(f"{path}: depth image missing")
-    try:
-        with Image.open(path) as img:
-            a = np.asarray(img)
-    except OSError as err:
-        raise HybridfitError(f"{path}: unreadable image ({err})") from None
-    if a.ndim != 2:
-        raise HybridfitError(f"{path}: expected a single-channel 16-bit depth PNG, got shape {a.shape}")
-    return a.astype(np.uint16)
+    return depth_mm(read_image(path), path)  # 8-bit refused, 65535 = no measurement (see .images)

@@ -9,7 +9,8 @@ Layout (format "hybridfit-dataset", version 1)::
                   z forward), joints_uvd (F, J, 3) pixels and mm, params (F, P) model
                   parameters (P = 0 when there are none), intrinsics (F, 4) fx, fy, cx, cy,
                   files (F,) frame file names, e.g. "000000.png"
-    depth/NAME    16-bit PNG, depth in mm along the optical axis, 0 = no measurement
+    depth/NAME    16-bit PNG, depth in mm along the optical axis, 0 = no measurement (65535, a
+                  sensor's saturated pixel, is read as 0 too; an 8-bit PNG is refused)
     parts/NAME    8-bit PNG, 0 = background, j + 1 = nearest joint j
     depth.npy     optional cache: all depth frames (F, H, W) uint16, written with the PNGs
     parts.npy     optional cache: all part labels (F, H, W) uint8
@@ -17,7 +18,8 @@ Layout (format "hybridfit-dataset", version 1)::
 The PNGs are the data; the .npy caches only make bulk loading fast (all 7168 frames of the
 training grid in well under a second instead of seconds of PNG decoding). Without them
 (data sets written by other tools, or after deleting them) frames are decoded from the PNGs
-in a thread pool.
+in a thread pool. A cache older than any of its frame PNGs (a PNG edited or replaced since)
+is not used: the PNGs are decoded, with a warning.
 
 :func:`write_dataset` writes into a hidden temporary folder made exclusively beside the
 target (``tempfile.mkdtemp``), then renames it into place; over an existing data set it moves
@@ -37,18 +39,19 @@ import re
 import os
 import shutil
 import tempfile
-import zipfile
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import numpy as np
-from PIL import Image, UnidentifiedImageError
+from PIL import Image
 from pydantic import ValidationError
 
 from .camera import Intrinsics, xyz_to_uvd
+from .images import depth_mm, read_image
 from ..errors import HybridfitError
-from ..io import _UMASK, WriteError, process_alive, write_error
+from ..io import _UMASK, WriteError, load_npz, process_alive, write_error
 
 FORMAT = "hybridfit-dataset"
 VERSION = 1
@@ -241,13 +244,14 @@ def remove_stale_partials(path: Path) -> None:
 
 
 def _read_png(path: Path, shape: tuple[int, int], dtype) -> np.ndarray:
-    try:
-        with Image.open(path) as im:
-            arr = np.asarray(im)
-    except FileNotFoundError:
-        raise HybridfitError(f"{path}: missing frame file") from None
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as err:
-        raise HybridfitError(f"{path}: not a readable PNG ({type(err).__name__}: {err})") from None
+    """A frame PNG as (H, W) ``dtype``: uint16 depth in mm (see :mod:`.images`: 8-bit refused,
+    65535 read as no measurement) or uint8 part labels."""
+    arr = read_image(path, shape, what="depth image" if dtype == np.uint16 else f"{np.dtype(dtype).name} image")
+    if dtype == np.uint16:
+        arr = depth_mm(arr, path)
+        if arr.shape != shape:
+            raise HybridfitError(f"{path}: expected a {shape[1]}x{shape[0]} depth image, got {arr.shape[1]}x{arr.shape[0]}")
+        return arr
     if arr.shape != shape or not (arr.dtype == dtype or (arr.dtype.kind in "iu" and arr.dtype.itemsize <= 4)):
         raise HybridfitError(f"{path}: expected a {shape[1]}x{shape[0]} {np.dtype(dtype).name} image, got {arr.shape} {arr.dtype}")
     if arr.dtype != dtype:
@@ -256,6 +260,15 @@ def _read_png(path: Path, shape: tuple[int, int], dtype) -> np.ndarray:
         arr = arr.astype(dtype)
     return arr
 
+
+def _cache_is_current(cache: Path, folder: Path, files: Sequence[str]) -> bool:
+    """Whether the packed cache ``cache`` is at least as new as every frame PNG in ``folder``
+    (:func:`write_dataset` writes it after them; a PNG edited or replaced later makes it stale)."""
+    try:
+        written = cache.stat().st_mtime_ns
+        return all(os.stat(folder / name).st_mtime_ns <= written for name in files)
+    except OSError:  # a missing PNG: load_dataset names it; here the cache is not trusted
+        return False
 
 class Dataset:
     """A loaded data set: labels in memory, frames decoded from their PNGs on request.
@@ -300,7 +313,11 @@ class Dataset:
     def _bulk(self, kind: str, indices: Iterable[int] | None, dtype) -> np.ndarray:
         idx = np.arange(self.frames) if indices is None else np.array([self._index(i) for i in np.asarray(indices).ravel()], int)
         cache = self.path / f"{kind}.npy"
-        if cache.is_file():
+        if cache.is_file() and not _cache_is_current(cache, self.path / kind, self.files):
+            warnings.warn(f"{cache}: older than the frame PNGs in {self.path / kind} (edited since it was written?); "
+                          "decoding the PNGs instead: delete it, or write the data set again, to make it fast again",
+                          stacklevel=3)
+        elif cache.is_file():
             try:
                 packed = np.load(cache, mmap_mode="r", allow_pickle=False)
             except (ValueError, OSError) as err:
@@ -355,11 +372,8 @@ def load_dataset(path) -> Dataset:
     labels_path = path / "labels.npz"
     if not labels_path.is_file():
         raise HybridfitError(f"{labels_path}: missing")
-    try:
-        with np.load(labels_path, allow_pickle=False) as npz:
-            labels = {k: npz[k] for k in _LABEL_KEYS if k in npz.files}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
-        raise HybridfitError(f"{labels_path}: not a readable .npz file ({type(err).__name__}: {err})") from None
+    npz = load_npz(labels_path, "labels")  # only the keys read here are decompressed, each size-checked first
+    labels = {k: npz[k] for k in _LABEL_KEYS if k in npz}
     F, J = int(meta["frames"]), len(meta["joint_names"])
     for key in _LABEL_KEYS:
         if key not in labels:

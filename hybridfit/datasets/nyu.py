@@ -71,11 +71,9 @@ class NYU(RealDataset):
         super().__init__(mat.parent, frames, uvd[:, list(NYU14)], xyz[:, list(NYU14)])  # its xyz: y up
 
     def _read_depth(self, i: int) -> np.ndarray:
-        from PIL import Image
-
         path = self.root / self.files[i]
         if not path.is_file():
             raise HybridfitError(f"{path}: depth image missing")
-        with Image.open(path) as img:
-            rgb = np.asarray(img.convert("RGB"))
-        return decode_depth(rgb)
+        from .images import read_image
+
+        return decode_depth(read_image(path, convert="RGB"))

@@ -37,7 +37,7 @@ from ..keys import stage_keys
 from ..objective import capability, compiled_kernel_of
 from ..optimizer import BatchSteps, StagePlan, Task, steps_of
 from ..plugin import defining_class
-from ..problem import Problem, prepare_frames
+from ..problem import Problem, prepare_frames, require_finite
 from ..stages import structure_of
 from . import stops
 from .evaluator import KernelScorer, NumpyScorer
@@ -142,6 +142,7 @@ def run_schedule(optimizer, steps: BatchSteps, scorer, stages, indices, settings
                                   f"{getattr(X, 'shape', type(X))} {getattr(X, 'dtype', '')}, expected float64 "
                                   f"{(F, m, len(pidx))}")
             scorer.score(stage, X, subset, losses)
+            require_finite(losses[:, :m], getattr(scorer, "objective", None))  # a NaN or -inf loss: a plugin's bug
             steps.tell(state, X, losses[:, :m])
             keep_best(X, losses, best_x, best_loss)
             left -= m
@@ -150,6 +151,7 @@ def run_schedule(optimizer, steps: BatchSteps, scorer, stages, indices, settings
         if not same_points(subset, owned):  # a guided stage: its best over the points it owns
             again = np.empty((F, 1))
             scorer.score(stage, best_x.reshape((F, 1, len(pidx))), owned, again)
+            require_finite(again, getattr(scorer, "objective", None))
             owned_loss = again[:, 0].copy()
         commit(base, pidx, best_x, owned_loss, stages[s, OWNS_ALL] == 1, frame_loss, committed)
     out_params[:] = base
@@ -381,9 +383,10 @@ class Driver:
     def _run_group(self, lay: Layout, chunk: Chunk, sel, keys, out_params, out_loss) -> None:
         proposals, weights = _require(chunk.proposals[sel], np.float64), _require(chunk.weights[sel], np.float64)
         if self.frames_kernel is not None:
-            scorer = KernelScorer(self.tree, self.point_map, self.frames_kernel, proposals, weights, frames=True)
+            scorer = KernelScorer(self.tree, self.point_map, self.frames_kernel, proposals, weights, frames=True,
+                                  objective=self.objective)
         elif self.kernel is not None:
-            scorer = KernelScorer(self.tree, self.point_map, self.kernel, proposals, weights)
+            scorer = KernelScorer(self.tree, self.point_map, self.kernel, proposals, weights, objective=self.objective)
         else:
             losses = None if self.score_frames is not None else [self.objective.bind(p, w)
                                                                   for p, w in zip(proposals, weights)]
@@ -399,6 +402,7 @@ class Driver:
                 stage = scorer.prepare(out_params, np.arange(P, dtype=np.int64), every, every, 1)
                 again = np.empty((len(out_params), 1))
                 scorer.score(stage, _require(out_params.reshape(len(out_params), 1, P), np.float64), every, again)
+                require_finite(again, self.objective)
                 out_loss[:] = again[:, 0]
         except (HybridfitError, PluginError, KeyboardInterrupt):
             raise

@@ -263,14 +263,15 @@ class KernelScorer:
     tree: (parents, offsets, rest, rest_identity, axes, axis_params, mirror); point_map:
     (pm_ptr, pm_joint, pm_weight), the (Q, J) point matrix in CSR form; kernel: (function,
     constants), a compiled kernel, or with ``frames`` a compiled frames kernel (one call per
-    block of frames); proposals (F, Q, K, 3) mm, weights (F, Q, K)."""
+    block of frames); proposals (F, Q, K, 3) mm, weights (F, Q, K). ``objective`` is named in
+    errors."""
 
-    def __init__(self, tree, point_map, kernel, proposals, weights, frames: bool = False) -> None:
+    def __init__(self, tree, point_map, kernel, proposals, weights, frames: bool = False, objective=None) -> None:
         signature = FRAMES_KERNEL_SIGNATURE if frames else KERNEL_SIGNATURE
         self.tree, self.point_map, self.kernel = tree, point_map, (as_cfunc(kernel[0], signature), kernel[1])
         self.address = callback_address(self.kernel[0], signature)  # self.kernel keeps the callback alive
         self.proposals, self.weights = proposals, weights
-        self.frames = frames
+        self.frames, self.objective = frames, objective
         self.identity = joints_are_points(tree, point_map)
         self._run = frames_kernel_blocks() if frames else kernel_frames()
         self._work = None  # the stages' block buffers, one after the other (block_setup's work)

@@ -9,6 +9,7 @@ compared on common random numbers. The trial key hashes the data, settings and s
 from __future__ import annotations
 
 import copy
+import difflib
 import hashlib
 import itertools
 import json
@@ -75,7 +76,7 @@ def expand(study: Study, where: str = "study") -> list[Variant]:
     """The study's variants in a deterministic order (see the module docstring)."""
     for key in study.sweep.grid:
         if key.split(".")[0] not in SETTING_KEYS:
-            raise HybridfitError(f"{where}: sweep.grid.{key}: unknown setting; allowed: "
+            raise HybridfitError(f"{where}: sweep.grid.{key}: unknown setting{_closest(key, SETTING_KEYS)}; allowed: "
                                  f"{', '.join(sorted(SETTING_KEYS))}")
         if not study.sweep.grid[key]:
             raise HybridfitError(f"{where}: sweep.grid.{key}: needs at least one value")
@@ -99,20 +100,42 @@ def expand(study: Study, where: str = "study") -> list[Variant]:
                 loc += f" ({_variant_name(dict(zip(keys, combo)))})"
             unknown = [k for k in o if k not in SETTING_KEYS]
             if unknown:
-                raise HybridfitError(f"{where}: {loc}.{unknown[0]}: unknown setting; allowed: "
-                                     f"{', '.join(sorted(SETTING_KEYS))}")
+                raise HybridfitError(f"{where}: {loc}.{unknown[0]}: unknown setting{_closest(unknown[0], SETTING_KEYS)}; "
+                                     f"allowed: {', '.join(sorted(SETTING_KEYS))}")
             try:
                 settings = TrialSettings.model_validate(deep_merge(base, o))
-            except ValidationError as err:
-                raise validation_error(where, err, loc) from None
+            except ValidationError as err:  # named where the key was set: this variant, or [base]
+                raise validation_error(where, err, loc if _sets(o, err) else "base") from None
             grid_label = _variant_name(dict(zip(keys, combo))) if keys else ""
             label = ", ".join(p for p in (name or (_variant_name(over) if over else ""), grid_label) if p) or "base"
             if label in names:
                 raise HybridfitError(f"{where}: {loc}: duplicate variant name {label!r}")
             names.add(label)
-            _check_k(study, settings, where, loc)
+            _check_k(study, settings, where, loc if "k" in o else "base")
             out.append(Variant(len(out), label, o, settings))
     return out
+
+
+def _closest(key: str, names) -> str:
+    """`` (did you mean 'x'?)`` for a misspelt dotted setting path (its first part, or the whole)."""
+    first = key.split(".")[0]
+    close = difflib.get_close_matches(first, sorted(names), n=1)
+    if not close:
+        return ""
+    return f" (did you mean {'.'.join([close[0], *key.split('.')[1:]])!r}?)"
+
+
+def _sets(overrides: dict, err: ValidationError) -> bool:
+    """Whether the overrides of a variant set the first key ``err`` is about (else [base] does)."""
+    errors = err.errors()
+    if not errors:
+        return True
+    loc = errors[0]["loc"]
+    if loc:
+        return str(loc[0]) in overrides
+    # a check of the whole trial (a plugin's settings): "KIND_config: ..."; the plugin or its settings
+    key = errors[0]["msg"].removeprefix("Value error, ").split(":")[0]
+    return key in overrides or key.removesuffix("_config") in overrides or not key.endswith("_config")
 
 
 def _check_k(study: Study, settings: TrialSettings, where: str, loc: str) -> None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import sqlite3
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,7 @@ from ..metrics import SUCCESS_THRESHOLDS_MM as THRESHOLDS
 from ..metrics import fingertips, success_rate
 from .spec import METRICS, Study
 from . import plots
-from .store import DB_NAME, Store
+from .store import DB_NAME, Store, storage_error
 
 LABELS = {"mean_error_mm": "mean error (mm)", "median_error_mm": "median frame error (mm)",
           "fingertip_error_mm": "fingertip error (mm)", "success_20mm": "success @20 mm",
@@ -55,9 +56,9 @@ def aggregate(store: Store) -> list[dict[str, Any]]:
     settings, seeds, frames, ``<metric>_mean`` / ``<metric>_std``, the success curve
     (``curve``, over ``THRESHOLDS``), per-joint mean errors and joint names."""
     groups: dict[str, list[dict]] = {}
-    keys = store.get_meta("trial_keys")
+    keys = store.get_meta("trial_keys", list)
     keys = None if keys is None else set(keys)
-    labels = store.get_meta("trial_labels") or {}
+    labels = store.get_meta("trial_labels", dict) or {}
     for t in store.trials("complete"):
         if keys is not None and t["key"] not in keys:
             continue  # from an earlier version of the study file
@@ -134,9 +135,14 @@ def write_report(out: str | os.PathLike, study: Study | None = None) -> Path:
     store = Store(out / DB_NAME)
     try:
         rows = aggregate(store)
-        meta = store.get_meta("study") or {}
-        keys = set(store.get_meta("trial_keys") or [])
+        meta = store.get_meta("study", dict) or {}
+        keys = set(store.get_meta("trial_keys", list) or [])
         failed = [t for t in store.trials("failed") + store.trials("running") if not keys or t["key"] in keys]
+    except sqlite3.Error as err:  # locked, damaged: one line naming the database
+        failure = storage_error(out / DB_NAME, err)
+        if failure is None:
+            raise
+        raise failure from None
     finally:
         store.close()
     write_csv(out / "results.csv", rows)

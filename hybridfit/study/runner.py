@@ -2,8 +2,10 @@
 each result as it arrives, then write the report.
 
 The output folder holds ``study.db`` (``store``), ``cache/`` (``cache``, unless elsewhere),
-the report files and, while a run is on, ``study.lock`` with the run's PID: a second run
-on the same folder is refused unless the lock's process is gone (a stale lock is replaced).
+the report files and, while a run is on, ``study.lock`` with the run's PID, host, boot id,
+PID namespace and start time (:func:`study_lock`): a second run on the same folder is refused
+unless the lock's process is gone (a stale lock is replaced), and the refusal says which
+file to delete once no run is writing there.
 
 The output folder is a study's or a new one (:func:`check_folder`): a missing or empty folder
 starts a study, a folder with a ``study.db`` written by hybridfit resumes it, and any other
@@ -15,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shlex
 import socket
 import sqlite3
 import sys
@@ -34,27 +37,35 @@ from ..problem import Problem
 from ..fitting.tracking import TrackingSettings, track
 from .cache import Cache, process_alive
 from .data import StudyData, baseline_errors
-from .executors import make_executor
+from .executors import check_process_limit, make_executor
 from .expand import Trial, digest, expand, trials
 from .spec import Study
-from .store import COMPANIONS, DB_NAME, Store, check_database, storage_error
+from .store import COMPANIONS, DB_NAME, Store, check_database, check_writable, storage_error
 
 LOCK_NAME = "study.lock"
 
 
 @contextlib.contextmanager
 def study_lock(out: Path):
-    """Hold ``out/study.lock`` (PID and host) for the duration; refuse if a live run holds it."""
+    """Hold ``out/study.lock`` for the duration; refuse if a live run holds it (see :func:`lock_owner`).
+
+    The lock is one line: ``PID HOST boot=BOOT_ID pidns=PID_NAMESPACE start=START_TICKS
+    time=WHEN``. A lock of this machine and container is checked exactly (the process with
+    that PID and that start time since the same boot) and replaced when stale, a reused PID
+    included; one of another host, container or boot cannot be checked from here and is
+    respected, and the message says which file to delete when no run is writing there."""
     path = Path(out) / LOCK_NAME
     path.parent.mkdir(parents=True, exist_ok=True)
-    me = f"{os.getpid()} {socket.gethostname()}\n"
+    me = _lock_line(os.getpid()) + "\n"
     for _ in range(2):
         try:
             fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
         except FileExistsError:
-            if _lock_alive(path):
-                raise HybridfitError(f"{path}: another study run (PID {path.read_text().split()[0]}) is writing "
-                                     f"to {out}; wait for it or use another --out") from None
+            holder = lock_owner(path)
+            if holder is not None:
+                raise HybridfitError(f"{path}: {holder}; wait for it, or use another --out. If no run is writing to "
+                                     f"{out} (it was killed, or its machine or container is gone), delete the lock: "
+                                     f"rm {shlex.quote(str(path))}") from None
             path.unlink(missing_ok=True)  # stale: its process is gone
             continue
         with os.fdopen(fd, "w") as fh:
@@ -70,17 +81,61 @@ def study_lock(out: Path):
                 path.unlink()
 
 
-def _lock_alive(path: Path) -> bool:
-    if path.is_symlink():  # never ours (planted): removed itself, never read or written through
-        return False
+def _boot_id() -> str:
+    """This machine's boot (Linux: a new id at each boot), or ''."""
     try:
-        pid_text, host = path.read_text().split()[:2]
-        pid = int(pid_text)
-    except (OSError, ValueError):
-        return False  # unreadable or half-written: treat as stale
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return ""
+
+
+def _pid_namespace() -> str:
+    """This process's PID namespace (a container has its own), or ''."""
+    try:
+        return os.readlink("/proc/self/ns/pid").removeprefix("pid:").strip("[]")
+    except OSError:
+        return ""
+
+
+def _start_ticks(pid: int) -> str:
+    """When process ``pid`` started (clock ticks since boot, Linux), or '' (unknown or gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[19]
+    except (OSError, IndexError):
+        return ""
+
+
+def _lock_line(pid: int) -> str:
+    return (f"{pid} {socket.gethostname()} boot={_boot_id() or '-'} pidns={_pid_namespace() or '-'} "
+            f"start={_start_ticks(pid) or '-'} time={time.strftime('%Y-%m-%dT%H:%M:%S%z')}")
+
+
+def lock_owner(path: Path) -> str | None:
+    """Who holds the lock at ``path`` ("a study run (PID ...) ..."), or None when it is stale:
+    a link (never ours), unreadable or half-written, of a process that is gone, of a PID reused
+    by another process, or of this machine's previous boot."""
+    if path.is_symlink():  # never ours (planted): removed itself, never read or written through
+        return None
+    try:
+        fields = path.read_text().split()
+        pid, host = int(fields[0]), fields[1]
+    except (OSError, ValueError, IndexError):
+        return None  # unreadable or half-written: treat as stale
+    info = dict(f.split("=", 1) for f in fields[2:] if "=" in f)
+    boot, pidns, start = (info.get(k, "-") for k in ("boot", "pidns", "start"))
+    who = f"another study run (PID {pid} on host {host}{', started ' + info['time'] if 'time' in info else ''})"
     if host != socket.gethostname():
-        return True  # another machine's run: cannot check, so respect it
-    return process_alive(pid)
+        return f"{who} is writing here, on another machine or container, which cannot be checked from here"
+    if boot != "-" and _boot_id() and boot != _boot_id():
+        return None  # written before this machine last booted: its process is gone
+    if pidns != "-" and _pid_namespace() and pidns != _pid_namespace():
+        return f"{who} is writing here from another container of this host, which cannot be checked from here"
+    if not process_alive(pid):
+        return None
+    if start != "-" and _start_ticks(pid) and _start_ticks(pid) != start:
+        return None  # the PID was reused by another process
+    return f"{who} is writing to this folder"
 
 
 def check_folder(out: str | os.PathLike) -> None:
@@ -94,6 +149,7 @@ def check_folder(out: str | os.PathLike) -> None:
         return
     if not out.is_dir():
         raise HybridfitError(f"{out}: is a file; a study writes a folder")
+    check_writable(out)
     db = out / DB_NAME
     if (db.exists() or db.is_symlink()) and check_database(db) is not None:
         return  # a study's folder: resume it
@@ -225,6 +281,8 @@ def _run_study(study: Study, out: Path, *, jobs, executor, scheduler, cache_dir,
                log, keep_going) -> RunSummary:
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     check_folder(out)
+    if executor == "processes" and jobs > 1:  # before any work: the workers fit in ulimit -u
+        check_process_limit(jobs)
     with study_lock(out):
         store = Store(out / DB_NAME)
         try:
@@ -361,5 +419,8 @@ def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: s
                 bar.set_postfix(failed=summary.failed)
         finally:
             bar.close()
-    finally:
+    except BaseException:  # a stop signal or an error: running trials are stopped, not waited for
+        getattr(ex, "abort", ex.close)()
+        raise
+    else:
         ex.close()

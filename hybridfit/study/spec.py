@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from .. import registry
 from ..datasets.skeletons import skeleton
 from ..errors import HybridfitError
+from ..keys import MAX_BUDGET, MAX_SEED
 from ..fitting.tracking import TrackingSettings
 from ..forest import ForestConfig
 from ..synthetic.config import GridConfig, SequenceConfig
@@ -58,7 +59,7 @@ class TrialSettings(_Strict):
     optimizer_settings: dict[str, Any] = Field(default_factory=dict, alias="optimizer_config")
     k: int = Field(3, ge=1, description="proposals per joint (top k)")
     proposal_set: int = Field(200, ge=1, description="|P~|: votes per joint into mean-shift (forest data only)")
-    budget: int = Field(3400, ge=1, description="objective evaluations per frame")
+    budget: int = Field(3400, ge=1, le=MAX_BUDGET, description="objective evaluations per frame")
     search_radius_mm: float = Field(60.0, gt=0)
     polish: bool = Field(True, description="polish every fit (hybridfit.fit's default, what users get); false: the "
                          "optimiser's result at exactly the budget, for comparisons of optimisers at equal budgets")
@@ -72,7 +73,9 @@ class TrialSettings(_Strict):
     def _registered(cls, name: str, info):
         names = registry.names(info.field_name)
         if name not in names:
-            raise ValueError(f"unknown {info.field_name} {name!r}; registered: {', '.join(names)}")
+            close = difflib.get_close_matches(str(name), names, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ValueError(f"unknown {info.field_name} {name!r}{hint}; registered: {', '.join(names)}")
         return name
 
     @model_validator(mode="after")
@@ -213,7 +216,7 @@ class Report(_Strict):
 class Study(_Strict):
     name: str
     description: str = ""
-    seed: int = Field(0, ge=0, description="study seed: derives the trial seeds when seeds is a count")
+    seed: int = Field(0, ge=0, le=MAX_SEED, description="study seed: derives the trial seeds when seeds is a count")
     seeds: int | list[int] = Field(1, description="a count of derived seeds, or the seeds themselves")
     data: Data
     base: TrialSettings = Field(default_factory=TrialSettings)
@@ -227,6 +230,10 @@ class Study(_Strict):
     def _seeds(cls, v):
         if isinstance(v, int) and v < 1 or isinstance(v, list) and (not v or len(set(v)) != len(v)):
             raise ValueError("need a count >= 1 or a non-empty list of distinct seeds")
+        if isinstance(v, list) and not all(0 <= s <= MAX_SEED for s in v):
+            raise ValueError("seeds are integers from 0 to 2**64 - 1")
+        if isinstance(v, int) and v > 10**6:
+            raise ValueError(f"a count of at most 1,000,000 seeds, got {v}")
         return v
 
     def seed_list(self) -> list[int]:

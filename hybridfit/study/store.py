@@ -17,6 +17,7 @@ opened through a symbolic link.
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import time
 import urllib.parse
@@ -70,13 +71,35 @@ CREATE TABLE IF NOT EXISTS frames (
 _ENVIRONMENT = ("disk is full", "readonly", "read-only", "unable to open", "disk i/o error", "out of memory")
 
 
-def storage_error(path: Path, err: sqlite3.Error) -> WriteError | None:
-    """A one-line WriteError naming the database for SQLite's environment errors (a full
-    disk, a read-only folder); None for others (a bug)."""
+#: how long a study waits for a database another program holds locked, seconds
+BUSY_TIMEOUT_S = 30.0
+
+
+def storage_error(path: Path, err: sqlite3.Error) -> HybridfitError | None:
+    """A one-line error naming the database for SQLite's errors that are not a bug: a full
+    disk or read-only folder (a WriteError), a database another program holds locked, a file
+    that is damaged or no database; None for others (a bug)."""
     msg = str(err)
-    if not any(m in msg.lower() for m in _ENVIRONMENT):
+    low = msg.lower()
+    if "locked" in low or "busy" in low:
+        return HybridfitError(f"{path}: the study database stayed locked by another program for {BUSY_TIMEOUT_S:g} s "
+                              "(an open sqlite3 shell or database viewer, a run on another machine sharing the "
+                              "folder?); close it and run again")
+    if any(m in low for m in ("malformed", "not a database", "file is encrypted", "disk image")):
+        return HybridfitError(f"{path}: not a readable study database ({msg}); it was left as it was: use another "
+                              "--out folder")
+    if not any(m in low for m in _ENVIRONMENT):
         return None
     return WriteError(28 if "full" in msg else 30, f"{path}: cannot write the study database: {msg}")
+
+
+def _json(text, path: Path, what: str):
+    """``json.loads(text)``, or a one-line HybridfitError naming the database and ``what``."""
+    try:
+        return json.loads(text)
+    except (TypeError, ValueError, RecursionError) as err:
+        raise HybridfitError(f"{path}: {what} is not JSON ({type(err).__name__}: {' '.join(str(err).split())}): a "
+                             "damaged study database; run the study into a new --out folder") from None
 
 
 def _columns(schema: str) -> dict[str, set[str]]:
@@ -103,6 +126,16 @@ def _refuse_links(path: Path) -> None:
                                  "(it would write where the link points): remove it or use another --out folder")
 
 
+def check_writable(folder: str | Path) -> None:
+    """Refuse an existing study folder this process cannot write (read-only): a study writes
+    its database and its report there, and SQLite cannot even read a WAL database from it."""
+    folder = Path(folder)
+    if folder.is_dir() and not os.access(folder, os.W_OK | os.X_OK):
+        raise HybridfitError(f"{folder}: a read-only folder; a study writes its database and its report "
+                             "(report.md, results.csv, the plots) there: copy the folder somewhere writable "
+                             f"(cp -r {folder} NEW) and give that as --out")
+
+
 def check_database(path: str | Path) -> int | None:
     """The schema version of the existing study database at ``path``, read without writing
     anything to it; None when it holds no tables yet (a new, empty file). A file that is not
@@ -124,6 +157,8 @@ def check_database(path: str | Path) -> int | None:
             row = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
             raw = None if row is None else row[0]
     except sqlite3.DatabaseError as err:
+        if "locked" in str(err) or "busy" in str(err):
+            raise storage_error(path, err) from None
         raise HybridfitError(f"{path}: not a readable study database ({err})") from None
     finally:
         db.close()
@@ -159,25 +194,41 @@ class Store:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        check_writable(self.path.parent)
         found = check_database(self.path) if self.path.exists() or self.path.is_symlink() else None
         _refuse_links(self.path)
-        self.db = sqlite3.connect(self.path, timeout=30, isolation_level=None)
-        self.db.execute("PRAGMA journal_mode=WAL")
-        self.db.execute("PRAGMA synchronous=NORMAL")
-        self.db.execute("PRAGMA foreign_keys=ON")
-        if found is None:  # a new database
-            for stmt in filter(str.strip, _SCHEMA.split(";")):
-                self.db.execute(stmt)
-            self.set_meta("schema_version", SCHEMA_VERSION)
+        self.db = None
+        try:
+            self.db = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT_S, isolation_level=None)
+            self.db.execute("PRAGMA journal_mode=WAL")
+            self.db.execute("PRAGMA synchronous=NORMAL")
+            self.db.execute("PRAGMA foreign_keys=ON")
+            if found is None:  # a new database
+                for stmt in filter(str.strip, _SCHEMA.split(";")):
+                    self.db.execute(stmt)
+                self.set_meta("schema_version", SCHEMA_VERSION)
+        except sqlite3.Error as err:
+            if self.db is not None:
+                self.db.close()
+            failure = storage_error(self.path, err)
+            if failure is None:
+                raise
+            raise failure from None
 
     def close(self) -> None:
         self.db.close()
 
     # ------------------------------------------------------------------ meta
 
-    def get_meta(self, key: str) -> Any:
+    def get_meta(self, key: str, kind: type | tuple[type, ...] | None = None) -> Any:
+        """The meta row ``key`` (None if missing); ``kind``: the type it must have (a damaged
+        database is a one-line HybridfitError naming the row)."""
         row = self.db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
-        return None if row is None else json.loads(row[0])
+        value = None if row is None else _json(row[0], self.path, f"the meta row {key!r}")
+        if kind is not None and value is not None and not isinstance(value, kind):
+            raise HybridfitError(f"{self.path}: the meta row {key!r} is a {type(value).__name__}, not what a study "
+                                 "writes: a damaged study database; run the study into a new --out folder")
+        return value
 
     def set_meta(self, key: str, value: Any) -> None:
         self.db.execute("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", (key, json.dumps(value)))
@@ -239,8 +290,9 @@ class Store:
         out = []
         for row in cur:
             d = dict(zip(cols, row))
-            d["settings"] = json.loads(d["settings"])
-            d["joint_names"] = json.loads(d["joint_names"]) if d["joint_names"] else None
+            d["settings"] = _json(d["settings"], self.path, f"the settings of trial {d.get('id')}")
+            d["joint_names"] = (_json(d["joint_names"], self.path, f"the joint names of trial {d.get('id')}")
+                                if d["joint_names"] else None)
             out.append(d)
         return out
 
@@ -248,7 +300,12 @@ class Store:
         """A trial's frames as arrays: errors (F, J) mm (NaN where failed), objective, evaluations, time_s, failed."""
         rows = self.db.execute("SELECT joint_errors, objective, evaluations, time_s, failed FROM frames "
                                "WHERE trial_id = ? ORDER BY frame", (trial_id,)).fetchall()
-        errors = np.array([[np.nan if x is None else x for x in json.loads(r[0])] for r in rows], float)
+        try:
+            errors = np.array([[np.nan if x is None else x for x in _json(r[0], self.path, f"a frame of trial {trial_id}")]
+                               for r in rows], float)
+        except (TypeError, ValueError):
+            raise HybridfitError(f"{self.path}: the joint errors of trial {trial_id} are not lists of numbers: a "
+                                 "damaged study database; run the study into a new --out folder") from None
         return {"errors": errors.reshape(len(rows), -1),
                 "objective": np.array([np.nan if r[1] is None else r[1] for r in rows], float),
                 "evaluations": np.array([r[2] for r in rows], float),

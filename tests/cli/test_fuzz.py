@@ -385,3 +385,82 @@ def test_fit_on_semantic_traps(tmp_path_factory, capsys, examples):
             assert error < SILENT_ERROR_MM, f"trap {trap} (seed {seed}): silent {error:.1f} mm fit"
 
     check()
+
+
+#: the numeric classes of bad values (issue 33): each must be refused in one line naming the
+#: key, or (confidences near the largest float, whose sum overflows) fitted as their normalised
+#: values, never fitted silently as something else
+NUMERIC_CLASSES = ("nan", "inf", "-inf", "huge", "-huge", "complex", "overflowing-confidences")
+
+
+def numeric_class(d: dict, key: str, kind: str, seed: int) -> dict:
+    """Frames ``d`` with one numeric class of bad values put into ``key``, at random places."""
+    rng = np.random.default_rng(seed)
+    d = dict(d)
+    if kind == "overflowing-confidences":
+        c = d["confidences"]
+        d["confidences"] = c / c.max() * rng.uniform(1e307, np.finfo(float).max)
+        return d
+    a = np.asarray(d[key], dtype=complex if kind == "complex" else float).copy()
+    at = rng.integers(0, a.size, 1 + seed % 3)
+    value = {"nan": np.nan, "inf": np.inf, "-inf": -np.inf, "huge": rng.choice([1e300, 1e30, 1e7, 3e6]),
+             "-huge": -rng.choice([1e300, 1e9, 2e6])}.get(kind)
+    if kind == "complex":
+        a.ravel()[at] += 1j * rng.uniform(0.1, 10)
+    else:
+        a.ravel()[at] = value
+    d[key] = a
+    return d
+
+
+def test_fit_refuses_generated_numeric_classes(valid, tmp_path_factory, capsys, examples):
+    good = load(valid["proposals"])
+
+    @fuzz(examples)
+    @given(st.sampled_from(NUMERIC_CLASSES), st.sampled_from(["proposals", "confidences", "ground_truth"]),
+           st.integers(0, 2**16))
+    def check(kind, key, seed):
+        if kind in ("huge", "-huge") and key == "confidences":  # any positive scale is a valid confidence
+            key = "proposals"
+        d = numeric_class(good, key, kind, seed)
+        work = tmp_path_factory.mktemp("numeric")
+        src, out = work / "p.npz", work / "fits.npz"
+        np.savez(src, **d)
+        code = run_cli(["fit", str(src), "--out", str(out), "--budget", "100", "--optimizer", "pso"], out, capsys)
+        TALLY[f"trap numeric {kind}: exit {code}"] += 1
+        if kind == "overflowing-confidences":  # fitted as the same confidences, normalised
+            assert code == 0
+            plain = work / "plain.npz"
+            np.savez(src, **{**d, "confidences": good["confidences"]})
+            assert run_cli(["fit", str(src), "--out", str(plain), "--budget", "100", "--optimizer", "pso"], None,
+                           capsys) == 0
+            with np.load(out) as a, np.load(plain) as b:
+                assert np.allclose(a["joints"], b["joints"])
+            return
+        assert code == 2, f"{kind} in {key!r} was not refused"  # (run_cli checked the one line)
+
+    check()
+
+
+def test_evaluate_refuses_generated_non_finite_objectives(valid, tmp_path_factory, capsys, examples):
+    good = load(valid["fits"])
+
+    @fuzz(examples)
+    @given(st.sampled_from(["nan", "inf", "-inf"]), st.integers(0, 2**16), st.booleans())
+    def check(kind, seed, marked_failed):
+        d = dict(good)
+        f = seed % len(d["objective"])
+        d["objective"] = d["objective"].copy()
+        d["objective"][f] = {"nan": np.nan, "inf": np.inf, "-inf": -np.inf}[kind]
+        if marked_failed:  # a failed frame's NaN is a failure, as documented
+            d["failed"] = d["failed"].copy()
+            d["failed"][f] = True
+            d["joints"] = d["joints"].copy()
+            d["joints"][f] = np.nan
+        work = tmp_path_factory.mktemp("objective")
+        src = work / "fits.npz"
+        np.savez(src, **d)
+        code = run_cli(["evaluate", str(src)], None, capsys)
+        assert code == (0 if marked_failed else 2), (kind, marked_failed)
+
+    check()

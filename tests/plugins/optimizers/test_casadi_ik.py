@@ -58,7 +58,10 @@ def test_frozen_parameters_stay_at_the_base():
     np.testing.assert_array_equal(root.base[others], problem.x0[others])
 
 
-def test_a_solver_failure_fails_its_frame_only():
+def test_a_solver_failure_fails_its_frame_only(monkeypatch):
+    import hybridfit.plausible
+
+    monkeypatch.setattr(hybridfit.plausible, "MAX_COORDINATE_MM", np.inf)  # past the input check (it refuses 1e200)
     data = hybridfit.synthetic_proposals(3, k=2, seed=0)
     proposals = data["proposals"].copy()
     proposals[1, 20] = 1e200  # the surrogate is NaN for frame 1: IPOPT cannot start

@@ -1,0 +1,138 @@
+"""What numba needs from the process's environment, checked before numba is imported.
+
+numba reads its settings once, at import, and some settings make that import fail with a
+traceback in code that is not hybridfit's (even for ``hybridfit --help``):
+
+- ``NUMBA_NUM_THREADS`` that is not a positive integer (``0``, say): numba raises at import.
+  :func:`prepare` removes it (numba then uses one thread per CPU) and says so;
+- no writable folder for numba's cache of compiled code: a read-only install (its
+  ``__pycache__`` folders) and no writable home folder (numba's user-wide cache,
+  ``~/.cache/numba``) make numba raise "cannot cache function" at import. :func:`prepare` then
+  sets ``NUMBA_CACHE_DIR`` to a folder of this user's own in the temporary folder (made with
+  mode 0700, and used only if this user owns it and nobody else can write to it; else a new
+  one each run), so the first run compiles there and later runs reuse it.
+
+Only the standard library is imported here. The command line also says, on a run that will
+compile hybridfit's kernels first (:func:`cache_is_cold`), that this first run takes a while.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import stat
+import sys
+import tempfile
+from pathlib import Path
+
+_PACKAGE = Path(__file__).resolve().parent
+#: a kernel whose cache index tells whether this install's kernels were compiled already
+_PROBE = _PACKAGE / "fitting" / "driver.py"
+
+
+#: what :func:`prepare` changed, one line each, for the command line to show (and clear)
+NOTES: list[str] = []
+
+
+def prepare() -> list[str]:
+    """Fix the environment for numba (see the module docstring) unless numba is imported
+    already (hybridfit's ``__init__`` calls it); the notes added to :data:`NOTES`."""
+    if "numba" in sys.modules:
+        return []
+    notes: list[str] = []
+    _threads(notes)
+    _cache(notes)
+    NOTES.extend(notes)
+    return notes
+
+
+def _threads(notes: list[str]) -> None:
+    value = os.environ.get("NUMBA_NUM_THREADS")
+    if value is None:
+        return
+    try:
+        ok = int(value) >= 1
+    except ValueError:
+        ok = False
+    if not ok:
+        del os.environ["NUMBA_NUM_THREADS"]
+        notes.append(f"NUMBA_NUM_THREADS={value!r} is not a positive number of threads; ignored (numba uses one "
+                     f"thread per CPU, {os.cpu_count() or 1} here)")
+
+
+def _writable(folder: Path) -> bool:
+    """Whether ``folder`` is (or can be made) a folder this process can write to."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return False
+    return folder.is_dir() and os.access(folder, os.W_OK | os.X_OK)
+
+
+def _user_cache() -> Path:
+    """numba's user-wide cache folder (its ``AppDirs("numba").user_cache_dir`` on Linux)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "numba"
+
+
+def _in_tree_writable() -> bool:
+    return os.access(_PACKAGE, os.W_OK | os.X_OK) and (
+        not (_PACKAGE / "__pycache__").exists() or os.access(_PACKAGE / "__pycache__", os.W_OK | os.X_OK))
+
+
+def _cache(notes: list[str]) -> None:
+    given = os.environ.get("NUMBA_CACHE_DIR")
+    if given:
+        if _writable(Path(given)):
+            return
+        notes.append(f"NUMBA_CACHE_DIR={given!r} is not a writable folder; numba's cache goes elsewhere")
+        del os.environ["NUMBA_CACHE_DIR"]
+    if _in_tree_writable() or _writable(_user_cache()):
+        return
+    folder = _private_folder()
+    if folder is not None:
+        os.environ["NUMBA_CACHE_DIR"] = str(folder)
+
+
+def _private_folder() -> Path | None:
+    """This user's own cache folder in the temporary folder (mode 0700, owned by this user,
+    not a link), or a new private one when that name is taken; None when none can be made."""
+    uid = os.getuid() if hasattr(os, "getuid") else 0
+    folder = Path(tempfile.gettempdir()) / f"hybridfit-numba-cache-{uid}"
+    try:
+        folder.mkdir(mode=0o700, exist_ok=True)
+        info = os.lstat(folder)
+        if (stat.S_ISDIR(info.st_mode) and not stat.S_ISLNK(info.st_mode) and info.st_uid == uid
+                and not info.st_mode & 0o077):
+            return folder
+    except OSError:
+        pass
+    try:  # the name is taken by another user, or open to others: never load compiled code from it
+        return Path(tempfile.mkdtemp(prefix="hybridfit-numba-cache-"))
+    except OSError:
+        return None
+
+
+def cache_folder() -> Path | None:
+    """Where numba caches hybridfit's kernels (of :data:`_PROBE`'s folder), by numba's order:
+    ``NUMBA_CACHE_DIR``, the install's ``__pycache__``, the user-wide cache; None if nowhere."""
+    given = os.environ.get("NUMBA_CACHE_DIR")
+    source = _PROBE.parent
+    hashed = f"{source.name}_{hashlib.sha1(str(source).encode()).hexdigest()}"
+    if given:
+        return Path(given) / hashed
+    if os.access(source, os.W_OK | os.X_OK):
+        return source / "__pycache__"
+    user = _user_cache()
+    return user / hashed if user.is_dir() else None
+
+
+def cache_is_cold() -> bool:
+    """Whether hybridfit's kernels are not compiled yet (a first run; numba's JIT on)."""
+    if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
+        return False
+    folder = cache_folder()
+    try:
+        return folder is None or not any(folder.glob(f"{_PROBE.stem}.*.nbi"))
+    except OSError:
+        return True
