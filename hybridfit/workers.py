@@ -15,18 +15,10 @@ import threading
 import time
 from typing import Callable
 
+from .io import process_alive
+
 #: how often a worker checks that the main process is still there, seconds
 WATCH_INTERVAL_S = 0.5
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _die_with_parent() -> None:
@@ -45,11 +37,11 @@ def start(main_pid: int, then: Callable[[], None] | None = None) -> None:
     initializer ``then``): the worker exits when the main process ``main_pid`` is gone."""
     parent = os.getppid()
     _die_with_parent()
-    if parent != os.getppid() or not _alive(main_pid):  # it died before the kernel was told
+    if parent != os.getppid() or not process_alive(main_pid):  # it died before the kernel was told
         os._exit(1)
 
     def watch() -> None:
-        while os.getppid() == parent and _alive(main_pid):
+        while os.getppid() == parent and process_alive(main_pid):
             time.sleep(WATCH_INTERVAL_S)
         os._exit(1)  # orphaned: nobody will collect the result
 

@@ -99,7 +99,7 @@ def test_a_folder_is_called_a_folder(tmp_path, capsys, option):
 
 
 @pytest.mark.parametrize("command, text, expected", [
-    ("calibrate", "scal = 1.1\n", "unknown key 'scal' for model hand27 (did you mean 'scale'?"),
+    ("calibrate", "scal = 1.1\n", "unknown key 'scal' for model hand29 (did you mean 'scale'?"),
     ("train", "n_tres = 2\n", "unknown key 'n_tres' for the forest (did you mean 'n_trees'?"),
     ("synth", "[intrinsics]\nfxx = 2\n", "unknown key 'intrinsics.fxx' for synth test (did you mean 'fx'?"),
 ])
