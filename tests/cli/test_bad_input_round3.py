@@ -454,11 +454,18 @@ def _traversable_by_others(path: Path) -> Path | None:
     return None
 
 
+def _interpreter_prefix() -> Path:
+    """The prefix that holds the running interpreter's real executable (a virtual environment's
+    python is a link into its base installation, which may be where others cannot enter)."""
+    base = Path(sys.base_prefix).resolve()
+    return base if _traversable_by_others(base / "bin") is not None else Path(sys.prefix).resolve()
+
+
 def _nobody(argv: list[str], home: Path, timeout: float = 60, **kw) -> subprocess.CompletedProcess:
     """Run ``argv`` (``python`` first) as user nobody. An interpreter in a folder others cannot
     enter (/root) is made reachable at its own path in a private mount namespace (a tmpfs over
     that folder, holding only the interpreter's prefix)."""
-    prefix = Path(sys.prefix).resolve()
+    prefix = _interpreter_prefix()
     drop = ["setpriv", "--reuid", "65534", "--regid", "65534", "--clear-groups",
             "env", f"HOME={home}", f"PATH={Path(sys.executable).parent}:/usr/bin:/bin"]
     blocked = _traversable_by_others(prefix / "bin")
@@ -477,7 +484,7 @@ def _why_no_nobody() -> str | None:
         return "needs root, to run a command as user nobody (setpriv)"
     if not shutil.which("setpriv"):
         return "needs setpriv, to run a command as user nobody"
-    blocked = _traversable_by_others(Path(sys.prefix).resolve() / "bin")
+    blocked = _traversable_by_others(_interpreter_prefix() / "bin")
     if blocked is not None and _can_unshare() is not None:
         return f"the interpreter is inside {blocked}, which user nobody cannot enter, and {_can_unshare()}"
     if _traversable_by_others(Path(hybridfit.__file__).resolve()) is not None:
