@@ -11,7 +11,9 @@ one test id each::
     def test_my_optimizer(check):
         check(registry.create("optimizer", "my-optimizer"))
 
-``check_model``, ``check_objective`` and ``check_optimizer`` run all checks of a kind.
+``check_model``, ``check_objective`` and ``check_optimizer`` run all checks of a kind. A check
+that does not apply to a plugin (a capability it does not declare) is skipped with its
+reason (``unittest.SkipTest``, which pytest reports as skipped), never passed.
 Optimiser checks fit small synthetic frames of the suite's own :class:`ToyHand` (a wrist and
 two 3-joint fingers, 13 parameters, 7 joints) with its own objectives (:class:`ToyClamped`,
 the paper's, and :class:`ToyLeastSquares`), so they take seconds and depend on no plugin. (The checks of objectives that observe depth render
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import json
 import pickle
+import unittest
 from typing import Callable
 
 import numpy as np
@@ -51,6 +54,12 @@ CHECK_BUDGET = 150
 def _require(condition: bool, message: str) -> None:
     if not condition:
         raise AssertionError(message)
+
+
+def not_applicable(plugin, reason: str) -> None:
+    """Skip a check that does not apply to this plugin, saying why: raises
+    ``unittest.SkipTest``, which pytest and unittest report as skipped (never passed)."""
+    raise unittest.SkipTest(f"{_label(plugin)}: {reason}")
 
 
 def _label(plugin) -> str:
@@ -392,7 +401,7 @@ def check_objective_sum_over_points(objective: Objective) -> None:
     and a point without proposals contributes nothing wherever it is. (Only for objectives
     declared ``additive``; an image term scores the whole hand on any subset.)"""
     if not getattr(objective, "additive", True):
-        return
+        not_applicable(objective, "its loss is not a sum over points (additive = False)")
     proposals, weights, points = _objective_frame(2)
     loss = objective.bind(proposals, weights)
     Q = len(proposals)
@@ -439,7 +448,8 @@ def check_objective_capabilities(objective: Objective) -> None:
     score_frames = capability(objective, "score_frames")
     symbols = _casadi_scorer(objective)
     if objective.observes_depth or all(c is None for c in (kernel, frames_kernel, score_frames, symbols)):
-        return
+        not_applicable(objective, "it offers no capability beside bind (compiled kernels, score_frames, CasADi "
+                       "symbols)" if not objective.observes_depth else "it observes depth (bind_observed only)")
     frames = [_objective_frame(seed) for seed in (11, 12, 13)]
     proposals = np.stack([f[0] for f in frames])
     weights = np.stack([f[1] for f in frames])
@@ -504,7 +514,7 @@ def check_objective_frames_independent(objective: Objective) -> None:
     frame's fit does not depend on the frames fitted beside it, the chunking or ``--jobs``."""
     score_frames = capability(objective, "score_frames")
     if objective.observes_depth or score_frames is None:
-        return
+        not_applicable(objective, "the core never calls its score_frames (it offers none, or observes depth)")
     frames = [_objective_frame(seed, Q=10) for seed in (21, 22, 23)]  # 10 points: numpy sums them pairwise
     proposals, weights, points = (np.stack([f[i] for f in frames]) for i in range(3))
     every = np.arange(proposals.shape[1], dtype=np.int64)
@@ -556,7 +566,7 @@ def check_objective_strided_points(objective: Objective) -> None:
     as it scores C-contiguous copies: numpy code is layout-agnostic, code that assumes C order
     is not."""
     if objective.observes_depth:
-        return
+        not_applicable(objective, "it observes depth: its losses take the model's joints, not strided points")
     proposals, weights, points = _objective_frame(5)
     loss = objective.bind(proposals, weights)
     score_frames = capability(objective, "score_frames")
@@ -585,7 +595,7 @@ def check_objective_observed(objective: Objective) -> None:
     perturbed poses, and a Problem without the frame's depth is refused with a clear error.
     (Nothing to check for proposal-only objectives.)"""
     if not getattr(objective, "observes_depth", False):
-        return
+        not_applicable(objective, "it scores proposals only (observes_depth = False)")
     loss, proposals, weights, joints = _bound_frame(objective, 5)
     values = loss(joints, np.arange(len(proposals), dtype=np.int64))
     _require(bool(values[0] <= values[1:].min()), f"{_label(objective)}: the observed pose scores {values[0]}, "
@@ -762,19 +772,20 @@ def check_optimizer_improves(optimizer: Optimizer) -> None:
 
 
 def check_optimizer_batch_steps(optimizer: Optimizer) -> None:
-    """An optimiser with batch steps (``hybridfit.optimizer.steps_of``), run by the driver for
-    several frames in lockstep, spends each frame's budget exactly, and fits each frame as it
-    fits it alone (its random numbers come from its own key). (Nothing to check otherwise.)"""
-    from .fitting.driver import Driver
-    from .optimizer import steps_of
+    """An optimiser the driver runs (its plan's stages share batch steps,
+    ``hybridfit.fitting.driver``), fitting several frames in lockstep, spends each frame's
+    budget exactly, and fits each frame as it fits it alone (its random numbers come from its
+    own key). Skipped for optimisers the driver does not run (callback-style solvers)."""
+    from .fitting.driver import Driver, _batched_layout
 
-    if steps_of(optimizer) is None:
-        return
     model = ToyHand()
     data = synthetic_proposals(3, k=3, seed=7, model=model)
     objective = ToyClamped()
     problem = Problem(model, objective, data["proposals"][0], data["confidences"][0])
     budget = _budget(optimizer, Task(problem, 1))
+    if _batched_layout(optimizer, Task(problem, budget)) is None:
+        not_applicable(optimizer, "the driver does not run it: its plan's stages share no batch steps (a "
+                       "callback-style solver runs frame by frame on a Task)")
     driver = Driver(model, objective, optimizer, model.joint_names, budget, seed=3)
     together = driver.fit_chunk([0, 1, 2], data["proposals"], data["confidences"])
     for f in range(3):
@@ -810,22 +821,28 @@ def checks(kind: str) -> tuple[Callable, ...]:
         raise HybridfitError(f"unknown plugin kind {kind!r}; choose from {sorted(_CHECKS)}") from None
 
 
-def check_plugin(kind: str, plugin) -> None:
-    """Run every check of the kind on a configured plugin (raises on the first failure)."""
+def check_plugin(kind: str, plugin) -> list[str]:
+    """Run every check of the kind on a configured plugin (raises on the first failure);
+    returns the reasons of the checks that did not apply (skipped)."""
+    skipped = []
     for check in checks(kind):
-        check(plugin)
+        try:
+            check(plugin)
+        except unittest.SkipTest as skip:
+            skipped.append(f"{check.__name__}: {skip}")
+    return skipped
 
 
-def check_model(model: HandModel) -> None:
+def check_model(model: HandModel) -> list[str]:
     """Run every model check on a configured model (raises on the first failure; ``checks("model")`` lists them)."""
-    check_plugin("model", model)
+    return check_plugin("model", model)
 
 
-def check_objective(objective: Objective) -> None:
+def check_objective(objective: Objective) -> list[str]:
     """Run every objective check on a configured objective (raises on the first failure; ``checks("objective")`` lists them)."""
-    check_plugin("objective", objective)
+    return check_plugin("objective", objective)
 
 
-def check_optimizer(optimizer: Optimizer) -> None:
+def check_optimizer(optimizer: Optimizer) -> list[str]:
     """Run every optimizer check on a configured optimizer (raises on the first failure; ``checks("optimizer")`` lists them)."""
-    check_plugin("optimizer", optimizer)
+    return check_plugin("optimizer", optimizer)

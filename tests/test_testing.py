@@ -496,3 +496,21 @@ def test_casadi_symbols_that_disagree_with_bind_fail_their_check():
     testing.check_objective_capabilities(_symbolic_least_squares(0.0))
     with pytest.raises(AssertionError, match="casadi_loss disagrees with bind"):
         testing.check_objective_capabilities(_symbolic_least_squares(0.5))
+
+
+def test_a_check_that_does_not_apply_is_skipped_with_its_reason_never_passed():
+    import unittest
+
+    plain = registry.create("objective", "least-squares")  # bind only: no score_frames to check
+    with pytest.raises(unittest.SkipTest, match="least-squares.*never calls its score_frames"):
+        testing.check_objective_frames_independent(plain)
+    with pytest.raises(unittest.SkipTest, match="nlopt.*driver does not run it"):
+        testing.check_optimizer_batch_steps(registry.create("optimizer", "nlopt"))
+    skipped = testing.check_objective(plain)
+    assert any(s.startswith("check_objective_frames_independent: ") for s in skipped)
+
+
+def test_the_driver_check_runs_for_the_papers_optimizer():
+    """stepwise-pso has no batch steps of its own, but the driver runs its plan (pso's steps):
+    the check runs (it passed trivially for every built-in before)."""
+    testing.check_optimizer_batch_steps(registry.create("optimizer", "stepwise-pso"))
