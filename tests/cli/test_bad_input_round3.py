@@ -525,6 +525,15 @@ def _ulimit_u_8(home: Path) -> None:
     assert time.monotonic() - started < 30
 
 
+def _kill_tree(proc) -> None:
+    """Kill a test's process and everything below it (what a failed assertion left running)."""
+    if proc.poll() is None:
+        proc.kill()
+    for p in _descendants(proc.pid):
+        with contextlib.suppress(OSError):
+            os.kill(p, signal.SIGKILL)
+
+
 def _descendants(pid: int) -> set[int]:
     """The processes below ``pid`` (Linux /proc)."""
     children: dict[int, list[int]] = {}
@@ -592,11 +601,7 @@ def test_workers_leave_with_a_killed_or_stopped_run(tmp_path, stop, command):
         if stop == signal.SIGTERM:
             assert proc.returncode == 143 and "Traceback" not in proc.stderr.read()
     finally:
-        if proc.poll() is None:
-            proc.kill()
-        for p in _descendants(proc.pid):
-            with contextlib.suppress(OSError):
-                os.kill(p, signal.SIGKILL)
+        _kill_tree(proc)
 
 
 def _lock(out: Path, pid: int, host: str | None = None, **fields) -> Path:
@@ -812,8 +817,4 @@ def test_a_study_whose_workers_hang_while_starting_stops_at_sigterm(tmp_path):
         assert not [p for p in below if _running(p)]
         assert proc.stderr.read().strip().splitlines()[-1] == "hybridfit: stopped by SIGTERM"
     finally:
-        if proc.poll() is None:
-            proc.kill()
-        for p in _descendants(proc.pid):
-            with contextlib.suppress(OSError):
-                os.kill(p, signal.SIGKILL)
+        _kill_tree(proc)
