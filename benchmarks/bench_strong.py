@@ -1,16 +1,19 @@
 """The floor and strong predictors refined, with the one rigid hand: calibrated on ground truth, self-calibrated, not.
 
     python benchmarks/bench_strong.py [--data icvl nyu] [--model hand27] [--frames 400]
-                                      [--json bench_out/strong.json]
+                                      [--calibrate 0:100] [--test 100:] [--json bench_out/strong.json]
 
 Per real data set (ICVL's test annotations, NYU actor 2's, from ../shared/data): a strong
 predictor, ``synthetic.predictors.predictor_errors`` at 5 mm (heavy tails, seed 0), of every
-frame's annotations; ``--frames`` test frames spread evenly over frames 100 to the end.
+frame's annotations; ``--frames`` test frames spread evenly over the frames ``--test``
+(default 100 to the end). The tuning data of hybridfit's defaults is ``--data icvl
+--calibrate 0:80 --test 80:100`` (ICVL frames 0-99 only: self-calibration then sees the
+predictions of those 100 frames alone).
 Mean 3D error (mm) on the test frames of:
 
 - the predictor itself, and refined by ``hybridfit.fit`` (k = 1, the defaults, polished) with
-  the model (a) calibrated on the annotations of frames 0-99 (``calibrate``), (b)
-  self-calibrated on the predictions of all frames (``self_calibrate``, no ground truth),
+  the model (a) calibrated on the annotations of the frames ``--calibrate`` (default 0-99), (b)
+  self-calibrated on the predictions of all frames (of frames 0 to the end of ``--test``) (``self_calibrate``, no ground truth),
   (c) as it is (the dataset's skeleton mapping only);
 - the floor: the annotations themselves fitted with (a) and (b): how close the rigid
   calibrated hand can follow them.
@@ -36,13 +39,14 @@ LABELS = {"icvl": DATA / "icvl" / "icvl_test_groundtruth_label.txt",
           "nyu": DATA / "nyu" / "nyu_actor2_groundtruth_label.txt"}
 
 
-def measure(dataset: str, model: str, n_test: int) -> dict:
+def measure(dataset: str, model: str, n_test: int, calib: slice, tested: slice) -> dict:
     truth = read_xyz(LABELS[dataset], dataset)
+    truth = truth[:tested.stop]  # frames after the tested ones play no part (tuning data stays tuning data)
     names = list(skeleton(dataset).model_names)
     config = dataset_model_config(model, {}, dataset)
     F = len(truth)
-    outside = np.arange(100, F)
-    test = outside[np.unique(np.linspace(0, len(outside) - 1, n_test).round().astype(int))]
+    outside = np.arange(F)[tested]
+    test = outside[np.unique(np.linspace(0, len(outside) - 1, min(n_test, len(outside))).round().astype(int))]
     hand = hybridfit.create("model", model, config)
     pred = truth + predictor_errors(hand, names, F, np.random.default_rng(0), predictors=1, error_mm=(5.0, 5.0))[0]
     ones = np.ones(pred.shape[:2] + (1,))
@@ -53,7 +57,7 @@ def measure(dataset: str, model: str, n_test: int) -> dict:
                                  joint_names=names).joints)
 
     t = time.perf_counter()
-    gt = calibrate(truth[:100], names, model=model, model_config=config).settings
+    gt = calibrate(truth[calib], names, model=model, model_config=config).settings
     gt_s = time.perf_counter() - t
     t = time.perf_counter()
     own = self_calibrate(pred[:, :, None], ones, names, model=model, model_config=config).settings
@@ -70,14 +74,18 @@ def main() -> None:
     ap.add_argument("--data", nargs="+", default=["icvl", "nyu"], choices=sorted(LABELS))
     ap.add_argument("--model", nargs="+", default=["hand27"])
     ap.add_argument("--frames", type=int, default=400, help="test frames, spread over frames 100 to the end")
+    ap.add_argument("--calibrate", default="0:100", help="frames START:STOP whose annotations calibrate")
+    ap.add_argument("--test", default="100:", help="frames START:STOP (STOP may be empty) the figures are measured on")
     ap.add_argument("--json", help="also write the figures here")
     a = ap.parse_args()
+    span = lambda text: slice(*(int(v) if v else None for v in text.split(":")))  # noqa: E731
+    calib, tested = span(a.calibrate), span(a.test)
     rows = []
     print("| data | model | predictor | refined: calibrated | self-calibrated | uncalibrated | floor: calibrated "
           "| self-calibrated |\n|---|---|---|---|---|---|---|---|")
     for dataset in a.data:
         for model in a.model:
-            r = measure(dataset, model, a.frames)
+            r = measure(dataset, model, a.frames, calib, tested)
             rows.append(r)
             p = r["predictor_mm"]
             print(f"| {dataset} | {model} | {p:.2f} | {r['refined_calibrated_mm']:.2f} "

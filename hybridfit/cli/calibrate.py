@@ -18,10 +18,10 @@ from ._common import (FRAMES_HELP, MODEL_KEY, check_plugin, declare_paths, fract
 
 #: the model ``hybridfit calibrate`` (and ``fit``'s self-calibration) calibrates unless told
 #: otherwise: hand29, whose palm arches at the ring and little CMCs as real palms do. On the tuning
-#: data (ICVL frames 0-99: calibrated on 0-79, a 5 mm predictor refined on 80-99,
-#: benchmarks/bench_strong.py's measure) it cost +0.59 mm calibrated and +0.16 self-calibrated,
-#: hand27 +1.06 and +0.80 (floor 3.78 against 4.17 mm); on synthetic stress subjects, whose palms
-#: are rigid by construction, it is 0.04-0.11 mm behind hand27
+#: data (ICVL frames 0-99: `benchmarks/bench_strong.py --data icvl --calibrate 0:80 --test 80:100`)
+#: a 5 mm predictor refined cost +0.53 mm calibrated and +0.16 self-calibrated, hand27 +1.00 and
+#: +0.80 (floor 3.68 against 4.11 mm); on synthetic stress subjects, whose palms are rigid by
+#: construction, it is 0.04-0.11 mm behind hand27 (docs/results.md, One rigid hand)
 CALIBRATED_MODEL = "hand29"
 #: share of the frames held out by default (with --ground-truth)
 HOLDOUT = 0.2
@@ -46,7 +46,7 @@ def register(sub) -> None:
                         "model on frames it was not calibrated on (default 0.2; 0: none; --ground-truth only)")
     p.add_argument("--out", required=True, metavar="MODEL.toml", help="model config to write")
     p.add_argument("--model", help="hand model plugin (default: the one --model-config names, else hand29, which "
-                   "follows real annotations closer than hand26: docs/results.md, Real hands); the model config "
+                   "follows real annotations closer than hand27: docs/results.md, One rigid hand); the model config "
                    "written names it, so `hybridfit fit --model-config` fits with it")
     p.add_argument("--model-config", metavar="TOML", help="the model's other settings (geometry starts at its prior)")
     p.add_argument("--hand", choices=("auto", "right", "left"), default="auto", help="handedness (default: the better fit)")
