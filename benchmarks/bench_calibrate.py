@@ -11,13 +11,16 @@ model then fits the ground truth of ``--fresh`` new frames. Prints per skeleton 
 (mm), the held-out / in-sample ratio, the calibration's own least-squares error (poses
 solved jointly with the geometry; the gap to the in-sample error is the pose fit's), the
 mean bone-length error of the calibrated model and
-the range of its derived-point weights.
+the range of its derived-point weights. The table (and each skeleton's calibrated bones) also
+goes to ``--json`` (default ``benchmarks/results/calibrate.json``).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -26,6 +29,12 @@ from hybridfit.fitting.calibrate import calibrate
 from hybridfit.datasets.skeletons import skeleton, with_derived_points
 from hybridfit.fitting.frames import fit
 from hybridfit.synthetic.proposals import random_poses
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _util import json_argument, table_record, write_record  # noqa: E402
+
+HEADER = ["skeleton", "in-sample (mm)", "held out (mm)", "ratio", "fresh frames (mm)", "least squares (mm)",
+          "bone error (mm)", "weights", "kept at prior", "time (s)"]
 
 
 def annotations(dataset: str, frames: int, seed: int):
@@ -59,10 +68,11 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--skeletons", nargs="+", default=["icvl", "nyu", "msra"])
+    json_argument(ap, "calibrate")
     a = ap.parse_args()
-    print("| skeleton | in-sample (mm) | held out (mm) | ratio | fresh frames (mm) | least squares (mm) | bone error (mm) "
-          "| weights | kept at prior | time (s) |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| " + " | ".join(HEADER) + " |")
+    print("|" + " --- |" * len(HEADER))
+    rows, calibrated = [], {}
     for dataset in a.skeletons:
         sk = skeleton(dataset)
         truth, true = annotations(dataset, a.frames + a.fresh, a.seed)
@@ -76,11 +86,13 @@ def main() -> None:
         bone_err = float(np.abs(bones - np.array(list(true["bone_lengths"].values()))).mean())
         w = [x for v in r.settings["derived_points"].values() for x in v.values()]
         weights = f"{min(w):.2f}..{max(w):.2f}" if w else "-"
-        print(f"| {dataset} | {r.error_after:.2f} | {r.error_heldout:.2f} | {r.error_heldout / r.error_after:.2f} | "
-              f"{err_fresh:.2f} | {r.ls_error:.2f} | {bone_err:.1f} | {weights} | {len(r.at_prior)} | {t:.0f} |",
-              flush=True)
+        rows.append([dataset, f"{r.error_after:.2f}", f"{r.error_heldout:.2f}", f"{r.error_heldout / r.error_after:.2f}",
+                     f"{err_fresh:.2f}", f"{r.ls_error:.2f}", f"{bone_err:.1f}", weights, str(len(r.at_prior)), f"{t:.0f}"])
+        calibrated[dataset] = {b: float(v) for b, v in r.settings["bone_lengths"].items()}
+        print("| " + " | ".join(rows[-1]) + " |", flush=True)
         print(f"|   ({dataset} calibrated bones, mm: " + ", ".join(f"{b} {v:.0f}" for b, v in r.settings["bone_lengths"].items())
               + ")", flush=True)
+    write_record(a.json, {"calibrate": table_record(HEADER, rows)}, calibrated_bones_mm=calibrated)
 
 
 if __name__ == "__main__":

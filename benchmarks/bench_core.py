@@ -15,6 +15,8 @@ Prints (medians of CPU time, so other jobs on a shared machine disturb little):
    ``default_rng([seed, frame])``, so this also shows whether the key source matters);
 4. ``hybridfit.fit`` with ``--jobs`` 1 and 2 (threads), wall time (without taskset);
 5. start-up: a fresh process's import + first fit, compiling and from numba's cache.
+
+The table also goes to ``--json`` (default ``benchmarks/results/core.json``).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from hybridfit.metrics import joint_errors
 from hybridfit.problem import Problem
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
-from _util import median_time, table  # noqa: E402
+from _util import json_argument, median_time, table, table_record, write_record  # noqa: E402
 
 
 def throughput(problem: Problem, n: int) -> float:
@@ -104,6 +106,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=200)
     parser.add_argument("--seeds", type=int, default=20, help="seeds of the driver-vs-Task accuracy comparison")
+    json_argument(parser, "core")
     args = parser.parse_args()
     data = hybridfit.synthetic_proposals(args.frames, k=3, seed=2015)
     model = hybridfit.create("model", "hand26")
@@ -145,6 +148,7 @@ def main() -> None:
     rows.append(["fresh process, import + first fit (s): compiling / from numba's cache", f"{first:.2f} / {second:.2f}"])
     print(f"## Core speed (synthetic frames, k = 3, one core unless said)\n")
     print(table(["measure", "value"], rows))
+    write_record(args.json, {"core": table_record(["measure", "value"], rows)})
 
 
 if __name__ == "__main__":

@@ -8,7 +8,8 @@ median over frames of the median of 15 timings, and of the fastest timing (the s
 an uncontended core, on a shared machine). Then seconds per frame of the FORTH-like
 tracker, Proposed and hybrid.
 
-hybrid's depth weight is measured by ``studies/hybrid_weight.toml``.
+hybrid's depth weight is measured by ``studies/hybrid_weight.toml``. The tables also go to
+``--json`` (default ``benchmarks/results/depth_objective.json``).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from hybridfit.synthetic.poses import sequence_poses
 from hybridfit.fitting.tracking import track
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
-from _util import median_time, table  # noqa: E402
+from _util import json_argument, median_time, table, table_record, write_record  # noqa: E402
 
 
 def renders_per_second(model, poses, depth, intrinsics, resolution: int) -> tuple[float, float]:
@@ -67,16 +68,21 @@ def seconds_per_frame(model, poses, depth, intrinsics, frames: int = 8) -> list[
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.parse_args()
+    json_argument(ap, "depth_objective")
+    a = ap.parse_args()
     model = hybridfit.create("model", "hand26")
     renderer = Renderer(model)
     poses = sequence_poses({"frames": 40})
     depth = renderer.render(poses)[0]
     rows = [[r, *renders_per_second(model, poses, depth, renderer.intrinsics, r)] for r in (32, 64, 128)]
+    renders = ["resolution (pixels per side)", "renders / s (median)", "renders / s (fastest timing)"]
     print("rendered-depth, hypothesis renders per second (batches of 64):")
-    print(table(["resolution (pixels per side)", "renders / s (median)", "renders / s (fastest timing)"], rows))
+    print(table(renders, rows))
+    frames = seconds_per_frame(model, poses, depth, renderer.intrinsics)
     print("\nseconds per frame (median of 3 runs over 8 frames):")
-    print(table(["method", "s / frame"], seconds_per_frame(model, poses, depth, renderer.intrinsics)))
+    print(table(["method", "s / frame"], frames))
+    write_record(a.json, {"renders": table_record(renders, rows),
+                          "seconds": table_record(["method", "s / frame"], frames)})
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """End to end: `hybridfit fit` as a user runs it, with and without the polish.
 
     python benchmarks/bench_end_to_end.py [--frames 2000] [--repeat 5] [--memory-frames 10000]
-                                          [--stops 6] [--json bench_out/end_to_end.json]
+                                          [--stops 6] [--json benchmarks/results/end_to_end.json]
 
 Every figure is a whole process (start-up, reading, fitting, writing), pinned to one core
 (``sched_setaffinity``), on synthetic proposals (``hybridfit synth proposals``, k = 3):
@@ -14,12 +14,13 @@ Every figure is a whole process (start-up, reading, fitting, writing), pinned to
   of ``--memory-frames`` frames;
 - stop latency: SIGTERM sent at spread moments of a ``--memory-frames`` fit; the time to
   exit (143, finished frames written), median and maximum.
+
+The figures and their table go to ``--json`` (the results page's record).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import statistics
@@ -30,6 +31,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _util import json_argument, write_record  # noqa: E402
 
 
 def pinned():
@@ -79,7 +83,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--memory-frames", type=int, default=10000)
     ap.add_argument("--stops", type=int, default=6, help="stop signals sent, at spread moments")
-    ap.add_argument("--json", help="also write the figures here")
+    json_argument(ap, "end_to_end")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -127,9 +131,22 @@ def main() -> None:
     if latencies:
         print(f"  stop (SIGTERM) to exit: median {figures['stop_latency_median_s']:.2f} s, max "
               f"{figures['stop_latency_max_s']:.2f} s over {len(latencies)} stops (exit 143, finished frames written)")
-    if a.json:
-        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.json).write_text(json.dumps(figures, indent=2) + "\n")
+    write_record(a.json, tables(figures), figures=figures)
+
+
+def tables(f: dict) -> dict:
+    """The record's table of the figures ``f``."""
+    stop = (f"median {f['stop_latency_median_s']:.2f} s, max {f['stop_latency_max_s']:.2f} s"
+            if f["stops"] else "no stop landed before the end of the fit")
+    return {"end_to_end": {"columns": ["figure", "value"], "rows": [
+        ["default fit (polished)", f"{f['default_ms_per_frame']:.3f} ms/frame"],
+        ["`--no-polish`", f"{f['no_polish_ms_per_frame']:.3f} ms/frame"],
+        ["ratio", f"{f['ratio']:.2f}x"],
+        ["the polish alone, in one process", f"{f['polish_ms_per_frame']:.3f} ms/frame"],
+        [f"peak memory at {f['frames']} / {f['memory_frames']} frames",
+         f"{f['peak_mib']:.0f} / {f['peak_mib_memory_frames']:.0f} MiB"],
+        [f"SIGTERM to exit, {f['stops']} stops spread over a {f['memory_frames']}-frame run", stop],
+    ]}}
 
 
 if __name__ == "__main__":

@@ -15,6 +15,9 @@ Prints (the machine is shared: medians, and CPU time next to wall time):
    proposal closest to the truth among the top k, k = 1..5) and the fitted pose
    (hybridfit.fit, stepwise PSO, k = 3): mean joint error, fingertip error and success
    rates (share of frames whose worst joint is within the threshold).
+
+The speed figures and the accuracy table also go to ``--json`` (default
+``benchmarks/results/forest.json``).
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _util import table  # noqa: E402
+from _util import json_argument, table, table_record, write_record  # noqa: E402
 
 import hybridfit  # noqa: E402
 from hybridfit.datasets.folder import load_dataset  # noqa: E402
@@ -56,7 +59,9 @@ def main() -> int:
     ap.add_argument("--stride", type=int, default=2, help="test-time pixel stride")
     ap.add_argument("--bandwidth", type=float, default=10.0, help="test-time mean-shift bandwidth, mm")
     ap.add_argument("--proposal-set", type=int, default=200, help="votes per joint into mean-shift (|P~|)")
+    json_argument(ap, "forest")
     args = ap.parse_args()
+    speed = []  # [measure, value] rows of the record
 
     if args.train:
         import json
@@ -73,6 +78,8 @@ def main() -> int:
         print(f"training: {len(ds)} frames, {forest.n_trees} trees, {len(forest.node_threshold)} nodes, "
               f"{len(forest.leaf_weights)} leaves: {wall:.0f} s wall, {cpu:.0f} s CPU on {args.jobs} threads, "
               f"peak RSS {peak:.0f} MiB -> {args.out}")
+        speed.append([f"training on {len(ds)} frames, {args.jobs} threads: wall / CPU / peak memory",
+                      f"{wall:.0f} s / {cpu:.0f} s / {peak:.0f} MiB"])
         args.forest = args.out
     t0 = time.perf_counter()
     forest = Forest.load(args.forest)
@@ -102,12 +109,15 @@ def main() -> int:
           f"bandwidth {args.bandwidth:g} mm, one core): median "
           f"{1000 * np.median(times):.2f} ms, 90th percentile {1000 * np.percentile(times, 90):.2f} ms "
           f"(CPU time: median {1000 * np.median(cpu):.2f} ms); foreground pixels per frame {masks.sum((1, 2)).mean():.0f}")
+    speed.append([f"proposals per frame (k = 3, |P~| = {args.proposal_set}, one core): median / 90th percentile",
+                  f"{1000 * np.median(times):.2f} / {1000 * np.percentile(times, 90):.2f} ms"])
     for jobs in sorted({1, args.jobs}):
         t = time.perf_counter()
         forest.propose(depths, K, masks, k=3, jobs=jobs, **opts)
         wall = time.perf_counter() - t
         print(f"proposals for all {len(idx)} frames in one call on {jobs} thread(s): {wall:.2f} s "
               f"({len(idx) / wall:.0f} frames/s)")
+        speed.append([f"proposals for {len(idx)} frames in one call, {jobs} thread(s)", f"{len(idx) / wall:.0f} frames/s"])
 
     p5 = forest.propose(depths, K, masks, k=5, **opts)
     tips = fingertips(forest.joint_names)
@@ -122,7 +132,10 @@ def main() -> int:
     rows.append(row(f"fitted (stepwise PSO, k=3, {args.budget} evals)", fitted.joints, truth, tips))
     print(f"fitting {len(idx)} frames: {time.perf_counter() - t0:.0f} s on {args.jobs} processes")
     print(f"\n{len(idx)} test frames of {args.test}; errors in mm, success = worst joint within the threshold\n")
-    print(table(["method", "mean error", "fingertip error", *[f"success@{t}" for t in THRESHOLDS]], rows))
+    header = ["method", "mean error", "fingertip error", *[f"success@{t}" for t in THRESHOLDS]]
+    print(table(header, rows))
+    write_record(args.json, {"speed": table_record(["measure", "value"], speed), "accuracy": table_record(header, rows)},
+                 test_frames=len(idx))
     return 0
 
 

@@ -1,7 +1,7 @@
 """ICVL benchmark: calibrate on 100 frames, then fit the ground truth, LRF and the paper's proposals.
 
     python benchmarks/bench_icvl.py [--data ../shared/data/icvl] [--out bench_out/icvl] [--jobs 2]
-                                    [--d-max 40] [--budget 3400]
+                                    [--d-max 40] [--budget 3400] [--frames N]
 
 Every step fits the model `hybridfit calibrate` calibrates by default (hand27 since 0.7.0;
 the model config names it, so every `fit` uses it). Runs exactly these commands (printed as
@@ -17,7 +17,9 @@ they run) and prints the tables:
     with the confidences `proposals from-results` gives three files (from their agreement,
     per point and per frame) and, for comparison, equal ones (`--confidences 1 1 1`);
 with per-joint errors beside the paper's fitted model. Errors are over all 1596 frames
-(as in the data README) and over the 1496 frames not used for calibration.
+(as in the data README) and over the 1496 frames not used for calibration. ``--frames N`` uses
+the first N frames of each input only (a smoke test). The tables also go to ``--json``
+(default ``benchmarks/results/icvl.json``).
 """
 
 from __future__ import annotations
@@ -35,9 +37,14 @@ from hybridfit.datasets.results import read_xyz, write_xyz
 from hybridfit.datasets.skeletons import skeleton
 from hybridfit.metrics import joint_errors, success_rate
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _util import json_argument, write_record  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 CALIB = "0:100"
 TEST = slice(100, None)
+HEADER = ["method", "mean (mm)", "fingertips (mm)", "success@20", "success@40", "success@80"]
+TABLES: dict[str, dict] = {}  # the record's tables, as printed
 
 
 def sh(*args: str) -> None:
@@ -48,19 +55,31 @@ def sh(*args: str) -> None:
     print(f"  ({time.perf_counter() - t:.0f} s)", flush=True)
 
 
-def row(label, pred, truth):
+def row(label, pred, truth) -> list[str]:
     e = joint_errors(pred, truth)
     s = success_rate(e, (20, 40, 80))
-    return f"| {label} | {np.nanmean(e):.2f} | {np.nanmean(e[:, list(skeleton('icvl').fingertips)]):.2f} | " \
-           f"{s[0]:.3f} | {s[1]:.3f} | {s[2]:.3f} |"
+    return [label, f"{np.nanmean(e):.2f}", f"{np.nanmean(e[:, list(skeleton('icvl').fingertips)]):.2f}",
+            f"{s[0]:.3f}", f"{s[1]:.3f}", f"{s[2]:.3f}"]
 
 
-def table(title, rows):
+def table(key, title, rows, header=HEADER):
     print(f"\n{title}\n")
-    print("| method | mean (mm) | fingertips (mm) | success@20 | success@40 | success@80 |")
-    print("| --- | --- | --- | --- | --- | --- |")
+    print("| " + " | ".join(header) + " |")
+    print("|" + " --- |" * len(header))
     for r in rows:
-        print(r)
+        print("| " + " | ".join(r) + " |")
+    TABLES[key] = {"title": title, "columns": list(header), "rows": rows}
+
+
+def first_frames(data: Path, out: Path, n: int) -> Path:
+    """A copy of the data folder's three inputs cut to their first ``n`` frames (in ``out``)."""
+    cut = out / "first_frames"
+    cut.mkdir(exist_ok=True)
+    for name in ("icvl_test_groundtruth_label.txt", "lrf_cvpr14_predictions.txt"):
+        (cut / name).write_text("".join((data / name).read_text().splitlines(keepends=True)[:n]))
+    with np.load(data / "poier2015_proposals.npz") as z:
+        np.savez(cut / "poier2015_proposals.npz", **{k: z[k][:n] for k in z.files})
+    return cut
 
 
 def main() -> None:
@@ -70,9 +89,13 @@ def main() -> None:
     ap.add_argument("--jobs", default="2")
     ap.add_argument("--budget", default="3400")
     ap.add_argument("--d-max", type=float, default=40.0, help="clamped-confidence d_max in mm")
+    ap.add_argument("--frames", type=int, help="the first N frames of each input only (a smoke test; default all)")
+    json_argument(ap, "icvl")
     a = ap.parse_args()
     data, out = Path(a.data), Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
+    if a.frames:
+        data = first_frames(data, out, a.frames)
     gt, lrf, poier = data / "icvl_test_groundtruth_label.txt", data / "lrf_cvpr14_predictions.txt", \
         data / "poier2015_proposals.npz"
     objective = out / "objective.toml"
@@ -121,20 +144,21 @@ def main() -> None:
     weights = z3["confidences"] / z3["confidences"].sum(-1, keepdims=True)
     weighted = (z3["proposals"] * weights[..., None]).sum(2)
 
-    table("(a) model-fit floor: calibrated model fitted to the ground truth (k = 1), frames 100-1595",
+    table("floor", "(a) model-fit floor: calibrated model fitted to the ground truth (k = 1), frames 100-1595",
           [row("fit of the ground truth", fit_gt, truth[TEST])])
-    for name, sel in (("all 1596 frames", slice(None)), ("frames 100-1595 (not used for calibration)", TEST)):
-        table(f"(b) LRF refined, {name}", [row("LRF (published)", raw_lrf[sel], truth[sel]),
-                                            row("LRF fitted (k = 1, ours)", fit_lrf[sel], truth[sel])])
-        table(f"(c) the paper's proposals, {name}", [
+    for scope, name, sel in (("all", "all 1596 frames", slice(None)),
+                             ("test", "frames 100-1595 (not used for calibration)", TEST)):
+        table(f"lrf_{scope}", f"(b) LRF refined, {name}", [row("LRF (published)", raw_lrf[sel], truth[sel]),
+                                                            row("LRF fitted (k = 1, ours)", fit_lrf[sel], truth[sel])])
+        table(f"proposals_{scope}", f"(c) the paper's proposals, {name}", [
             row("top-1 proposals", top1[sel], truth[sel]),
             row("paper's fit (optimized)", paper[sel], truth[sel]),
             row("our fit of the proposals (k = 3)", fit_poier[sel], truth[sel])])
-        table(f"(d) LRF fused with the paper's top-1, {name}", [
+        table(f"fused2_{scope}", f"(d) LRF fused with the paper's top-1, {name}", [
             row("LRF (published)", raw_lrf[sel], truth[sel]), row("top-1 proposals", top1[sel], truth[sel]),
             row("their per-joint mean (not anatomically constrained)", (raw_lrf[sel] + top1[sel]) / 2, truth[sel]),
             row("the two fused by fitting (ours)", fused[sel], truth[sel])])
-        table(f"(e) LRF, the paper's top-1 and the paper's fit fused, {name}", [
+        table(f"fused3_{scope}", f"(e) LRF, the paper's top-1 and the paper's fit fused, {name}", [
             row("the paper's fit (optimized)", paper[sel], truth[sel]),
             row("their per-joint median (not anatomically constrained)",
                 np.median(z3["proposals"][sel], axis=2), truth[sel]),
@@ -144,12 +168,10 @@ def main() -> None:
                 truth[sel])])
     names = skeleton("icvl").names
     cols = {"paper's fit": paper, "our fit (c)": fit_poier, "top-1": top1, "LRF": raw_lrf, "LRF fitted (b)": fit_lrf}
-    print("\nper-joint mean error (mm), all 1596 frames\n")
-    print("| joint | " + " | ".join(cols) + " |")
-    print("| --- |" + " --- |" * len(cols))
     errs = {k: np.nanmean(joint_errors(v, truth), axis=0) for k, v in cols.items()}
-    for j, n in enumerate(names):
-        print(f"| {n} | " + " | ".join(f"{errs[k][j]:.2f}" for k in cols) + " |")
+    table("per_joint", "per-joint mean error (mm), all 1596 frames",
+          [[n, *(f"{errs[k][j]:.2f}" for k in cols)] for j, n in enumerate(names)], ["joint", *cols])
+    write_record(a.json, TABLES)
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ an infinite loss without being evaluated). Ours is ``hybridfit.fit`` (the driver
 Prints CPU ms per frame, the ratio to ours, mean joint error and mean objective: ours the
 median over 5 fits of all frames (a mean per frame, its fixed cost per fit included), a
 peer's the median over frames of each frame's fit (which leaves out its slowest frames).
+The table also goes to ``--json`` (default ``benchmarks/results/peers.json``).
 """
 
 from __future__ import annotations
@@ -43,7 +44,8 @@ from hybridfit.optimizer import Optimizer, Task
 from hybridfit.problem import Problem
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
-from _util import table  # noqa: E402
+from _util import json_argument, table, table_record, write_record  # noqa: E402
+from hybridfit.fitting.driver import run_problem
 
 #: the paper's schedule (no final refinement, whose own PSO settings peers would not share)
 SCHEDULE = {"refine_share": 0.0}
@@ -142,7 +144,7 @@ def run_peer(data, inner: Optimizer, budget: int) -> tuple[float, np.ndarray, np
     for f in range(len(data["proposals"])):
         t = time.process_time()
         problem = Problem(model, objective, data["proposals"][f], data["confidences"][f])
-        result = stepwise.run(problem, budget, np.random.default_rng([0, f]))
+        result = run_problem(stepwise, problem, budget, np.random.default_rng([0, f]))
         times.append(time.process_time() - t)
         assert result.evaluations == budget
         params.append(result.params)
@@ -155,6 +157,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=200)
     parser.add_argument("--budget", type=int, default=3400)
     parser.add_argument("--seeds", type=int, default=20, help="seeds of our fit's spread (the peers run seed 0)")
+    json_argument(parser, "peers")
     args = parser.parse_args()
     data = hybridfit.synthetic_proposals(args.frames, k=3, seed=2015)
     model = hybridfit.create("model", "hand26")
@@ -184,7 +187,10 @@ def main() -> None:
     top1 = joint_errors(data["proposals"][:, :, 0], data["ground_truth"]).mean()
     print(f"## PSO peers ({args.frames} synthetic frames, k = 3, budget {args.budget}, same stages, one core; "
           f"top-1 proposals {top1:.2f} mm)\n")
-    print(table(["optimizer", "CPU ms per frame", "vs ours", "mean joint error (mm)", "mean objective (-E)"], rows))
+    header = ["optimizer", "CPU ms per frame", "vs ours", "mean joint error (mm)", "mean objective (-E)"]
+    print(table(header, rows))
+    top1_row = ["top-1 proposals (no fit)", "", "", f"{top1:.2f}", ""]
+    write_record(args.json, {"peers": table_record(header, rows + [top1_row])})
 
 
 if __name__ == "__main__":

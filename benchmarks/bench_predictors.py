@@ -21,11 +21,13 @@ real ones (LRF, the paper's top-1 and the paper's fit) and the stress ones at 4,
 mm, each design: the best input, their per-point median, and their mean weighted by the
 confidences of ``hybridfit.agreement`` (estimated on these frames) with the sequence-level
 confidences alone (``frame_reach = None``) and with the per-frame weights (the default).
+Both tables also go to ``--json`` (default ``benchmarks/results/predictors.json``).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +38,8 @@ from hybridfit.datasets.skeletons import dataset_model_config, skeleton
 from hybridfit.agreement import agreement_confidences
 from hybridfit.synthetic.predictors import predictor_errors
 
-from _util import table
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _util import json_argument, table, table_record, write_record  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "icvl"
 
@@ -64,6 +67,7 @@ def fusion(x: np.ndarray, truth: np.ndarray) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", default="0:100", help="ICVL frames START:STOP (default 0:100, the tuning frames)")
+    json_argument(ap, "predictors")
     a = ap.parse_args()
     frames = slice(*(int(v) for v in a.frames.split(":")))
     truth = read_xyz(DATA / "icvl_test_groundtruth_label.txt", "icvl")[frames]
@@ -79,11 +83,14 @@ def main() -> None:
         e = predictor_errors(model, names, len(truth), np.random.default_rng(0), **tails)
         rows.append([f"{label}, 4 / 5 mm", *statistics(e[0], e[1])])
         fused.append([f"{label}, 4 / 5 / 6 mm", *fusion((truth[None] + e).transpose(1, 2, 0, 3), truth)])
-    print(table(["predictors", "correlation", "first: mean, mean/median / p95/median",
-                 "second: mean, mean/median / p95/median", "sd of log per-point ratio (range)"], rows))
+    errors = ["predictors", "correlation", "first: mean, mean/median / p95/median",
+              "second: mean, mean/median / p95/median", "sd of log per-point ratio (range)"]
+    fusing = ["three predictors", "best input", "per-point median", "weighted mean, sequence confidences",
+              "weighted mean, per-frame weights"]
+    print(table(errors, rows))
     print()
-    print(table(["three predictors", "best input", "per-point median", "weighted mean, sequence confidences",
-                 "weighted mean, per-frame weights"], fused))
+    print(table(fusing, fused))
+    write_record(a.json, {"errors": table_record(errors, rows), "fused": table_record(fusing, fused)})
 
 
 if __name__ == "__main__":

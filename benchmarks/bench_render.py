@@ -9,6 +9,8 @@ Prints medians (the machine is shared):
 2. with --grid DIR: generating the whole default training grid (7168 frames) into DIR
    (poses, rendering, writing), then loading all its frames back: from the packed cache
    and decoding the PNGs.
+
+The tables also go to ``--json`` (default ``benchmarks/results/render.json``).
 """
 
 from __future__ import annotations
@@ -31,13 +33,14 @@ from hybridfit.synthetic.sets import make_train
 from hybridfit.synthetic.proposals import random_poses
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
-from _util import median_time, table  # noqa: E402
+from _util import json_argument, median_time, table, table_record, write_record  # noqa: E402
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=500, help="frames per render timing (default 500)")
     ap.add_argument("--grid", metavar="DIR", help="also generate the full training grid into DIR and load it")
+    json_argument(ap, "render")
     args = ap.parse_args()
     model = hybridfit.create("model", "hand26")
     renderer = Renderer(model)
@@ -62,6 +65,7 @@ def main() -> None:
     rows.append(["+ sensor noise only (numpy)", n / t, 1e3 * t / n, float("nan")])
     print(f"Rendering 320x240 depth + parts, {n} frames, one core (medians):\n")
     print(table(["poses", "frames/s", "ms/frame", "hand pixels"], rows))
+    tables = {"render": table_record(["poses", "frames/s", "ms/frame", "hand pixels"], rows)}
 
     if args.grid:
         t0 = time.perf_counter()
@@ -78,10 +82,12 @@ def main() -> None:
             for p in tmp:
                 shutil.move(p + ".off", p)
         print(f"\nTraining grid ({ds.frames} frames) generated and written in {t_make:.1f} s")
-        print(table(["load all depths + part labels", "seconds", "ms/frame"], [
-            ["packed .npy cache", t_cache, 1e3 * t_cache / ds.frames],
-            ["PNG decoding (thread pool)", t_png, 1e3 * t_png / ds.frames],
-        ]))
+        loading = [["packed .npy cache", t_cache, 1e3 * t_cache / ds.frames],
+                   ["PNG decoding (thread pool)", t_png, 1e3 * t_png / ds.frames]]
+        print(table(["load all depths + part labels", "seconds", "ms/frame"], loading))
+        tables["grid"] = table_record(["load all depths + part labels", "seconds", "ms/frame"], loading)
+        tables["grid"]["rows"].insert(0, [f"generate and write the grid ({ds.frames} frames)", f"{t_make:.1f}", ""])
+    write_record(args.json, tables)
 
 
 if __name__ == "__main__":

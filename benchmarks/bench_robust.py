@@ -8,11 +8,15 @@ and the final joint refinement (``refine_share = 0``); the paper's schedule has 
 Prints the mean joint error in mm per set, with the top-1 proposals beside them.
 
     python benchmarks/bench_robust.py [--skeletons icvl,nyu,msra] [--jobs 2]
+
+The table also goes to ``--json`` (default ``benchmarks/results/robust.json``).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -20,7 +24,8 @@ import hybridfit
 from hybridfit.datasets.skeletons import dataset_model_config
 from hybridfit.metrics import joint_errors
 
-from _util import table
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _util import json_argument, table, table_record, write_record  # noqa: E402
 
 VARIANTS = {
     "default": {},
@@ -36,6 +41,7 @@ def main() -> None:
     ap.add_argument("--skeletons", default="icvl,nyu,msra")
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--jobs", type=int, default=1)
+    json_argument(ap, "robust")
     args = ap.parse_args()
     rows = []
     for skeleton in args.skeletons.split(","):
@@ -52,7 +58,9 @@ def main() -> None:
                 row.append(error(fit.joints))
             rows.append(row)
             print(f"{skeleton} set {seed}: done", flush=True)
-    print(table(["skeleton", "set (seed)", "top-1", *VARIANTS], [[*r[:2], *(f"{v:.2f}" for v in r[2:])] for r in rows]))
+    header, cells = ["skeleton", "set (seed)", "top-1", *VARIANTS], [[*r[:2], *(f"{v:.2f}" for v in r[2:])] for r in rows]
+    print(table(header, cells))
+    write_record(args.json, {"robust": table_record(header, cells)})
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """The floor and strong predictors refined, with the one rigid hand: calibrated on ground truth, self-calibrated, not.
 
     python benchmarks/bench_strong.py [--data icvl nyu] [--model hand27] [--frames 400]
-                                      [--calibrate 0:100] [--test 100:] [--json bench_out/strong.json]
+                                      [--calibrate 0:100] [--test 100:] [--json benchmarks/results/strong.json]
 
 Per real data set (ICVL's test annotations, NYU actor 2's, from ../shared/data): a strong
 predictor, ``synthetic.predictors.predictor_errors`` at 5 mm (heavy tails, seed 0), of every
@@ -22,7 +22,7 @@ Mean 3D error (mm) on the test frames of:
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import time
 from pathlib import Path
 
@@ -33,6 +33,9 @@ from hybridfit.datasets.results import read_xyz
 from hybridfit.datasets.skeletons import dataset_model_config, skeleton
 from hybridfit.fitting.calibrate import calibrate, self_calibrate
 from hybridfit.synthetic.predictors import predictor_errors
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _util import json_argument, write_record  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 LABELS = {"icvl": DATA / "icvl" / "icvl_test_groundtruth_label.txt",
@@ -76,7 +79,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=400, help="test frames, spread over frames 100 to the end")
     ap.add_argument("--calibrate", default="0:100", help="frames START:STOP whose annotations calibrate")
     ap.add_argument("--test", default="100:", help="frames START:STOP (STOP may be empty) the figures are measured on")
-    ap.add_argument("--json", help="also write the figures here")
+    json_argument(ap, "strong")
     a = ap.parse_args()
     span = lambda text: slice(*(int(v) if v else None for v in text.split(":")))  # noqa: E731
     calib, tested = span(a.calibrate), span(a.test)
@@ -92,9 +95,24 @@ def main() -> None:
                   f"({r['refined_calibrated_mm'] - p:+.2f}) | {r['refined_self_calibrated_mm']:.2f} "
                   f"({r['refined_self_calibrated_mm'] - p:+.2f}) | {r['refined_uncalibrated_mm']:.2f} | "
                   f"{r['floor_calibrated_mm']:.2f} | {r['floor_self_calibrated_mm']:.2f} |", flush=True)
-    if a.json:
-        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.json).write_text(json.dumps({"version": hybridfit.__version__, "rows": rows}, indent=2) + "\n")
+    write_record(a.json, tables(rows), rows=rows)
+
+
+NAMES = {"icvl": "ICVL", "nyu": "NYU actor 2"}
+
+
+def tables(rows: list[dict]) -> dict:
+    """The record's table of the measured ``rows``: errors in mm, a refined predictor's change beside it."""
+    def refined(r, key):
+        return f"{r[key]:.2f} ({r[key] - r['predictor_mm']:+.2f})"
+
+    return {"strong": {"columns": ["data", "model", "predictor", "refined, calibrated", "refined, self-calibrated",
+                                   "uncalibrated", "floor, calibrated / self"],
+                       "rows": [[NAMES.get(r["dataset"], r["dataset"]), r["model"], f"{r['predictor_mm']:.2f}",
+                                 refined(r, "refined_calibrated_mm"), refined(r, "refined_self_calibrated_mm"),
+                                 f"{r['refined_uncalibrated_mm']:.2f}",
+                                 f"{r['floor_calibrated_mm']:.2f} / {r['floor_self_calibrated_mm']:.2f}"]
+                                for r in rows]}}
 
 
 if __name__ == "__main__":

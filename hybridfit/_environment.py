@@ -14,12 +14,14 @@ traceback in code that is not hybridfit's (even for ``hybridfit --help``):
 
 Only the standard library is imported here. The command line also says, on a run that will
 compile hybridfit's kernels first (:func:`cache_is_cold`), that this first run takes a while.
+:func:`machine` describes the machine a figure is measured on (studies and benchmarks record it).
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import platform
 import stat
 import sys
 import tempfile
@@ -136,3 +138,26 @@ def cache_is_cold() -> bool:
         return folder is None or not any(folder.glob(f"{_PROBE.stem}.*.nbi"))
     except OSError:
         return True
+
+
+def machine() -> dict[str, object]:
+    """The machine a figure is measured on: CPU model, the cores this process may use and the
+    machine's, the operating system, Python and the versions of numpy and numba."""
+    from importlib import metadata
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+            cpu = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    out: dict[str, object] = {"cpu": cpu, "cores": usable, "cpus": os.cpu_count(),
+                              "system": f"{platform.system()} {platform.release()}",
+                              "python": platform.python_version()}
+    for name in ("numpy", "numba"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out

@@ -44,7 +44,7 @@ class PluginError(RuntimeError):
 class BudgetExceeded(PluginError):
     """An optimiser asked for more objective evaluations than its budget allows.
 
-    This is a bug in the optimiser plugin, not a user error: ``Optimizer.run`` names the
+    This is a bug in the optimiser plugin, not a user error: the driver names the
     optimiser, ``hybridfit.fit`` the frame and the plugins.
     """
 

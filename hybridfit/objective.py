@@ -26,25 +26,17 @@ import numba as nb
 import numpy as np
 
 from .datasets.camera import Intrinsics
-from .errors import HybridfitError
+from .errors import HybridfitError, PluginError
 from .plugin import Plugin, defining_class
+from .point_loss import bound_point_loss
 
-#: an objective's compiled kernel: (points (Q, 3, N) mm, the hypothesis innermost, subset
-#: (m,) point indices, proposals (Q, K, 3) mm, weights (Q, K), constants (c,), out (n,),
-#: n <= N) -> None; writes into ``out`` the loss of each of the first n hypotheses over the
-#: points in ``subset``.
-KERNEL_SIGNATURE = nb.types.void(nb.types.float64[:, :, ::1], nb.types.int64[::1], nb.types.float64[:, :, ::1],
-                                 nb.types.float64[:, ::1], nb.types.float64[::1], nb.types.float64[::1])
-
-#: an objective's compiled frames kernel: the same loss for the hypotheses of several frames
-#: side by side, in one call: (points (Q, 3, C) mm, the hypothesis innermost, subset (m,),
-#: proposals (F, Q, K, 3) mm, weights (F, Q, K), constants (c,), f0, f1, n, out (F, >= n))
-#: -> None; writes out[f, i] for f0 <= f < f1 and i < n, the loss of frame f's hypothesis in
-#: column (f - f0) n + i over the points in ``subset`` against frame f's proposals.
-FRAMES_KERNEL_SIGNATURE = nb.types.void(nb.types.float64[:, :, ::1], nb.types.int64[::1],
-                                        nb.types.float64[:, :, :, ::1], nb.types.float64[:, :, ::1],
-                                        nb.types.float64[::1], nb.types.int64, nb.types.int64, nb.types.int64,
-                                        nb.types.float64[:, ::1])
+#: an objective's fast form, its per-point loss: point_loss(x (n,), y (n,), z (n,) mm, the
+#: coordinates of one point in n hypotheses, proposals (K, 3) mm and weights (K,) of that
+#: point, constants (c,), out (n,)) -> None, writing each hypothesis's loss of this point
+#: into out[i]. Called only for points with proposals (a weight > 0).
+POINT_LOSS_SIGNATURE = nb.types.void(nb.types.float64[::1], nb.types.float64[::1], nb.types.float64[::1],
+                                     nb.types.float64[:, ::1], nb.types.float64[::1], nb.types.float64[::1],
+                                     nb.types.float64[::1])
 
 #: loss(points (N, Q, 3) mm, subset (m,) int64 point indices) -> (N,) float64 losses; points
 #: may be any strided view (the driver's has the hypothesis innermost in memory)
@@ -103,9 +95,11 @@ def dataset_observations(ds, indices, where: str = "data") -> list[Observation |
 class Objective(Plugin, abc.ABC):
     """Scores hypotheses' points against a frame's proposals; lower is better.
 
-    ``bind`` is the contract. ``compiled_kernel``, ``compiled_frames_kernel``, ``score_frames``
-    and ``casadi_loss`` are optional capabilities (faster or symbolic forms of the same loss), used by the core only
-    through :func:`capability`; ``hybridfit.testing`` checks that they agree with ``bind``.
+    An objective offers its loss in one of two forms: the fast one, ``point_loss`` (a numba
+    function of one point, which hybridfit compiles into every loop it needs), or ``bind``
+    (plain numpy, any loss over a frame's points). With a ``point_loss``, ``bind`` comes
+    built from it. Objectives that see the depth image offer ``bind_observed``; ``casadi_loss``
+    is an optional symbolic form for gradient solvers (``casadi-ik``).
     """
 
     #: capability: bind_observed needs the frame's depth Observation and the model
@@ -113,13 +107,23 @@ class Objective(Plugin, abc.ABC):
     #: capability: the loss is a sum of per-point terms (stage losses add up)
     additive: ClassVar[bool] = True
 
-    @abc.abstractmethod
+    def point_loss(self) -> tuple[Callable, np.ndarray] | None:
+        """The fast form: (function, constants (c,) float64), the function a ``numba.njit``
+        function of :data:`POINT_LOSS_SIGNATURE` (hybridfit compiles it into its loops, once
+        per process and cached on disk); None (the default): only ``bind``."""
+        return None
+
     def bind(self, proposals: np.ndarray, weights: np.ndarray) -> Loss:
         """Fix the objective to one frame.
 
         proposals: (Q, K, 3) mm; weights: (Q, K) confidences normalised per point to sum to
-        1 (or all 0 for a point without proposals). Returns loss(points, subset).
-        """
+        1 (or all 0 for a point without proposals). Returns loss(points (N, Q, 3), subset
+        (m,)) -> (N,). The default sums ``point_loss`` over the subset."""
+        found = self.point_loss()  # its own, also when a subclass's bind calls this one
+        if found is None:
+            raise NotImplementedError(f"objective {self.name or type(self).__name__} offers neither point_loss nor "
+                                      f"bind")
+        return bound_point_loss((found[0], np.ascontiguousarray(found[1], dtype=np.float64)), proposals, weights)
 
     def bind_observed(self, proposals: np.ndarray, weights: np.ndarray, observation: Observation,
                       model: Any) -> ObservedLoss:
@@ -132,54 +136,23 @@ class Objective(Plugin, abc.ABC):
         """A lower bound of the loss for these weights (-inf when unknown)."""
         return -np.inf
 
-    # ---- optional capabilities: faster ways to compute what ``bind`` computes. The core
-    # uses one only where :func:`capability` finds it valid for this object's ``bind``.
-
-    def compiled_kernel(self) -> tuple[Callable, np.ndarray] | None:
-        """Capability: (kernel, constants (c,) float64), a numba function of
-        :data:`KERNEL_SIGNATURE` scoring exactly as ``bind`` does; None (the default): none."""
-        return None
-
-    def compiled_frames_kernel(self) -> tuple[Callable, np.ndarray] | None:
-        """Capability: (kernel, constants (c,) float64), a numba function of
-        :data:`FRAMES_KERNEL_SIGNATURE` scoring several frames' hypotheses in one call exactly
-        as ``bind`` does (the driver calls it once per block of frames instead of a
-        ``compiled_kernel`` once per frame); None (the default): none."""
-        return None
-
-    def score_frames(self, points: np.ndarray, subset: np.ndarray, proposals: np.ndarray,
-                     weights: np.ndarray) -> np.ndarray | None:
-        """Capability: the losses of many frames at once, plain numpy allowed, given only the
-        scored points: points (F, N, m, 3) mm, the points ``subset`` (m,) int64 of F frames' N
-        hypotheses, and proposals (F, m, K, 3) mm and weights (F, m, K) (normalised) of the
-        same m points -> (F, N) float64, row f equal to ``bind(P[f], W[f])(X[f], subset)`` for
-        the frame's whole proposals P, weights W and any points X whose rows ``subset`` are
-        points[f]. The driver hands views with the frame axis innermost in memory, then the
-        point axis (not C-contiguous; any strides must work): numpy's elementwise operations
-        between points and proposals then run in long contiguous loops, and arrays made by
-        them or by ``np.empty_like`` keep that layout. F >= 2 (a single frame is scored beside a
-        copy of itself: numpy sums over one frame's points pairwise, over several frames' one
-        by one), and row f must not depend on the other frames, bit for bit. None (the
-        default): not offered."""
-        return None
-
     def casadi_loss(self, points: Any, proposals: np.ndarray, weights: np.ndarray, subset: np.ndarray) -> Any:
         """Capability: the loss as CasADi symbols of points (Q, 3) SX for gradient-based
         solvers (``casadi-ik``); None (the default): not offered."""
         return None
 
 
-#: the optional capabilities of :class:`Objective` (each overrides a base method returning None)
-CAPABILITIES = ("compiled_kernel", "compiled_frames_kernel", "score_frames", "casadi_loss")
+#: the forms of :class:`Objective` that stand in for its ``bind`` (each overrides a base method returning None)
+CAPABILITIES = ("point_loss", "casadi_loss")
 
 
 def capability(objective: Any, name: str) -> Callable | None:
     """The objective's bound method ``name`` (one of :data:`CAPABILITIES`) when it may stand in
     for its ``bind``, else None.
 
-    A capability is valid only when the class that defines it is the class that defines the
+    A form is valid only when the class that defines it is the class that defines the
     ``bind`` in effect, or a subclass of it: a subclass that overrides ``bind`` never runs its
-    parent's kernel. Objects that are not :class:`Objective` subclasses offer nothing."""
+    parent's ``point_loss``. Objects that are not :class:`Objective` subclasses offer nothing."""
     if name not in CAPABILITIES:
         raise ValueError(f"unknown objective capability {name!r}; choose from {CAPABILITIES}")
     if not isinstance(objective, Objective):
@@ -189,28 +162,43 @@ def capability(objective: Any, name: str) -> Callable | None:
     if provider is Objective:
         return None
     binder = defining_class(cls, "bind_observed" if objective.observes_depth else "bind")
-    if not issubclass(provider, binder):
+    if binder is not Objective and not issubclass(provider, binder):
         return None
     return getattr(objective, name)
 
 
-def compiled_kernel_of(objective: Any, name: str = "compiled_kernel") -> tuple[Callable, np.ndarray] | None:
-    """The objective's valid compiled kernel (``name``: ``compiled_kernel`` or
-    ``compiled_frames_kernel``) and constants (see :func:`capability`), or None."""
-    method = capability(objective, name)
+def point_loss_of(objective: Any) -> tuple[Callable, np.ndarray] | None:
+    """The objective's valid ``point_loss`` (function, constants (c,) float64), or None (an
+    objective that observes depth scores the whole hand: never per point)."""
+    method = capability(objective, "point_loss")
     found = None if method is None or objective.observes_depth else method()
     if found is None:
         return None
     return found[0], np.ascontiguousarray(found[1], dtype=np.float64)
 
 
-def kernel_loss(kernel: Callable, *frame_data) -> Loss:
-    """A Loss calling a batched numba ``kernel(points (N, Q, 3), subset (m,), *frame_data) -> (N,)``."""
+def objective_label(objective) -> str:
+    """How errors name an objective: ``objective NAME``."""
+    return f"objective {getattr(objective, 'name', None) or type(objective).__name__}"
 
-    def loss(points: np.ndarray, subset: np.ndarray) -> np.ndarray:
-        return kernel(np.ascontiguousarray(points, dtype=np.float64), np.asarray(subset, dtype=np.int64), *frame_data)
 
-    return loss
+def checked_losses(out, n: int, objective) -> np.ndarray:
+    """A bound loss's result as (n,) float64, or a PluginError naming the objective."""
+    if type(out) is not np.ndarray or out.dtype != np.float64:
+        out = np.asarray(out, dtype=np.float64)
+    if out.shape != (n,):
+        raise PluginError(f"{objective_label(objective)}: its bound loss returned shape {out.shape}, expected {(n,)}")
+    require_finite(out, objective)
+    return out
+
+
+def require_finite(losses: np.ndarray, objective) -> None:
+    """A PluginError naming the objective when any of ``losses`` is NaN or infinite: a plugin's
+    bug, never a fit (a NaN is never the best loss, and a -inf would win over every real one)."""
+    if not np.isfinite(losses).all():
+        bad = np.asarray(losses)[~np.isfinite(losses)]
+        raise PluginError(f"{objective_label(objective)}: its loss is not finite ({float(bad.flat[0])} for "
+                          f"{bad.size} of {np.size(losses)} hypotheses); a loss must be a finite number")
 
 
 def normalise_confidences(confidences: np.ndarray) -> np.ndarray:

@@ -12,36 +12,12 @@ from typing import Sequence
 import numpy as np
 
 from .alignment import INLIER_MM, _aligned_guesses, alignment_points, initial_guess, robust_alignment  # noqa: F401
-from .errors import HybridfitError, PluginError
+from .errors import HybridfitError
 from .model.base import ORIENTATION, POSITION, HandModel
-from .model.kinematics import COLUMNS, block_setup, tree_points
-from .objective import Objective, Observation, compiled_kernel_of, normalise_confidences
+from .objective import (Objective, Observation, checked_losses, normalise_confidences, objective_label,  # noqa: F401
+                        require_finite)
 from .stages import (MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, _Structure, guide_points, point_depths,  # noqa: F401
                      rotation_lever_mm, structure_of)
-
-
-def objective_label(objective) -> str:
-    """How errors name an objective: ``objective NAME``."""
-    return f"objective {getattr(objective, 'name', None) or type(objective).__name__}"
-
-
-def checked_losses(out, n: int, objective) -> np.ndarray:
-    """A bound loss's result as (n,) float64, or a PluginError naming the objective."""
-    if type(out) is not np.ndarray or out.dtype != np.float64:
-        out = np.asarray(out, dtype=np.float64)
-    if out.shape != (n,):
-        raise PluginError(f"{objective_label(objective)}: its bound loss returned shape {out.shape}, expected {(n,)}")
-    require_finite(out, objective)
-    return out
-
-
-def require_finite(losses: np.ndarray, objective) -> None:
-    """A PluginError naming the objective when any of ``losses`` is NaN or infinite: a plugin's
-    bug, never a fit (a NaN is never the best loss, and a -inf would win over every real one)."""
-    if not np.isfinite(losses).all():
-        bad = np.asarray(losses)[~np.isfinite(losses)]
-        raise PluginError(f"{objective_label(objective)}: its loss is not finite ({float(bad.flat[0])} for "
-                          f"{bad.size} of {np.size(losses)} hypotheses); a loss must be a finite number")
 
 
 class Problem:
@@ -52,8 +28,6 @@ class Problem:
     bounds, with the position limited to ``search_radius_mm`` around the initial guess.
     observation: the frame's depth (needed by objectives that ``observes_depth``); x0: (P,)
     an initial guess (tracking: the previous frame's fit) instead of the proposals' one.
-    When the model has a ``kinematic_tree`` and the objective a valid ``compiled_kernel``
-    (:func:`hybridfit.objective.capability`), :meth:`evaluate` runs compiled (:func:`tree_points`).
     """
 
     def __init__(
@@ -69,6 +43,8 @@ class Problem:
     ) -> None:
         self.model = model
         self.objective = objective
+        self.observation = observation
+        self.search_radius_mm = float(search_radius_mm)
         self.proposals = np.ascontiguousarray(proposals, dtype=np.float64)
         self.weights = np.ascontiguousarray(normalise_confidences(confidences))
         self.point_names = tuple(point_names) if point_names is not None else tuple(model.joint_names)
@@ -87,9 +63,6 @@ class Problem:
             self.loss = objective.bind(self.proposals, self.weights)
         self.all_points = np.arange(len(self.point_names), dtype=np.int64)
         self._needed: dict[bytes, np.ndarray | None] = {}
-        # a kinematic tree and a compiled kernel: points by :func:`tree_points`, then the kernel
-        self._kernel = compiled_kernel_of(objective) if callable(getattr(model, "kinematic_tree", None)) else None
-        self._compiled_parts = None
         self.x0 = initial_guess(self) if x0 is None else model.clip(np.asarray(x0, dtype=float)[None])[0]
         lower, upper = search_boxes(self._structure(), self.x0[None], search_radius_mm)
         self.lower, self.upper = lower[0], upper[0]
@@ -122,41 +95,12 @@ class Problem:
         """(N, P) -> (N,) loss over the points in ``subset`` (all by default). A bound loss
         returning another shape is a PluginError naming the objective."""
         subset = self.all_points if subset is None else subset
-        if self._kernel is not None and getattr(params, "ndim", 0) == 2 and params.shape[1] == self.model.n_params:
-            return self._evaluate_compiled(params, subset)
         if self.observed:  # an image term needs the whole hand
             joints = self.model.forward(params)
             out = self.loss(self._from_joints(joints), subset, joints)
         else:
             out = self.loss(self.points(params, subset), subset)
         return checked_losses(out, len(params), self.objective)
-
-    def _evaluate_compiled(self, params: np.ndarray, subset: np.ndarray) -> np.ndarray:
-        """:meth:`evaluate` by :func:`tree_points` and the objective's compiled kernel (in
-        this problem's working buffers, one per subset: one thread at a time per problem)."""
-        kernel, consts, tree = self._compiled()
-        if subset is not self.all_points:
-            subset = np.ascontiguousarray(subset, dtype=np.int64)
-        key = subset.tobytes()
-        setup = self._setups.get(key)
-        n = max(1, min(len(params), COLUMNS))
-        if setup is None or setup[0][4] < n:  # all parameters moving, columns for n hypotheses
-            P = self.model.n_params
-            setup = self._setups[key] = block_setup(*tree.arrays, *tree.point_map, np.zeros((0, P)),
-                                                    np.arange(P), subset, subset, n)
-        points = np.empty((len(self.point_names), 3, len(params)))
-        out = np.empty(len(params))
-        tree_points(*tree.arrays, *tree.point_map, *setup, np.ascontiguousarray(params, dtype=np.float64), subset,
-                    points)
-        kernel(points, subset, self.proposals, self.weights, consts, out)
-        require_finite(out, self.objective)
-        return out
-
-    def _compiled(self):
-        if self._compiled_parts is None:
-            self._compiled_parts = (*self._kernel, self._structure().tree())
-            self._setups: dict[bytes, tuple] = {}
-        return self._compiled_parts
 
     def _from_joints(self, joints: np.ndarray) -> np.ndarray:
         """All model joints (N, J, 3) -> (N, Q, 3) points."""
@@ -190,11 +134,12 @@ def search_boxes(structure: "_Structure", x0: np.ndarray, search_radius_mm: floa
 
 
 def prepare_frames(model: HandModel, objective: Objective, proposals: np.ndarray, confidences: np.ndarray,
-                   point_names: Sequence[str], search_radius_mm: float = 60.0):
+                   point_names: Sequence[str], search_radius_mm: float = 60.0, guess: bool = True):
     """What :class:`Problem` computes, for F frames at once: proposals (F, Q, K, 3) mm and
     confidences (F, Q, K) -> (weights (F, Q, K), x0 (F, P), lower (F, P), upper (F, P), errors
     {frame position: message} for frames that cannot be fitted, whose rows are unspecified).
-    Frames whose guess is not an alignment (fewer than 3 observed points) get a Problem each."""
+    Frames whose guess is not an alignment (fewer than 3 observed points) get a Problem each.
+    Without ``guess`` (the caller has its own) x0 is the model's default pose."""
     proposals = np.ascontiguousarray(proposals, dtype=np.float64)
     weights = np.ascontiguousarray(normalise_confidences(confidences))
     F = len(proposals)
@@ -202,6 +147,9 @@ def prepare_frames(model: HandModel, objective: Objective, proposals: np.ndarray
         P = model.n_params
         return weights, np.empty((0, P)), np.empty((0, P)), np.empty((0, P)), {}
     structure = structure_of(model, point_names)
+    if not guess:
+        x0 = np.repeat(structure.default_params[None], F, axis=0)
+        return (weights, x0, *search_boxes(structure, x0, search_radius_mm), {})
     observed = weights.sum(axis=-1) > 0
     uses = [alignment_points(structure, observed[f]) for f in range(F)]
     at = np.cumsum([0] + [0 if u is None else len(u) for u in uses]).astype(np.int64)

@@ -62,17 +62,22 @@ def test_frames_prepared_together_are_the_problems_built_one_by_one(hand26, clam
 
 
 @pytest.mark.parametrize("names", [None, "derived"])
-def test_compiled_evaluation_is_the_objectives_loss_of_the_points(hand26, clamped, frames, names):
+def test_evaluation_is_the_papers_formula_of_the_points(hand26, clamped, frames, names):
+    """Problem scores by ``bind``, here the one built from clamped-confidence's point_loss (the
+    points copied into the hypothesis-innermost layout, the terms summed over the subset): Eq. 1
+    of the model's points, derived points included, on any subset."""
     proposals, c = frames["proposals"][0], frames["confidences"][0]
     point_names = None
     if names == "derived":  # the wrist replaced by the palm centre
         point_names = ["palm_centre"] + list(hand26.joint_names[1:])
     p = Problem(hand26, clamped, proposals, c, point_names)
-    assert p._kernel is not None
-    X = p.x0 + np.random.default_rng(0).normal(0.0, 0.1, (150, hand26.n_params))  # more than one block
+    X = p.x0 + np.random.default_rng(0).normal(0.0, 0.1, (150, hand26.n_params))
     for subset in (None, np.array([0, 1, 5, 9]), np.array([6, 7, 8]), np.array([20])):
         s = p.all_points if subset is None else subset
-        np.testing.assert_allclose(p.evaluate(X, subset), p.loss(p.points(X, s), s), rtol=0, atol=1e-12)
+        points = p.points(X, s)[:, s]
+        d = np.minimum(1.0, np.linalg.norm(points[:, :, None] - p.proposals[s], axis=-1) / 40.0)
+        want = -(p.weights[s] * (1.0 - d**2)).max(axis=-1).sum(axis=-1)
+        np.testing.assert_allclose(p.evaluate(X, subset), want, rtol=0, atol=1e-12)
 
 
 class _OneLossTooMany(Objective):

@@ -1,6 +1,8 @@
 """The conformance suite: every registered plugin (third-party ones too) passes every check,
 and each check catches the fault it is about."""
 
+import unittest
+
 import numpy as np
 import pytest
 
@@ -105,9 +107,7 @@ def test_round_trip_check_catches_logic_in_init():
 
 
 def test_sum_check_catches_a_non_additive_objective():
-    base = registry.create("objective", "least-squares")
-
-    class Squared(type(base)):
+    class Squared(testing.ToyLeastSquares):
         def bind(self, proposals, weights):
             loss = super().bind(proposals, weights)
             return lambda points, subset: loss(points, subset) ** 2
@@ -134,13 +134,12 @@ def test_the_suites_own_objectives_pass_its_checks_and_score_as_the_reference_pl
     assert toy().lower_bound(weights) == registry.create("objective", reference).lower_bound(weights)
 
 
-def test_recording_task_records_stages():
+def test_recording_task_records_every_batch():
     problem = testing.check_problem()
-    task = testing.RecordingTask(problem, 20)
-    stage = task.stage("a", [7, 8], problem.all_points[:3], 5)
-    stage.evaluate(np.tile(stage.x0, (3, 1)))
+    task = testing.RecordingTask(problem, 20, [7, 8], problem.all_points[:3])
+    task.evaluate(np.tile(task.x0, (3, 1)))
     task.evaluate(np.tile(task.x0, (2, 1)))
-    assert [len(X) for _, X in task.record] == [3, 2] and task.used == 5
+    assert [X.shape for _, X in task.record] == [(3, 2), (2, 2)] and task.used == 5
 
 
 # ------------------------------------------------------------------ broken models fail their check
@@ -263,7 +262,7 @@ class IgnoresMinimum(_Base):
 @pytest.mark.parametrize("optimizer, check, match", [
     (StartOnly(), testing.check_optimizer_improves, "less than 20% of the gap closed"),
     (Sneaky(), testing.check_optimizer_budget, "151 evaluations for a budget of 150"),
-    (Idle(), testing.check_optimizer_subset, "used 0 of a stage budget"),
+    (Idle(), testing.check_optimizer_subset, "evaluated nothing"),
     (IgnoresMinimum(), testing.check_optimizer_min_budget, "below min_budget"),
 ], ids=lambda v: getattr(v, "__name__", type(v).__name__))
 def test_a_broken_optimizer_fails_its_check(optimizer, check, match):
@@ -281,130 +280,95 @@ def test_improvement_check_passes_a_plain_random_search():
     testing.check_optimizer_improves(registry.create("optimizer", "pso"))
 
 
-# ------------------------------------------------------------------ objective capabilities
-from hybridfit.objective import KERNEL_SIGNATURE, Objective, capability  # noqa: E402
+# ------------------------------------------------------------------ objective forms
+import numba as nb  # noqa: E402
+
+from hybridfit.objective import Objective, capability  # noqa: E402
+from hybridfit_plugins.objectives.least_squares import least_squares_point  # noqa: E402
 
 
-class _ShiftedScores(Objective):
-    """Least squares on the top proposal, with a frame scorer that is off by a constant."""
+class _PointLoss(Objective):
+    """An objective by its per-point loss alone (bind built from it); its subclasses below
+    break one rule each."""
 
-    def bind(self, proposals, weights):
-        target = proposals[np.arange(len(proposals)), weights.argmax(-1)]
-        used = weights.sum(-1) > 0
+    function = least_squares_point
 
-        def loss(points, subset):
-            d = ((points[:, subset] - target[subset]) ** 2).sum(-1)
-            return (d * used[subset]).sum(-1)
-
-        return loss
-
-    def score_frames(self, points, subset, proposals, weights):  # all arrays cut to the subset's points
-        every = np.arange(len(subset))
-        return np.stack([self.bind(p, w)(x, every) for x, p, w in zip(points, proposals, weights)]) + 1.0
+    def point_loss(self):
+        return type(self).function, np.zeros(0)
 
 
-def test_a_frame_scorer_that_disagrees_with_bind_fails_its_check():
-    with pytest.raises(AssertionError, match="score_frames disagrees with bind"):
-        testing.check_objective_capabilities(_ShiftedScores())
-    fixed = type("Agreeing", (_ShiftedScores,), {"score_frames": lambda self, *a: _ShiftedScores.score_frames(self, *a) - 1.0})
-    testing.check_objective_capabilities(fixed())
-    testing.check_objective_strided_points(fixed())
+@nb.njit
+def _skips_the_last(x, y, z, proposals, weights, constants, out):
+    least_squares_point(x[:-1], y[:-1], z[:-1], proposals, weights, constants, out[:-1])
 
 
-def test_a_frame_scorer_that_cuts_the_subset_again_fails_its_check():
-    """score_frames gets the subset's points and proposals only: cutting them to ``subset``
-    again (as bind's loss does with all Q points) is caught."""
-
-    class CutsAgain(_ShiftedScores):
-        def score_frames(self, points, subset, proposals, weights):
-            return np.stack([self.bind(p, w)(x, subset) for x, p, w in zip(points, proposals, weights)])
-
-    with pytest.raises(AssertionError, match="score_frames fails on the driver's arguments"):
-        testing.check_objective_capabilities(CutsAgain())
+@nb.njit
+def _batch_centred(x, y, z, proposals, weights, constants, out):  # shifted by a statistic of the whole batch
+    least_squares_point(x, y, z, proposals, weights, constants, out)
+    for i in range(out.shape[0]):
+        out[i] += 1e-6 * x.sum()
 
 
-def test_a_frame_scorer_whose_frames_depend_on_each_other_fails_its_check():
-    agreeing = type("Agreeing", (_ShiftedScores,), {"score_frames": lambda self, *a: _ShiftedScores.score_frames(self, *a) - 1.0})
-    testing.check_objective_frames_independent(agreeing())
-
-    class BatchCentred(agreeing):
-        def score_frames(self, points, subset, proposals, weights):  # shifted by a statistic of the whole batch
-            return agreeing.score_frames(self, points, subset, proposals, weights) + 1e-9 * points.mean()
-
-    with pytest.raises(AssertionError, match="a frame's fit would depend on the frames fitted beside it"):
-        testing.check_objective_frames_independent(BatchCentred())
+@nb.njit
+def _doubled(x, y, z, proposals, weights, constants, out):
+    least_squares_point(x, y, z, proposals, weights, constants, out)
+    for i in range(out.shape[0]):
+        out[i] *= 2.0
 
 
-def test_a_frame_scorer_that_assumes_c_order_fails_its_check():
-    class COrdered(_ShiftedScores):
-        def score_frames(self, points, subset, proposals, weights):
-            if not points.flags.c_contiguous:
-                raise ValueError("needs C-contiguous points")
-            return _ShiftedScores.score_frames(self, points, subset, proposals, weights) - 1.0
-
-    with pytest.raises(AssertionError, match="score_frames fails on the driver's arguments"):
-        testing.check_objective_strided_points(COrdered())
+class Nothing(Objective):
+    """Offers its loss in no form."""
 
 
-def test_the_frames_arguments_are_the_subsets_rows_with_the_frame_innermost():
-    rng = np.random.default_rng(1)
-    points, proposals, weights = rng.normal(size=(4, 5, 6, 3)), rng.normal(size=(4, 6, 3, 3)), rng.random((4, 6, 3))
-    subset = np.array([1, 4], dtype=np.int64)
-    got = testing.frames_arguments(points, subset, proposals, weights)
-    for a, want in zip(got, (points[:, :, subset], subset, proposals[:, subset], weights[:, subset])):
-        assert np.array_equal(a, want)
-    for a in (got[0], got[2], got[3]):
-        assert a.strides[0] == 8 and not a.flags.c_contiguous  # the frame innermost in memory
+class DepthWithoutImage(testing.ToyLeastSquares):
+    """Observes depth but offers only bind."""
+
+    observes_depth, additive = True, False
 
 
-def test_a_kernel_that_disagrees_with_bind_fails_its_check():
-    import numba as nb
+class OwnBind(_PointLoss):
+    """A broken point_loss above its own bind: never run."""
 
-    clamped = registry.create("objective", "clamped-confidence")
-    kernel, consts = clamped.compiled_kernel()
-
-    @nb.njit(KERNEL_SIGNATURE)
-    def doubled(points, subset, proposals, weights, consts, out):
-        kernel(points, subset, proposals, weights, consts, out)
-        for i in range(out.shape[0]):
-            out[i] *= 2.0
-
-    broken = type("Doubled", (type(clamped),), {"compiled_kernel": lambda self: (doubled, consts)})()
-    with pytest.raises(AssertionError, match="compiled_kernel disagrees with bind"):
-        testing.check_objective_capabilities(broken)
-    testing.check_objective_capabilities(clamped)
+    function = _skips_the_last
+    bind = testing.ToyLeastSquares.bind
 
 
-def test_a_frames_kernel_that_disagrees_with_bind_fails_its_check():
-    import numba as nb
-
-    from hybridfit.objective import FRAMES_KERNEL_SIGNATURE
-
-    clamped = registry.create("objective", "clamped-confidence")
-    kernel, consts = clamped.compiled_frames_kernel()
-
-    @nb.njit(FRAMES_KERNEL_SIGNATURE)
-    def wrong_after_frame_0(points, subset, proposals, weights, consts, f0, f1, n, out):
-        kernel(points, subset, proposals, weights, consts, f0, f1, n, out)
-        for f in range(max(f0, 1), f1):
-            for i in range(n):
-                out[f, i] *= 2.0
-
-    broken = type("Doubled", (type(clamped),), {"compiled_frames_kernel": lambda self: (wrong_after_frame_0, consts)})()
-    with pytest.raises(AssertionError, match="compiled_frames_kernel disagrees with bind"):
-        testing.check_objective_capabilities(broken)
-    testing.check_objective_capabilities(clamped)
+def test_an_objective_offering_no_form_fails_its_check_with_a_clear_message():
+    with pytest.raises(AssertionError, match=r"Nothing \(unregistered\): it offers its loss in no form: define "
+                                             r"point_loss .* or bind"):
+        testing.check_objective(Nothing())
+    with pytest.raises(AssertionError, match="observes depth .* defines no bind_observed"):
+        testing.check_objective_forms(DepthWithoutImage())
+    for objective in (testing.ToyClamped(), testing.ToyLeastSquares(), registry.create("objective", "hybrid")):
+        testing.check_objective_forms(objective)
 
 
-def test_a_capability_is_not_used_below_a_subclass_that_overrides_bind():
-    clamped = registry.create("objective", "clamped-confidence")
-    assert capability(clamped, "compiled_kernel") is not None
-    Shifted = type("Shifted", (type(clamped),), {"bind": lambda self, p, w: type(clamped).bind(self, p, w)})
-    assert capability(Shifted(), "compiled_kernel") is None
-    # overriding bind and the kernel together: the subclass's own kernel is used
-    Both = type("Both", (Shifted,), {"compiled_kernel": lambda self: type(clamped).compiled_kernel(self)})
-    assert capability(Both(), "compiled_kernel") is not None
-    assert capability(clamped, "score_frames") is None and capability(clamped, "casadi_loss") is None
+@pytest.mark.parametrize("function, match", [
+    (_skips_the_last, r"left out\[i\] unwritten .* hypotheses \[4\] of 5 .*: it must write every out\[i\]"),
+    (_batch_centred, "must not depend on the batch"),
+], ids=["unwritten", "batch"])
+def test_a_broken_point_loss_fails_its_check(function, match):
+    testing.check_objective_point_loss(_PointLoss())
+    with pytest.raises(AssertionError, match=match):
+        testing.check_objective_point_loss(type("Broken", (_PointLoss,), {"function": function})())
+
+
+def test_a_point_loss_that_disagrees_with_its_own_bind_fails_its_check():
+    """A class defining both: the driver scores by its point_loss, a Task by its bind."""
+    agreeing = type("Agreeing", (testing.ToyLeastSquares,), {"point_loss": _PointLoss.point_loss,
+                                                             "function": least_squares_point})
+    testing.check_objective_point_loss_agrees(agreeing())
+    with pytest.raises(AssertionError, match="point_loss disagrees with bind"):
+        testing.check_objective_point_loss_agrees(type("Doubled", (agreeing,), {"function": _doubled})())
+
+
+def test_the_checks_run_the_point_loss_the_core_runs_only():
+    """Below a class's own bind its parent's point_loss is never run (capability rule): the
+    point_loss checks skip it, saying why, and the objective passes on its bind."""
+    assert capability(OwnBind(), "point_loss") is None
+    with pytest.raises(unittest.SkipTest, match="point_loss is defined above its own bind"):
+        testing.check_objective_point_loss(OwnBind())
+    testing.check_objective(OwnBind())
 
 
 def test_batch_steps_whose_frames_share_random_numbers_fail_their_check():
@@ -424,7 +388,7 @@ def test_batch_steps_whose_frames_share_random_numbers_fail_their_check():
 
 
 def test_casadi_symbols_follow_the_same_rule():
-    class WithSymbols(_ShiftedScores):
+    class WithSymbols(testing.ToyLeastSquares):
         def casadi_loss(self, points, proposals, weights, subset):
             return 0.0
 
@@ -438,41 +402,6 @@ def test_casadi_symbols_follow_the_same_rule():
 
     assert optimised_loss(WithSymbols(), 10.0) is None
     assert "surrogate" in optimised_loss(OwnBind(), 10.0)
-
-
-def test_a_loss_that_assumes_c_ordered_points_fails_its_check():
-    import numba as nb
-
-    @nb.njit("float64[:](float64[:, :, ::1], int64[::1], float64[:, ::1])")
-    def nearest_sq(points, subset, target):  # a C-contiguous signature: refuses the driver's strided points
-        out = np.zeros(points.shape[0])
-        for n in range(points.shape[0]):
-            for q in subset:
-                for c in range(3):
-                    out[n] += (points[n, q, c] - target[q, c]) ** 2
-        return out
-
-    class COrdered(Objective):
-        def bind(self, proposals, weights):
-            target = np.ascontiguousarray(proposals[:, 0] * (weights.sum(-1) > 0)[:, None])
-            return lambda points, subset: nearest_sq(points, subset, target)
-
-    with pytest.raises(AssertionError, match="not C-contiguous"):
-        testing.check_objective_strided_points(COrdered())
-
-    class AnyLayout(COrdered):
-        def bind(self, proposals, weights):
-            loss = COrdered.bind(self, proposals, weights)
-            return lambda points, subset: loss(np.ascontiguousarray(points), subset)
-
-    testing.check_objective_strided_points(AnyLayout())
-
-
-def test_the_driver_layout_is_the_same_points_not_c_contiguous():
-    points = np.random.default_rng(0).normal(size=(2, 5, 4, 3))
-    strided = testing.hypotheses_innermost(points)
-    assert np.array_equal(strided, points) and not strided.flags.c_contiguous
-    assert strided.strides[1] == 8  # the hypothesis innermost
 
 
 def _symbolic_least_squares(offset_mm: float):
@@ -493,21 +422,24 @@ def _symbolic_least_squares(offset_mm: float):
 
 def test_casadi_symbols_that_disagree_with_bind_fail_their_check():
     pytest.importorskip("casadi")
-    testing.check_objective_capabilities(_symbolic_least_squares(0.0))
+    testing.check_objective_casadi_agrees(_symbolic_least_squares(0.0))
     with pytest.raises(AssertionError, match="casadi_loss disagrees with bind"):
-        testing.check_objective_capabilities(_symbolic_least_squares(0.5))
+        testing.check_objective_casadi_agrees(_symbolic_least_squares(0.5))
 
 
 def test_a_check_that_does_not_apply_is_skipped_with_its_reason_never_passed():
-    import unittest
-
-    plain = registry.create("objective", "least-squares")  # bind only: no score_frames to check
-    with pytest.raises(unittest.SkipTest, match="least-squares.*never calls its score_frames"):
-        testing.check_objective_frames_independent(plain)
+    plain = registry.create("objective", "least-squares")  # a point_loss, and the bind built from it
+    with pytest.raises(unittest.SkipTest, match="least-squares.*bind is the one built from its point_loss"):
+        testing.check_objective_point_loss_agrees(plain)
+    with pytest.raises(unittest.SkipTest, match="ToyLeastSquares.*offers no point_loss"):
+        testing.check_objective_point_loss(testing.ToyLeastSquares())
+    with pytest.raises(unittest.SkipTest, match="hybrid.*observes depth"):
+        testing.check_objective_point_loss(registry.create("objective", "hybrid"))
     with pytest.raises(unittest.SkipTest, match="nlopt.*driver does not run it"):
         testing.check_optimizer_batch_steps(registry.create("optimizer", "nlopt"))
     skipped = testing.check_objective(plain)
-    assert any(s.startswith("check_objective_frames_independent: ") for s in skipped)
+    assert any(s.startswith("check_objective_point_loss_agrees: ") for s in skipped)
+    assert not any(s.startswith("check_objective_point_loss: ") for s in skipped)
 
 
 def test_the_driver_check_runs_for_the_papers_optimizer():

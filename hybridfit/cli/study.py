@@ -47,6 +47,7 @@ def run(args) -> int:
     executor = args.executor or ("processes" if args.jobs > 1 else "serial")
     s = run_study(study, out, jobs=args.jobs, executor=executor, scheduler=args.scheduler, cache_dir=args.cache,
                   progress=sys.stderr.isatty(), allow_large=args.allow_large,
-                  keep_going=args.keep_going)  # bars on a terminal only, never written into logs
+                  keep_going=args.keep_going,  # bars on a terminal only, never written into logs
+                  command=f"hybridfit study {args.file}" + (" --quick" if args.quick else ""))
     print(f"{s.total} trials: {s.skipped} already complete, {s.ran} run, {s.failed} failed -> {out}/report.md")
     return EXIT_INCOMPLETE if s.failed else EXIT_OK

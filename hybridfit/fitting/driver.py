@@ -1,26 +1,30 @@
-"""The one execution model: a stage schedule run for many frames in lockstep.
+"""The one execution path: a stage schedule run for many frames in lockstep.
 
 An optimiser's schedule (``optimizer.plan(task)``: stages of parameters, points, owned
-points and budgets, :class:`~hybridfit.optimizer.StagePlan`) is laid out as data
-(:class:`Layout`). :func:`make_run_schedule` builds the driver loop from an optimiser's
-:class:`~hybridfit.optimizer.BatchSteps` and a scorer (:mod:`.evaluator`):
+points and budgets, :class:`~hybridfit.task.StagePlan`) is laid out as data (:class:`Layout`),
+and :func:`run_schedule` runs it with a scorer (:mod:`.evaluator`):
 
-- frames whose layouts are equal run together, the frame the leading array axis: one call of
-  ``ask``, ``score`` and ``tell`` per generation serves the whole group;
+- frames whose layouts are equal run together, the frame the leading array axis: a stage
+  whose optimiser has batch steps makes one call of ``ask``, ``score`` and ``tell`` per
+  generation for the whole group; a callback solver's stage (``minimize(task, rng)``) runs
+  on each frame's :class:`~hybridfit.task.Task` in turn, its ``evaluate`` scored by the same
+  scorer (frames of such schedules form groups of one);
 - each stage starts from the parameters the stages before it left (the first from the
-  frame's initial guess), spends its budget exactly (``m = min(batch, left)`` rows per ask)
-  and commits its best evaluated hypothesis; the frame's loss is the sum of the stages' best
-  losses over the points they own (a guided stage's best is re-scored on its owned points,
-  not counted as an evaluation); a stage owning every point (a final refinement) replaces
-  them only if it is better;
+  frame's initial guess, or the start given), spends its budget (batch steps: exactly;
+  ``m = min(batch, left)`` rows per ask) and commits its best evaluated hypothesis; the
+  frame's loss is the sum of the stages' best losses over the points they own (a guided
+  stage's best is re-scored on its owned points, not counted as an evaluation); a stage
+  owning every point (a final refinement) replaces them only if it is better;
 - stage s of frame f draws its random numbers from ``stage_key(seed, f, s)``
-  (:mod:`hybridfit.keys`): a frame's result does not depend on the frames beside it, the chunking
-  or ``--jobs``.
+  (:mod:`hybridfit.keys`; a callback solver's ``rng`` is seeded with it): a frame's result
+  does not depend on the frames beside it, the chunking or ``--jobs``;
+- then the fit is polished (:mod:`.polish`) when asked, and re-scored over every point when
+  polished or when the objective is not a sum over points (an image term).
 
 The loop is written once (:func:`run_schedule`), in Python: it makes a few calls per
 generation for a whole group of frames, and the work is in the optimiser's steps (numba for
 the built-in PSO, numpy for others) and the scorer (:mod:`.evaluator`: numba kinematics and the
-objective's compiled kernel, or its numpy ``score_frames``, or ``bind`` per frame).
+objective's per-point loss compiled into one loop, or ``bind`` per frame).
 """
 
 from __future__ import annotations
@@ -32,20 +36,23 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from ..errors import HybridfitError, PluginError
+from ..errors import BudgetExceeded, HybridfitError, PluginError
 from ..keys import stage_keys
-from ..objective import capability, compiled_kernel_of
-from ..optimizer import BatchSteps, StagePlan, Task, steps_of
+from ..objective import point_loss_of, require_finite
 from ..plugin import defining_class
-from ..problem import Problem, prepare_frames, require_finite
+from ..problem import Problem, prepare_frames, search_boxes
 from ..stages import structure_of
+from ..task import OptimizeResult, StagePlan, Task, steps_of
 from . import stops
-from .evaluator import KernelScorer, NumpyScorer
+from .evaluator import BoundScorer, CompiledLoss, PointScorer
 from .polish import polish
 
 #: columns of the integer stage table: budget, rows per ask, whether the stage owns every
 #: point, and [lo, hi) ranges of ``indices`` for its parameters, points and owned points
 BUDGET, BATCH, OWNS_ALL, PARAMS, POINTS, OWNED = 0, 1, 2, 3, 5, 7
+
+#: hypotheses a callback solver's evaluation is scored in at a time (the scorer's block)
+CALLBACK_BATCH = 256
 
 
 # ---------------------------------------------------------------- helpers of the loop (numba, callable from Python)
@@ -113,49 +120,85 @@ def commit(base, pidx, best_x, owned_loss, owns_all, frame_loss, committed):
         frame_loss[f] = committed[f]
 
 
-def run_schedule(optimizer, steps: BatchSteps, scorer, stages, indices, settings, x0, lower, upper, keys,
-                 out_params, out_loss) -> None:
-    """Fit F frames of one layout (see the module doc): stages (S, 9) and indices (see
-    :class:`Layout`), settings (S, c) of each stage's optimiser, x0, lower, upper (F, P), keys
-    (F, S) uint64 -> out_params (F, P), out_loss (F,). ``optimizer`` names the plugin in errors."""
+def run_schedule(lay: "Layout", scorer, x0, lower, upper, keys, out_params, out_loss, out_used,
+                 problem_of=None) -> None:
+    """Fit F frames of one layout (see the module doc): x0, lower, upper (F, P), keys (F, S)
+    uint64 -> out_params (F, P), out_loss (F,), out_used (F,) evaluations. ``problem_of(f)``:
+    frame f's Problem, for a callback solver's Task (its stages need F == 1)."""
     F = x0.shape[0]
     base = x0.copy()
     frame_loss = np.full(F, np.inf)
     committed = np.zeros(F)
-    for s in range(stages.shape[0]):
-        budget, n = int(stages[s, BUDGET]), int(stages[s, BATCH])
-        pidx = indices[stages[s, PARAMS]:stages[s, PARAMS + 1]]
-        subset = indices[stages[s, POINTS]:stages[s, POINTS + 1]]
-        owned = indices[stages[s, OWNED]:stages[s, OWNED + 1]]
+    out_used[:] = 0
+    objective = getattr(scorer, "objective", None)
+    for s, (name, optimizer, steps, settings) in enumerate(lay.runs):
+        budget, n = int(lay.stages[s, BUDGET]), int(lay.stages[s, BATCH])
+        pidx = lay.indices[lay.stages[s, PARAMS]:lay.stages[s, PARAMS + 1]]
+        subset = lay.indices[lay.stages[s, POINTS]:lay.stages[s, POINTS + 1]]
+        owned = lay.indices[lay.stages[s, OWNED]:lay.stages[s, OWNED + 1]]
         lo, hi, start = stage_box(base, lower, upper, pidx)
-        state = steps.init(start, lo, hi, keys[:, s].copy(), budget, settings[s])
         stage = scorer.prepare(base, pidx, subset, owned, n)
-        losses = np.empty((F, n))
         best_loss = np.full(F, np.inf)
         best_x = start.copy()
-        left = budget
-        while left > 0:
-            m = min(n, left)
-            X = steps.ask(state, m)
-            if not (isinstance(X, np.ndarray) and X.shape == (F, m, len(pidx)) and X.dtype == np.float64):
-                raise PluginError(f"optimizer {_name(optimizer)}: ask(state, {m}) returned "
-                                  f"{getattr(X, 'shape', type(X))} {getattr(X, 'dtype', '')}, expected float64 "
-                                  f"{(F, m, len(pidx))}")
-            scorer.score(stage, X, subset, losses)
-            require_finite(losses[:, :m], getattr(scorer, "objective", None))  # a NaN or -inf loss: a plugin's bug
-            steps.tell(state, X, losses[:, :m])
-            keep_best(X, losses, best_x, best_loss)
-            left -= m
-            stops.check()  # a stop signal lands here, between generations (hybridfit.fitting.stops)
+        if steps is not None:
+            state = steps.init(start, lo, hi, keys[:, s].copy(), budget, settings)
+            losses = np.empty((F, n))
+            left = budget
+            while left > 0:
+                m = min(n, left)
+                X = steps.ask(state, m)
+                if not (isinstance(X, np.ndarray) and X.shape == (F, m, len(pidx)) and X.dtype == np.float64):
+                    raise PluginError(f"optimizer {_name(optimizer)}: ask(state, {m}) returned "
+                                      f"{getattr(X, 'shape', type(X))} {getattr(X, 'dtype', '')}, expected float64 "
+                                      f"{(F, m, len(pidx))}")
+                scorer.score(stage, X, subset, losses)
+                require_finite(losses[:, :m], objective)  # a NaN or -inf loss: a plugin's bug
+                steps.tell(state, X, losses[:, :m])
+                keep_best(X, losses, best_x, best_loss)
+                left -= m
+                stops.check()  # a stop signal lands here, between generations (hybridfit.fitting.stops)
+            out_used += budget
+        else:  # a callback solver, frame by frame (a group of one)
+            for f in range(F):
+                task = Task(problem_of(f), budget, pidx, subset, base[f], name, owned,
+                            _frame_scorer(scorer, stage, f, F, subset, n, objective), lo[f], hi[f])
+                try:
+                    optimizer.minimize(task, np.random.default_rng(int(keys[f, s])))
+                except BudgetExceeded as err:
+                    raise BudgetExceeded(f"optimizer {_name(optimizer)}: {err}") from err
+                if task.used == 0:
+                    raise PluginError(f"optimizer {_name(optimizer)} evaluated nothing")
+                best_x[f], best_loss[f] = task.best_x, task.best_loss
+                out_used[f] += task.used
         owned_loss = best_loss
         if not same_points(subset, owned):  # a guided stage: its best over the points it owns
             again = np.empty((F, 1))
             scorer.score(stage, best_x.reshape((F, 1, len(pidx))), owned, again)
-            require_finite(again, getattr(scorer, "objective", None))
+            require_finite(again, objective)
             owned_loss = again[:, 0].copy()
-        commit(base, pidx, best_x, owned_loss, stages[s, OWNS_ALL] == 1, frame_loss, committed)
+        commit(base, pidx, best_x, owned_loss, lay.stages[s, OWNS_ALL] == 1, frame_loss, committed)
     out_params[:] = base
     out_loss[:] = frame_loss
+
+
+def _frame_scorer(scorer, stage, f, F, subset, n, objective):
+    """A callback solver's scores of frame f's hypotheses X (k, d) -> (k,) by ``scorer``, in
+    blocks of at most n (a stop signal waits for the frame's end: a solver's callback is no
+    place for an exception it does not expect)."""
+    if F != 1:
+        raise PluginError("a callback solver's stage runs in groups of one frame")
+
+    def score(X):
+        out = np.empty(len(X))
+        losses = np.empty((1, n))
+        for a in range(0, len(X), n):
+            block = np.ascontiguousarray(X[a:a + n])[None]
+            scorer.score(stage, block, subset, losses)
+            out[a:a + len(block[0])] = losses[0, :len(block[0])]
+        require_finite(out, objective)
+        return out
+
+    return score
 
 
 # ---------------------------------------------------------------- layouts
@@ -168,69 +211,83 @@ def _require(a, dtype) -> np.ndarray:
 class Layout:
     """A schedule as the driver reads it: ``stages`` (S, 9) rows (budget, rows per ask, owns
     every point, and [lo, hi) ranges of ``indices`` for the parameters, points and owned
-    points), each stage's optimiser ``settings`` (S, c) and the ``steps`` they all share."""
+    points) and ``runs`` (S,): each stage's (name, optimizer, its batch steps or None for a
+    callback solver, its settings (c,) float64)."""
 
     stages: np.ndarray
-    settings: np.ndarray
     indices: np.ndarray
-    steps: BatchSteps
-    optimizer: object
+    runs: tuple
+
+    @property
+    def lockstep(self) -> bool:
+        """Whether every stage has batch steps (frames of this layout run together)."""
+        return all(steps is not None for _, _, steps, _ in self.runs)
 
 
-def layout(plan: list[StagePlan], n_points: int) -> Layout | None:
-    """Lay out a frame's stages; None when a stage's optimiser has no valid batch steps or the
-    stages' steps differ (such schedules run on the Task path)."""
-    rows, parts, settings, at, steps = [], [], [], 0, None
+def layout(plan: list[StagePlan], n_points: int) -> Layout:
+    """Lay out a frame's stages (see :class:`Layout`)."""
+    rows, parts, runs, at = [], [], [], 0
     for st in plan:
-        own = steps_of(st.optimizer)
-        if own is None or (steps is not None and own != steps):
-            return None
-        steps = own
-        n, values = st.optimizer.batch_settings(int(st.budget))
-        row = [int(st.budget), max(1, min(int(n), int(st.budget))), int(len(st.owned) == n_points)]
+        steps, budget = steps_of(st.optimizer), int(st.budget)
+        n, values = st.optimizer.batch_settings(budget) if steps is not None else (CALLBACK_BATCH, ())
+        row = [budget, max(1, min(int(n), budget)), int(len(st.owned) == n_points)]
         for idx in (st.parameters, st.points, st.owned):
             parts.append(np.asarray(idx, dtype=np.int64))
             row += [at, at + len(idx)]
             at += len(idx)
         rows.append(row)
-        settings.append(np.asarray(values, dtype=np.float64))
-    if steps is None or len({len(v) for v in settings}) != 1:
-        return None
+        runs.append((st.name, st.optimizer, steps, _require(np.asarray(values, dtype=np.float64), np.float64)))
     return Layout(_require(np.array(rows, dtype=np.int64).reshape(-1, 9), np.int64),
-                  _require(np.stack(settings), np.float64), _require(np.concatenate(parts), np.int64), steps,
-                  plan[0].optimizer)
+                  _require(np.concatenate(parts), np.int64), tuple(runs))
+
+
+def plan_of(optimizer, task: Task) -> list[StagePlan]:
+    """The schedule the driver runs for ``optimizer`` on a task: its ``plan``, unless a subclass
+    overrides ``minimize`` below the class that defines ``plan`` (then its ``minimize`` is the
+    whole fit: one stage of everything, run by itself). A stage run by another planner (an
+    optimiser whose ``plan`` is its whole work, as ``stepwise``) is that planner's schedule of
+    the stage."""
+    cls = type(optimizer)
+    if not issubclass(defining_class(cls, "plan"), defining_class(cls, "minimize")):
+        return [StagePlan("all", task.parameters, task.points, task.points, task.budget, optimizer)]
+    out = []
+    for st in optimizer.plan(task):
+        if st.optimizer is not optimizer and _planner(st.optimizer):
+            out += plan_of(st.optimizer, Task(task.problem, st.budget, st.parameters, st.points, task.base, st.name,
+                                              st.owned))
+        else:
+            out.append(st)
+    return out
+
+
+def _planner(optimizer) -> bool:
+    """Whether an optimiser's ``plan`` is its whole work (no batch steps, no ``minimize`` of its own)."""
+    cls = type(optimizer)
+    plan, minimize = defining_class(cls, "plan"), defining_class(cls, "minimize")
+    return steps_of(optimizer) is None and plan is not minimize and issubclass(plan, minimize)
 
 
 def _batched_layout(optimizer, task: Task) -> Layout | None:
-    """The layout of the optimiser's plan of the task when the driver runs this optimiser on
-    a task like this one, else None: its ``plan`` is the one its ``minimize`` follows (a
-    subclass overriding ``minimize`` is not run by its parent's plan), and the stages'
-    optimisers share valid batch steps (:func:`layout`)."""
-    cls = type(optimizer)
-    if not issubclass(defining_class(cls, "plan"), defining_class(cls, "minimize")):
-        return None
-    return layout(optimizer.plan(task), len(task.problem.point_names))
+    """The layout of the optimiser's schedule of the task when every stage runs in lockstep
+    (batch steps: :attr:`Layout.lockstep`), else None."""
+    found = layout(plan_of(optimizer, task), len(task.problem.point_names))
+    return found if found.lockstep else None
 
 
 def batched_layout(model, objective, optimizer, problem: Problem | None, budget: int) -> Layout | None:
-    """The layout of one frame's ``problem`` (None when no frame can be fitted) when
-    :class:`Driver` can fit with these plugins (:func:`supports`), else None."""
+    """The layout of one frame's ``problem`` (None when no frame can be fitted) when the
+    driver runs these plugins in lockstep over many frames (batch steps throughout and an
+    objective that is a sum over points, without depth), else None."""
     if problem is None or getattr(objective, "observes_depth", False) or not getattr(objective, "additive", True):
         return None
     return _batched_layout(optimizer, Task(problem, budget))
-
-
-def supports(model, objective, optimizer, problem: Problem | None, budget: int) -> bool:
-    """Whether :class:`Driver` can fit with these plugins (``problem``: one frame's, None
-    when no frame can be fitted)."""
-    return batched_layout(model, objective, optimizer, problem, budget) is not None
 
 
 @dataclass
 class Chunk:
     """Frames prepared for :meth:`Driver.run`: their indices, the errors of those that cannot
     be fitted, and for the others (positions ``kept`` in ``frames``) layouts, proposals,
-    weights, initial guesses and search boxes."""
+    weights, initial guesses, search boxes and depth observations (None: none)."""
 
     frames: list
     errors: list
@@ -241,6 +298,7 @@ class Chunk:
     x0: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
+    observations: list | None = None
 
 
 @dataclass
@@ -276,10 +334,9 @@ class Fitted:
 class Driver:
     """Fits chunks of frames of one model, objective and optimiser through the driver loop.
 
-    model, objective, optimizer: plugins for which :func:`supports` holds; point_names: the
-    proposals' Q points; budget: evaluations per frame; seed: stage s of frame i draws from
-    ``stage_key(seed, i, s)``; polish: then polish each fit (:mod:`.polish`) and score the
-    polished pose over every point (the frame's loss)."""
+    point_names: the proposals' Q points; budget: evaluations per frame; seed: stage s of
+    frame i draws from ``stage_key(seed, i, s)``; polish: then polish each fit (:mod:`.polish`)
+    and score the polished pose over every point (the frame's loss)."""
 
     def __init__(self, model, objective, optimizer, point_names, budget: int, seed: int,
                  search_radius_mm: float = 60.0, polish: bool = False) -> None:
@@ -287,7 +344,10 @@ class Driver:
         self.polish = polish
         self.names = tuple(point_names)
         self.budget, self.seed, self.search_radius_mm = int(budget), int(seed), float(search_radius_mm)
+        self.observed = bool(getattr(objective, "observes_depth", False))
+        self.additive = bool(getattr(objective, "additive", True))
         structure = structure_of(model, self.names)  # computed once per model and points
+        self.structure = structure
         self.point_matrix = structure.point_matrix
         # the structure's model is equal to this one (the same class and settings), with its
         # kinematics already set up by an earlier fit: its forward gives the same joints
@@ -300,63 +360,73 @@ class Driver:
             except NotImplementedError:
                 tree = None
             self.tree = None if tree is None else tree.arrays
-        self.frames_kernel = compiled_kernel_of(objective, "compiled_frames_kernel") if self.tree is not None else None
-        self.kernel = compiled_kernel_of(objective) if self.tree is not None else None
-        self.score_frames = capability(objective, "score_frames")
-        self._layouts: dict[bytes, Layout | None] = {}
+        self.compiled = (CompiledLoss(objective) if self.tree is not None and not self.observed
+                         and point_loss_of(objective) else None)
+        self._layouts: dict[bytes, Layout] = {}
 
-    def layout(self, observed: np.ndarray, proposals: np.ndarray, confidences: np.ndarray) -> Layout | None:
+    def layout(self, observed: np.ndarray, proposals: np.ndarray, confidences: np.ndarray,
+               observation=None) -> Layout:
         """The laid-out stages of a frame whose points ``observed`` (Q,) bool have proposals. A
         schedule adapts to a frame only through which of its points have proposals, so it is
         computed once per set of observed points."""
         key = observed.tobytes()
         if key not in self._layouts:
-            problem = Problem(self.model, self.objective, proposals, confidences, self.names, self.search_radius_mm)
-            self._layouts[key] = layout(self.optimizer.plan(Task(problem, self.budget)), len(self.names))
+            problem = Problem(self.model, self.objective, proposals, confidences, self.names, self.search_radius_mm,
+                              observation)
+            self._layouts[key] = layout(plan_of(self.optimizer, Task(problem, self.budget)), len(self.names))
         return self._layouts[key]
 
     def add_layout(self, problem: Problem, found: Layout) -> None:
-        """Take ``found``, the layout of one frame's ``problem`` (:func:`batched_layout`), as
-        :meth:`layout`'s for every frame with the same observed points, instead of planning
-        it again."""
+        """Take ``found``, the layout of one frame's ``problem``, as :meth:`layout`'s for every
+        frame with the same observed points, instead of planning it again."""
         self._layouts[(problem.weights.sum(axis=-1) > 0).tobytes()] = found
 
-    def prepare(self, frames, proposals: np.ndarray, confidences: np.ndarray) -> Chunk:
-        """The set-up of fitting frames (their indices) with proposals (F, Q, K, 3) mm and
-        confidences (F, Q, K): initial guesses, search boxes and layouts; frames whose input
-        cannot be fitted get their message."""
+    def prepare(self, frames, proposals: np.ndarray, confidences: np.ndarray, observations=None,
+                x0: np.ndarray | None = None) -> Chunk:
+        """The set-up of fitting frames (their indices) with proposals (F, Q, K, 3) mm,
+        confidences (F, Q, K) and, for an objective that observes depth, their observations:
+        initial guesses (or ``x0`` (F, P) given: the search box around it), search boxes and
+        layouts; frames whose input cannot be fitted get their message."""
         frames = list(frames)
-        weights, x0, lower, upper, failed = prepare_frames(self.model, self.objective, proposals, confidences,
-                                                           self.names, self.search_radius_mm)
+        weights, guess, lower, upper, failed = prepare_frames(self.model, self.objective, proposals, confidences,
+                                                              self.names, self.search_radius_mm,
+                                                              guess=x0 is None)
+        if x0 is not None:
+            guess = self.model.clip(np.asarray(x0, dtype=np.float64).reshape(len(frames), -1))
+            lower, upper = search_boxes(self.structure, guess, self.search_radius_mm)
         errors, layouts, kept = [], [], []
         observed = weights.sum(axis=-1) > 0
         for i, f in enumerate(frames):
             if i in failed:
                 errors.append((f, None, failed[i]))
                 continue
+            obs = None if observations is None else observations[i]
+            if self.observed and obs is None:
+                errors.append((f, None, f"objective {_name(self.objective)} compares hypotheses with the depth "
+                                        f"image, and this frame has none"))
+                continue
             try:
-                found = self.layout(observed[i], proposals[i], confidences[i])
+                layouts.append(self.layout(observed[i], proposals[i], confidences[i], obs))
             except HybridfitError as err:
                 errors.append((f, None, str(err)))
                 continue
-            if found is None:
-                raise PluginError(f"optimizer {_name(self.optimizer)}: its stages do not share one optimiser's "
-                                  f"batch steps, so the driver cannot run them")
-            layouts.append(found)
             kept.append(i)
         rows = slice(None) if len(kept) == len(frames) else kept  # all kept: the arrays themselves, not copies
-        return Chunk(frames, errors, layouts, kept, proposals[rows], weights[rows], x0[rows], lower[rows], upper[rows])
+        return Chunk(frames, errors, layouts, kept, proposals[rows], weights[rows], guess[rows], lower[rows],
+                     upper[rows], None if observations is None else [observations[i] for i in kept])
 
     def run(self, chunk: Chunk, threads: int = 1):
-        """(params (F, P), loss (F,), evaluations (F,)) of the chunk's fittable frames; frames of
-        one layout run together, split over ``threads`` threads (the numba parts release the
-        GIL)."""
+        """(params (F, P), loss (F,), evaluations (F,), errors {position: message}) of the chunk's
+        fittable frames; frames of one lockstep layout run together, split over ``threads``
+        threads (the numba parts release the GIL); the others one by one, a frame whose
+        callback solver meets a user error recorded in ``errors``."""
         F, P = len(chunk.kept), self.model.n_params
-        params, loss = np.empty((F, P)), np.empty(F)
-        evaluations = np.empty(F, dtype=np.int64)
+        params, loss = np.full((F, P), np.nan), np.full(F, np.nan)
+        evaluations = np.zeros(F, dtype=np.int64)
+        failed: dict[int, str] = {}
         groups: dict[int, list[int]] = {}
         for n, lay in enumerate(chunk.layouts):
-            groups.setdefault(id(lay), []).append(n)
+            groups.setdefault(id(lay) if lay.lockstep else -1 - n, []).append(n)
         for members in groups.values():
             lay = chunk.layouts[members[0]]
             idx = np.asarray(members)
@@ -366,86 +436,115 @@ class Driver:
 
             def one(part, lay=lay, idx=idx, keys=keys):
                 sel = idx[part]
-                out_p, out_l = np.empty((len(sel), P)), np.empty(len(sel))
-                self._run_group(lay, chunk, sel, keys[part], out_p, out_l)
-                return out_p, out_l
+                out = np.empty((len(sel), P)), np.empty(len(sel)), np.empty(len(sel), dtype=np.int64)
+                self._run_group(lay, chunk, sel, keys[part], *out)
+                return out
 
-            if len(parts) == 1:
-                fitted = [one(parts[0])]
-            else:
-                with ThreadPoolExecutor(max_workers=len(parts)) as pool:
-                    fitted = list(pool.map(one, parts))
-            for part, (p_, l_) in zip(parts, fitted):
-                params[idx[part]], loss[idx[part]] = p_, l_
-            evaluations[idx] = int(lay.stages[:, BUDGET].sum())
-        return params, loss, evaluations
+            try:
+                if len(parts) == 1:
+                    fitted = [one(parts[0])]
+                else:
+                    with ThreadPoolExecutor(max_workers=len(parts)) as pool:
+                        fitted = list(pool.map(one, parts))
+            except HybridfitError as err:
+                if lay.lockstep:
+                    raise
+                failed[int(idx[0])] = str(err)  # a callback solver's group of one frame
+                continue
+            for part, (p_, l_, u_) in zip(parts, fitted):
+                params[idx[part]], loss[idx[part]], evaluations[idx[part]] = p_, l_, u_
+        return params, loss, evaluations, failed
 
-    def _run_group(self, lay: Layout, chunk: Chunk, sel, keys, out_params, out_loss) -> None:
-        proposals, weights = _require(chunk.proposals[sel], np.float64), _require(chunk.weights[sel], np.float64)
-        if self.frames_kernel is not None:
-            scorer = KernelScorer(self.tree, self.point_map, self.frames_kernel, proposals, weights, frames=True,
-                                  objective=self.objective)
-        elif self.kernel is not None:
-            scorer = KernelScorer(self.tree, self.point_map, self.kernel, proposals, weights, objective=self.objective)
+    def _scorer(self, chunk: Chunk, sel, proposals, weights):
+        """The scorer of the chunk's frames at positions ``sel`` (:mod:`.evaluator`)."""
+        if self.compiled is not None:
+            return PointScorer(self.tree, self.point_map, self.compiled, proposals, weights, self.objective)
+        if self.observed:
+            losses = [self.objective.bind_observed(p, w, chunk.observations[n], self.model)
+                      for p, w, n in zip(proposals, weights, sel)]
         else:
-            losses = None if self.score_frames is not None else [self.objective.bind(p, w)
-                                                                  for p, w in zip(proposals, weights)]
-            scorer = NumpyScorer(self.model, self.tree, self.point_map, self.point_matrix, proposals, weights,
-                                 self.score_frames, losses, objective=self.objective)
+            losses = [self.objective.bind(p, w) for p, w in zip(proposals, weights)]
+        return BoundScorer(self.model, self.tree, self.point_map, self.point_matrix, losses, self.observed,
+                           self.objective)
+
+    def _problem_of(self, chunk: Chunk, sel):
+        """problem_of(f) for :func:`run_schedule`: the Problem of frame f of the group ``sel``."""
+        def problem_of(f):
+            n = int(sel[f])
+            return Problem(self.model, self.objective, chunk.proposals[n], chunk.weights[n], self.names,
+                           self.search_radius_mm, None if chunk.observations is None else chunk.observations[n],
+                           chunk.x0[n])
+        return problem_of
+
+    def _run_group(self, lay: Layout, chunk: Chunk, sel, keys, out_params, out_loss, out_used) -> None:
+        proposals, weights = _require(chunk.proposals[sel], np.float64), _require(chunk.weights[sel], np.float64)
         try:
-            run_schedule(lay.optimizer, lay.steps, scorer, lay.stages, lay.indices, lay.settings,
-                         _require(chunk.x0[sel], np.float64), _require(chunk.lower[sel], np.float64),
-                         _require(chunk.upper[sel], np.float64), _require(keys, np.uint64), out_params, out_loss)
-            if self.polish and self.tree is not None:
+            scorer = self._scorer(chunk, sel, proposals, weights)
+            run_schedule(lay, scorer, _require(chunk.x0[sel], np.float64), _require(chunk.lower[sel], np.float64),
+                         _require(chunk.upper[sel], np.float64), _require(keys, np.uint64), out_params, out_loss,
+                         out_used, self._problem_of(chunk, sel))
+            polished = self.polish and self.tree is not None and not self.observed
+            if polished:
                 out_params[:] = polish(self.model, out_params, proposals, weights, self.names)
+            if polished or not self.additive:  # the loss the objective gives the final pose, over every point
                 P, every = out_params.shape[1], np.arange(len(self.names), dtype=np.int64)
                 stage = scorer.prepare(out_params, np.arange(P, dtype=np.int64), every, every, 1)
                 again = np.empty((len(out_params), 1))
                 scorer.score(stage, _require(out_params.reshape(len(out_params), 1, P), np.float64), every, again)
                 require_finite(again, self.objective)
                 out_loss[:] = again[:, 0]
-        except (HybridfitError, PluginError, KeyboardInterrupt):
+        except (HybridfitError, KeyboardInterrupt):
             raise
-        except Exception as err:  # a plugin's bug: it propagates, naming the plugins
+        except Exception as err:  # a plugin's bug: it propagates, naming the frames and the plugins
             frames = [chunk.frames[chunk.kept[n]] for n in sel]
-            raise PluginError(f"frames {frames[0]}..{frames[-1]}: {type(err).__name__} while fitting with model "
-                              f"{_name(self.model)}, objective {_name(self.objective)}, optimizer "
-                              f"{_name(self.optimizer)}: {err}") from err
+            where = f"frame {frames[0]}" if len(frames) == 1 else f"frames {frames[0]}..{frames[-1]}"
+            kind = type(err) if isinstance(err, PluginError) else PluginError  # BudgetExceeded stays one
+            raise kind(f"{where}: {type(err).__name__} while fitting with model {_name(self.model)}, objective "
+                       f"{_name(self.objective)}, optimizer {_name(self.optimizer)}: {err}") from err
 
     def finish(self, chunk: Chunk, fitted) -> list:
         """A list of (frame, (params (P,), points (Q, 3), joints (J, 3), loss, evaluations),
-        None), or (frame, None, message) for a frame whose input cannot be fitted, in the
-        chunk's frame order."""
+        None), or (frame, None, message) for a frame that could not be fitted, in the chunk's
+        frame order."""
         return self.fitted(chunk, fitted).items()
 
     def fitted(self, chunk: Chunk, fitted) -> "Fitted":
         """The chunk's fits (``fitted``: :meth:`run`'s result) as arrays (:class:`Fitted`)."""
-        params, loss, used = fitted
-        joints = self.forward(params) if chunk.kept else np.empty((0, self.model.n_joints, 3))
+        params, loss, used, failed = fitted
+        errors = list(chunk.errors) + [(chunk.frames[chunk.kept[n]], None, message) for n, message in failed.items()]
+        ok = [n for n in range(len(chunk.kept)) if n not in failed]
+        if failed:
+            params, loss, used = params[ok], loss[ok], used[ok]
+        joints = self.forward(params) if ok else np.empty((0, self.model.n_joints, 3))
         points = joints if self.point_matrix is None else np.einsum("qj,njc->nqc", self.point_matrix, joints)
-        return Fitted(chunk.frames, [chunk.frames[i] for i in chunk.kept], params, points, joints, loss, used,
-                      list(chunk.errors))
+        return Fitted(chunk.frames, [chunk.frames[chunk.kept[n]] for n in ok], params, points, joints, loss, used,
+                      errors)
 
-    def fit_chunk(self, frames, proposals: np.ndarray, confidences: np.ndarray, threads: int = 1) -> list:
+    def fit_chunk(self, frames, proposals: np.ndarray, confidences: np.ndarray, threads: int = 1,
+                  observations=None, x0=None) -> list:
         """Fit frames with proposals (F, Q, K, 3) mm and confidences (F, Q, K) (see :meth:`finish`)."""
-        chunk = self.prepare(frames, proposals, confidences)
+        chunk = self.prepare(frames, proposals, confidences, observations, x0)
         return self.finish(chunk, self.run(chunk, threads))
 
-    def fit_chunks(self, chunks, proposals: np.ndarray, confidences: np.ndarray, jobs: int = 1):
+    def fit_chunks(self, chunks, proposals: np.ndarray, confidences: np.ndarray, jobs: int = 1, observations=None):
         """Yield each chunk's :class:`Fitted` (:meth:`fit_chunk`'s result as arrays), in order. With
         ``jobs`` > 1 up to ``jobs`` chunks run at once on threads (the numba parts release the
         GIL) while the next chunk is prepared; an interrupt while preparing still yields the
         chunks that were running."""
+        def prepared(c):
+            return self.prepare(c, proposals[c], confidences[c],
+                                None if observations is None else [observations[i] for i in c])
+
         if jobs <= 1:
             for c in chunks:
-                chunk = self.prepare(c, proposals[c], confidences[c])
+                chunk = prepared(c)
                 yield self.fitted(chunk, self.run(chunk))
             return
         with ThreadPoolExecutor(max_workers=jobs) as pool:
             running: deque = deque()
             for c in chunks:
                 try:
-                    chunk = self.prepare(c, proposals[c], confidences[c])
+                    chunk = prepared(c)
                 except BaseException:
                     while running:
                         done, future = running.popleft()
@@ -458,6 +557,53 @@ class Driver:
             while running:
                 done, future = running.popleft()
                 yield self.fitted(done, future.result())
+
+
+def run_problem(optimizer, problem: Problem, budget: int, seed: int | np.random.Generator = 0,
+                frame: int | None = None, record: list | None = None) -> OptimizeResult:
+    """One frame's ``problem`` fitted by the driver as frame ``frame`` (None: 0) of a fit with
+    ``seed`` (a Generator: one draw of it), from the problem's initial guess and search box,
+    without the polish: the result ``hybridfit.fit`` gives that frame with ``polish=False``. With
+    ``record`` every evaluated hypothesis's full parameters are appended to it, one (m, P)
+    array per scored batch, re-scores left out (the conformance suite's view of what an
+    optimiser asked for)."""
+    if isinstance(seed, np.random.Generator):
+        seed = int(seed.integers(0, 2**63))
+    frame = int(frame or 0)
+    optimizer.check_budget(Task(problem, budget))
+    fitter = Driver(problem.model, problem.objective, optimizer, problem.point_names, budget, seed,
+                    problem.search_radius_mm)
+    fitter._problem_of = lambda chunk, sel: (lambda f: problem)  # a callback solver's Task holds this problem
+    if record is not None:
+        fitter._scorer = _recording(fitter._scorer, record)
+    lay = fitter.layout(problem.weights.sum(axis=-1) > 0, problem.proposals, problem.weights, problem.observation)
+    observations = None if problem.observation is None else [problem.observation]
+    chunk = Chunk([frame], [], [lay], [0], problem.proposals[None], problem.weights[None], problem.x0[None],
+                  problem.lower[None], problem.upper[None], observations)
+    params, loss, used, failed = fitter.run(chunk)
+    if failed:
+        raise HybridfitError(failed[0])
+    return OptimizeResult(params[0], float(loss[0]), int(used[0]))
+
+
+def _recording(make_scorer, record: list):
+    """``make_scorer`` whose scorers also append each scored batch's full parameters to ``record``."""
+    class Recording:
+        def __init__(self, scorer):
+            self.scorer, self.objective = scorer, scorer.objective
+
+        def prepare(self, base, pidx, subset, owned, n):
+            return self.scorer.prepare(base, pidx, subset, owned, n), base.copy(), pidx, subset
+
+        def score(self, stage, X, subset, losses):
+            inner, base, pidx, evaluated = stage
+            if subset is evaluated:  # not a guided stage's re-score on its owned points
+                full = np.repeat(base[:, None], X.shape[1], axis=1)
+                full[:, :, pidx] = X
+                record.extend(full)
+            self.scorer.score(inner, X, subset, losses)
+
+    return lambda *args: Recording(make_scorer(*args))
 
 
 def _name(plugin) -> str:

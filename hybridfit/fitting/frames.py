@@ -1,11 +1,9 @@
 """``hybridfit.fit``: fit a hand model to every frame's joint proposals.
 
-Frames are independent: optimisers with batch steps run in the driver
-(:mod:`.driver`), or on a Task per frame for objectives that observe depth, stage s of frame
-i drawing from the key ``stage_key(seed, i, s)`` (:mod:`hybridfit.keys`) on either path (the same
-fit, bit for bit); callback solvers run on a Task per frame with
-``numpy.random.default_rng([seed, i])``. So results are identical for any number of
-``jobs`` and any chunking. A frame whose input cannot be fitted (a ``HybridfitError``: all confidences 0,
+Frames are independent and every frame runs through the one driver (:mod:`.driver`): stage
+s of frame i draws from the key ``stage_key(seed, i, s)`` (:mod:`hybridfit.keys`), so results
+are identical for any number of ``jobs`` and any chunking (lockstep schedules on threads,
+callback solvers and depth objectives frame by frame, in worker processes with jobs > 1). A frame whose input cannot be fitted (a ``HybridfitError``: all confidences 0,
 say) is recorded (``failed``, ``errors``) and the others go on; options and errors that would
 fail every frame (a bad seed, a budget too small, an unknown point name) are raised before
 any work; a plugin's bug (``BudgetExceeded``, a wrong shape) raises ``PluginError`` naming
@@ -28,12 +26,11 @@ from tqdm.auto import tqdm
 
 from .. import registry, workers
 from . import driver, stops
-from .polish import polish as polish_frames
 from ..errors import HybridfitError, PluginError
 from ..io import validate_proposals
 from ..metrics import inliers
 from ..model.base import ANGLES
-from ..optimizer import Task
+from ..task import Task
 from ..problem import Problem
 from ..stages import structure_of
 
@@ -131,38 +128,11 @@ class _Spec:
     polish: bool = False
 
 
-def _fit_one(spec: _Spec, frame: int, proposals: np.ndarray, confidences: np.ndarray, observation=None):
-    problem = Problem(spec.model, spec.objective, proposals, confidences, spec.point_names, spec.search_radius_mm,
-                      observation)
-    result = spec.optimizer.run(problem, spec.budget, spec.seed, frame)
-    params, loss = finish_frame(problem, result, spec.polish)
-    return params, problem.points(params[None])[0], spec.model.forward(params), loss, result.evaluations
-
-
-def finish_frame(problem: Problem, result, polish: bool) -> tuple[np.ndarray, float]:
-    """(params (P,), loss) of one frame fitted on the Task path (``result``: its
-    OptimizeResult): polished when ``polish``, the loss the objective's at the final params."""
-    params, loss = result.params, result.loss
-    if polish:
-        params = polish_frames(problem.model, params[None], problem.proposals[None], problem.weights[None],
-                               problem.point_names)[0]
-    if polish or not getattr(problem.objective, "additive", True):
-        loss = float(problem.evaluate(params[None])[0])
-    return params, loss
-
-
 def _fit_chunk(spec: _Spec, frames: Sequence[int], proposals, confidences, observations=None):
-    out = []
-    for i, f in enumerate(frames):
-        try:
-            obs = None if observations is None else observations[i]
-            out.append((f, _fit_one(spec, f, proposals[i], confidences[i], obs), None))
-        except HybridfitError as err:  # a user error in this frame's input: recorded, the others go on
-            out.append((f, None, str(err)))
-        except Exception as err:  # a plugin's bug: propagates, naming the plugins
-            raise PluginError(f"frame {f}: {type(err).__name__} while fitting with model {_name(spec.model)}, "
-                              f"objective {_name(spec.objective)}, optimizer {_name(spec.optimizer)}: {err}") from err
-    return out
+    """A worker's chunk: the same driver, in another process (:meth:`driver.Driver.fit_chunk`)."""
+    fitter = driver.Driver(spec.model, spec.objective, spec.optimizer, spec.point_names, spec.budget, spec.seed,
+                           spec.search_radius_mm, spec.polish)
+    return fitter.fit_chunk(list(frames), proposals, confidences, observations=observations)
 
 
 def _name(plugin) -> str:
@@ -343,28 +313,22 @@ def fit(
              result.evaluations[f]) = values
             result.failed[f] = False
 
-    # optimisers with batch steps: the driver runs chunks of frames in lockstep (compiled with a
-    # compiled objective on a kinematic tree); callback solvers: a Task per frame
+    # schedules of batch steps run chunks of frames in lockstep, on threads with jobs > 1; others
+    # (callback solvers, depth objectives) frame by frame, in worker processes with jobs > 1
     found = None if observations is not None else driver.batched_layout(model, objective, optimizer, problem, budget)
-    fitter = None
+    fitter = driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm, polish)
     if found is not None:
-        fitter = driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm, polish)
         fitter.add_layout(problem, found)  # the first frame's plan, made once
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
         with stops.deferred():  # a stop signal is raised between chunks or frames, never inside compiled code
-            if fitter is not None:
-                size = min(CHUNK, max(1, -(-F // jobs)))  # with jobs > 1, at least jobs chunks
+            if found is not None or jobs <= 1 or F <= 1:
+                size = min(CHUNK if found is not None else 1, max(1, -(-F // jobs)))  # jobs > 1: >= jobs chunks
                 chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // size)))]
-                for items in fitter.fit_chunks(chunks, proposals, confidences, jobs):
+                for items in fitter.fit_chunks(chunks, proposals, confidences, jobs if found is not None else 1,
+                                               observations):
                     store(items)
                     bar.update(len(items))
-                    stops.check()
-            elif jobs <= 1 or F <= 1:
-                for f in range(F):
-                    store(_fit_chunk(spec, [f], proposals[f : f + 1], confidences[f : f + 1],
-                                     None if observations is None else observations[f : f + 1]))
-                    bar.update(1)
                     stops.check()
             else:
                 chunks = np.array_split(np.arange(F), min(F, jobs * 8))

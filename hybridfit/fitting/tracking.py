@@ -3,8 +3,8 @@
 Frame t's initial guess (the centre of the optimiser's search) is frame t-1's fitted
 parameters; frame 0 starts from ``first_params`` (the paper's FORTH set-up: the ground
 truth) or, without them, from its proposals (``hybridfit.problem.initial_guess``). Frame
-t draws as frame t of ``hybridfit.fit`` does (``Optimizer.run(problem, budget, seed, t)``); frames
-depend on each other, so a sequence runs in one process.
+t draws as frame t of ``hybridfit.fit`` does, through the same driver with its start given;
+frames depend on each other, so a sequence runs in one process.
 
 Lost track: a fit is *lost* when its points lie, in the median over the points that have
 proposals, further than ``lost_distance_mm`` from their nearest proposal (frames without
@@ -24,12 +24,11 @@ from tqdm.auto import tqdm
 
 from .. import registry
 from ..errors import HybridfitError
-from .frames import (INLIER_DISTANCE_MM, FitResult, _first_problem, _polishable, check_fit_options, finish_frame,
-                     model_label)
+from .driver import Driver
+from .frames import INLIER_DISTANCE_MM, FitResult, _first_problem, _polishable, check_fit_options, model_label
 from ..io import validate_proposals
 from ..metrics import inliers
-from ..optimizer import Task
-from ..problem import Problem
+from ..task import Task
 
 if TYPE_CHECKING:
     from ..model.base import HandModel
@@ -117,23 +116,20 @@ def track(
     if problem is not None:  # a budget too small would fail every frame: raised at once
         optimizer.check_budget(Task(problem, budget))
     polish = polish and not objective.observes_depth and _polishable(model, names)
+    fitter = Driver(model, objective, optimizer, names, budget, seed, search_radius_mm, polish)
     start = first_params
     t = 0
     try:
         for t in tqdm(range(F), disable=not progress, unit="frame", desc="track"):
             result.started_from_proposals[t] = start is None
-            try:
-                problem = Problem(model, objective, proposals[t], confidences[t], names, search_radius_mm,
-                                  None if observations is None else observations[t], start)
-                res = optimizer.run(problem, budget, seed, t)
-            except HybridfitError as err:  # this frame cannot be fitted: recorded, tracking goes on
-                result.errors[t] = str(err)
+            ((_, values, error),) = fitter.fit_chunk([t], proposals[t:t + 1], confidences[t:t + 1],
+                                                     observations=None if observations is None else [observations[t]],
+                                                     x0=None if start is None else start[None])
+            if error is not None:  # this frame cannot be fitted: recorded, tracking goes on
+                result.errors[t] = error
                 continue
-            params, result.objective[t] = finish_frame(problem, res, polish)
+            params, result.joints[t], result.model_joints[t], result.objective[t], result.evaluations[t] = values
             result.params[t] = params
-            result.joints[t] = problem.points(params[None])[0]
-            result.model_joints[t] = model.forward(params)
-            result.evaluations[t] = res.evaluations
             result.failed[t] = False
             result.lost[t] = nearest_proposal_distance(result.joints[t], proposals[t], confidences[t]) > \
                 settings.lost_distance_mm

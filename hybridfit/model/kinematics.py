@@ -11,7 +11,7 @@ innermost axis); :func:`mark_needed` finds the joints a set of points needs;
 :func:`block_setup` lays out a block computation (which joints and angles move, which are
 fixed at a base, the buffers) and :func:`block_kinematics` runs it for one or several frames'
 hypotheses. :func:`tree_forward` (``model.forward``, laid out once per thread, tree and joint
-set by :func:`forward_setup`) and :func:`tree_points` (``Problem.evaluate``, laid out once per
+set by :func:`forward_setup`) and :func:`tree_points` (the polish, laid out once per
 problem and point set) are that entry with all parameters moving; the driver's scorers
 (:mod:`hybridfit.fitting.evaluator`) use it with a stage's parameters moving.
 
@@ -521,7 +521,7 @@ def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_pa
 def tree_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
                 ints, floats, params, subset, out):
     """out (Q, 3, N) mm = the points ``subset`` of params (N, P), the hypothesis innermost (a
-    compiled kernel's input), by the block kinematics of a :func:`block_setup` of all
+    layout of the scoring loops), by the block kinematics of a :func:`block_setup` of all
     parameters moving, for ``subset``, over up to n columns (``ints``, ``floats``)."""
     N, P = params.shape
     n = ints[4]

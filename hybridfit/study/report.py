@@ -1,4 +1,4 @@
-"""Reports from the study database: ``results.csv``, ``report.md`` and the plots.
+"""Reports from the study database: ``results.csv``, ``results.json``, ``report.md`` and the plots.
 
 Everything is computed from ``study.db`` alone, so a report can be regenerated at any time
 (``hybridfit study FILE --report-only``). Per trial (one seed): mean joint error over all
@@ -6,6 +6,11 @@ frames and joints, median of the frames' mean errors, fingertip error, success r
 of frames whose worst joint is within 20/40/80 mm; failed frames count as failures), mean
 objective, evaluations and time per frame. Per variant: the mean and standard deviation
 (ddof = 1; 0 for one seed) of these over the seeds.
+
+``results.json`` is the study's record, the one a results page is rendered from: the
+hybridfit version, machine, date and command of the run that measured the trials, the
+report's table as shown (``tables``) and every variant's settings and metrics (``variants``,
+as in ``results.csv``).
 """
 
 from __future__ import annotations
@@ -136,6 +141,7 @@ def write_report(out: str | os.PathLike, study: Study | None = None) -> Path:
     try:
         rows = aggregate(store)
         meta = store.get_meta("study", dict) or {}
+        measured = store.get_meta("measured", dict) or {}
         keys = set(store.get_meta("trial_keys", list) or [])
         failed = [t for t in store.trials("failed") + store.trials("running") if not keys or t["key"] in keys]
     except sqlite3.Error as err:  # locked, damaged: one line naming the database
@@ -159,10 +165,9 @@ def write_report(out: str | os.PathLike, study: Study | None = None) -> Path:
               "success @t = share of frames whose worst joint is within t mm. Oracle = the proposal closest to "
               "the truth per joint; top-1 proposal = the most confident proposal (plain regression).", ""]
     head = ["variant", "seeds", *[LABELS.get(m, m) for m in metrics]]
+    cells = [[r["variant"], str(r["seeds"]), *(_cell(r, m) for m in metrics)] for r in rows]
     lines += ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
-    for r in rows:
-        name = r["variant"].replace("|", "\\|")
-        lines.append("| " + " | ".join([name, str(r["seeds"]), *(_cell(r, m) for m in metrics)]) + " |")
+    lines += ["| " + " | ".join([c[0].replace("|", "\\|"), *c[1:]]) + " |" for c in cells]
     lines += ["", "All metrics (mean and std per variant): [results.csv](results.csv)", ""]
     if failed:
         lines += ["## Failed or unfinished trials", ""]
@@ -173,4 +178,18 @@ def write_report(out: str | os.PathLike, study: Study | None = None) -> Path:
     path = out / "report.md"
     with atomic_open(path, "w") as fh:
         fh.write("\n".join(lines))
+    write_record(out / "results.json", meta, measured, {"columns": head, "rows": cells}, rows)
     return path
+
+
+def write_record(path: Path, meta: dict, measured: dict, table: dict, rows: list[dict]) -> None:
+    """``results.json`` (see the module docstring): the report's ``table`` (its columns and
+    the cells of its rows) and the aggregated ``rows``."""
+    variants = [{"variant": r["variant"], "method": r["method"], **{k: _setting(r, k) for k in CSV_SETTINGS},
+                 "seeds": r["seeds"], "frames": r["frames"],
+                 **{f"{m}_{s}": r[f"{m}_{s}"] if np.isfinite(r[f"{m}_{s}"]) else None for m in METRICS
+                    for s in ("mean", "std")}} for r in rows]
+    record = {"name": meta.get("name"), **{k: measured.get(k) for k in ("version", "machine", "date", "command")},
+              "tables": {"results": table}, "variants": variants}
+    with atomic_open(path, "w") as fh:
+        fh.write(json.dumps(record, indent=1) + "\n")

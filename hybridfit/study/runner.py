@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from .. import registry
+from .. import __version__, registry
+from .._environment import machine
 from ..errors import HybridfitError, PluginError
 from ..fitting.frames import fit
 from ..metrics import joint_errors
@@ -256,7 +257,7 @@ def check_size(study: Study, allow_large: bool, where: str = "study") -> None:
 def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: str = "processes",
               scheduler: str | None = None, cache_dir: str | os.PathLike | None = None, progress: bool = True,
               report: bool = True, dask_processes: bool = True, log=None, allow_large: bool = False,
-              keep_going: bool = False) -> RunSummary:
+              keep_going: bool = False, command: str | None = None) -> RunSummary:
     """Run the study's unfinished trials into ``out`` and write the report (see the module doc).
 
     A study of more than MAX_TRIALS trials needs ``allow_large``; a budget too small for a
@@ -264,12 +265,14 @@ def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: 
     ``HybridfitError``: data without depth for a depth objective, say) is recorded as failed
     and the study goes on. A trial that fails on a bug (any other exception, or a worker that
     died) is recorded and stops the study with a ``PluginError``, the finished trials kept,
-    unless ``keep_going``."""
+    unless ``keep_going``. A run that runs trials records the hybridfit version, the machine
+    (:func:`hybridfit._environment.machine`), the date and ``command`` (what ran it, as the
+    report's ``results.json`` names it)."""
     check_size(study, allow_large)
     try:
         return _run_study(study, Path(out), jobs=jobs, executor=executor, scheduler=scheduler, cache_dir=cache_dir,
                           progress=progress, report=report, dask_processes=dask_processes, log=log,
-                          keep_going=keep_going)
+                          keep_going=keep_going, command=command)
     except sqlite3.Error as err:  # a full disk or read-only folder: one line naming the database
         failure = storage_error(Path(out) / DB_NAME, err)
         if failure is None:
@@ -278,7 +281,7 @@ def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: 
 
 
 def _run_study(study: Study, out: Path, *, jobs, executor, scheduler, cache_dir, progress, report, dask_processes,
-               log, keep_going) -> RunSummary:
+               log, keep_going, command) -> RunSummary:
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     check_folder(out)
     if executor == "processes" and jobs > 1:  # before any work: the workers fit in ulimit -u
@@ -304,6 +307,8 @@ def _run_study(study: Study, out: Path, *, jobs, executor, scheduler, cache_dir,
             pending = [t for t in todo if states.get(t.key) != "complete"]
             summary = RunSummary(len(todo), len(todo) - len(pending), 0, 0, out)
             if pending:
+                store.set_meta("measured", {"version": __version__, "machine": machine(),
+                                            "date": time.strftime("%Y-%m-%d"), "command": command})
                 _run_trials(pending, data, store, executor, jobs, scheduler, progress, dask_processes, summary,
                             keep_going)
         finally:

@@ -20,7 +20,7 @@ import numba as nb
 import numpy as np
 from pydantic import Field
 
-from hybridfit.objective import Objective, kernel_loss
+from hybridfit.objective import Objective
 from hybridfit.plugin import Settings
 
 
@@ -28,37 +28,26 @@ class GaussianMixtureSettings(Settings):
     sigma_mm: float = Field(15.0, gt=0, description="standard deviation of every mixture component, mm")
 
 
-@nb.njit(cache=True, fastmath=False)
-def gaussian_mixture_loss(points, subset, proposals, weights, sigma):
-    """points (N, Q, 3), subset (m,), proposals (Q, K, 3), weights (Q, K) -> (N,) NLL."""
-    N = points.shape[0]
-    K = proposals.shape[1]
+@nb.njit(cache=True)
+def gaussian_mixture_point(x, y, z, proposals, weights, constants, out):
+    """out[i] = -log sum_r w_r N((x[i], y[i], z[i]); p_r, sigma^2 I) for one point, its proposals
+    (K, 3) mm and weights (K,); constants: (sigma mm,)."""
+    sigma = constants[0]
     inv_two_var = 0.5 / (sigma * sigma)
     log_norm = 1.5 * math.log(2.0 * math.pi * sigma * sigma)
-    d2 = np.empty(K)
-    out = np.empty(N)
-    for n in range(N):
-        total = 0.0
-        for jj in range(subset.shape[0]):
-            j = subset[jj]
-            smallest = np.inf
-            for r in range(K):
-                if weights[j, r] > 0.0:
-                    dx = proposals[j, r, 0] - points[n, j, 0]
-                    dy = proposals[j, r, 1] - points[n, j, 1]
-                    dz = proposals[j, r, 2] - points[n, j, 2]
-                    d2[r] = dx * dx + dy * dy + dz * dz
-                    if d2[r] < smallest:
-                        smallest = d2[r]
-            if smallest == np.inf:  # no proposals (or none at a finite distance)
-                continue
-            s = 0.0
-            for r in range(K):
-                if weights[j, r] > 0.0:
-                    s += weights[j, r] * math.exp(-(d2[r] - smallest) * inv_two_var)
-            total += smallest * inv_two_var - math.log(s) + log_norm
-        out[n] = total
-    return out
+    K = proposals.shape[0]
+    for i in range(x.shape[0]):
+        smallest = np.inf
+        for r in range(K):
+            if weights[r] > 0.0:
+                smallest = min(smallest, (proposals[r, 0] - x[i]) ** 2 + (proposals[r, 1] - y[i]) ** 2
+                               + (proposals[r, 2] - z[i]) ** 2)
+        s = 0.0
+        for r in range(K):
+            if weights[r] > 0.0:
+                d2 = (proposals[r, 0] - x[i]) ** 2 + (proposals[r, 1] - y[i]) ** 2 + (proposals[r, 2] - z[i]) ** 2
+                s += weights[r] * math.exp(-(d2 - smallest) * inv_two_var)
+        out[i] = smallest * inv_two_var - math.log(s) + log_norm
 
 
 class GaussianMixture(Objective):
@@ -66,9 +55,8 @@ class GaussianMixture(Objective):
 
     Settings = GaussianMixtureSettings
 
-    def bind(self, proposals, weights):
-        return kernel_loss(gaussian_mixture_loss, np.ascontiguousarray(proposals, dtype=np.float64),
-                           np.ascontiguousarray(weights, dtype=np.float64), float(self.settings.sigma_mm))
+    def point_loss(self):
+        return gaussian_mixture_point, np.array([float(self.settings.sigma_mm)])
 
     def lower_bound(self, weights):
         # a mixture's density never exceeds its components' peak density (2 pi sigma^2)^-1.5

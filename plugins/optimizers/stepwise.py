@@ -11,7 +11,7 @@ is split equally between the other stages; ``stage_weights`` overrides this with
 relative weight per stage (the paper's ablation: [4096, 841, 841, 841, 841, 841]).
 Stage budgets are rounded by largest remainder, so they add up to the budget exactly.
 The paper leaves the split of its default 3400 open; the default root share, 0.3, was chosen
-on synthetic frames with ``benchmarks/bench_stepwise.py`` (figures: the docs' results page).
+on synthetic frames with ``studies/stepwise_vs_joint_synthetic.toml`` (figures: the docs' results page).
 ``refine_share`` (an extension; 0 for ``stepwise``, 0.25 for ``stepwise-pso``, chosen on
 tuning data: the docs' robust-fitting page) keeps a share of the budget for a final
 joint refinement of all parameters starting from the stepwise result, run with the inner
@@ -104,24 +104,10 @@ class Stepwise(Optimizer):
 
     def _stages(self, task: Task):
         """The stages restricted to the task's parameters and observed points, with budget
-        weights: a list of (name, parameters, points, owned), and the weights. They depend on
-        the model's stages over the points (the problem's structure), which points are
-        observed, the task's parameters and points and the settings: computed once for each."""
+        weights: a list of (name, parameters, points, owned), and the weights."""
         if self.settings.schedule == "joint":
             return [("joint", task.parameters, task.points, task.points)], [1.0]
-        problem = task.problem
-        observed = problem.weights.sum(axis=-1) > 0
-        key = (problem._structure(), observed.tobytes(), task.parameters.tobytes(), task.points.tobytes())
-        cache = self.__dict__.setdefault("_stages_of", {})
-        if key not in cache:
-            if len(cache) >= 64:
-                cache.clear()
-            cache[key] = self._stages_for(task, observed)
-        return cache[key]
-
-    def __getstate__(self):
-        """Pickled (to worker processes) without the cached stages."""
-        return {k: v for k, v in self.__dict__.items() if k != "_stages_of"}
+        return self._stages_for(task, task.problem.weights.sum(axis=-1) > 0)
 
     def _stages_for(self, task: Task, observed: np.ndarray):
         """:meth:`_stages` computed, for a task whose points ``observed`` (Q,) bool have proposals."""
@@ -173,7 +159,7 @@ class Stepwise(Optimizer):
         stages, w = self._stages(task)
         w = np.asarray(w) / np.sum(w)
         share = 1.0 - (self.settings.refine_share if self.settings.schedule == "stepwise" else 0.0)
-        need = [inner.min_budget(task.stage(n, p, q, task.budget, o)) / (s * share)
+        need = [inner.min_budget(Task(task.problem, task.budget, p, q, task.base, n, o)) / (s * share)
                 for (n, p, q, o), s in zip(stages, w)]
         if share < 1.0:
             need.append(inner.min_budget(task) / (1.0 - share))
@@ -183,14 +169,6 @@ class Stepwise(Optimizer):
     def refiner(self) -> Optimizer:
         """The inner optimiser with ``refine_config`` applied, for the refinement stage."""
         return self.inner.with_params(**self.settings.refine_config) if self.settings.refine_config else self.inner
-
-    def minimize(self, task: Task, rng: np.random.Generator) -> None:
-        """The plan on one frame's Task (the driver runs the same plan for many frames when
-        the stages' optimisers offer batch steps; this is the path of callback solvers)."""
-        for index, st in enumerate(self.plan(task)):
-            stage = task.stage(st.name, st.parameters, st.points, st.budget, st.owned, index)
-            st.optimizer.minimize(stage, rng)
-            task.commit(stage)
 
 
 class StepwisePSOSettings(StepwiseSettings):

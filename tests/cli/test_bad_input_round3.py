@@ -19,6 +19,7 @@ import time
 import zipfile
 from pathlib import Path
 
+import numba as nb
 import numpy as np
 import pytest
 from PIL import Image
@@ -51,14 +52,30 @@ class _ConstantLoss(hybridfit.Objective):
 
     name = "constant-loss"
 
-    def __init__(self, value=np.nan, frames=False):
+    def __init__(self, value=np.nan):
         super().__init__()
-        self.value, self.frames = value, frames
-        if frames:
-            self.score_frames = lambda points, subset, proposals, weights: np.full(points.shape[:2], self.value)
+        self.value = value
 
     def bind(self, proposals, weights):
         return lambda points, subset: np.full(len(points), self.value)
+
+
+@nb.njit(cache=True)
+def _constant_point(x, y, z, proposals, weights, constants, out):
+    out[:] = constants[0]
+
+
+class _ConstantPointLoss(hybridfit.Objective):
+    """The same as a point_loss (its terms summed over the points: NaN or +-inf too)."""
+
+    name = "constant-loss"
+
+    def __init__(self, value=np.nan):
+        super().__init__()
+        self.value = value
+
+    def point_loss(self):
+        return _constant_point, np.array([self.value])
 
 
 class _OneBatch(Optimizer):
@@ -69,9 +86,9 @@ class _OneBatch(Optimizer):
 
 
 @pytest.mark.parametrize("value", [np.nan, -np.inf, np.inf])
-@pytest.mark.parametrize("path", ["bind", "score_frames", "task"])
+@pytest.mark.parametrize("path", ["bind", "point_loss", "task"])
 def test_a_non_finite_loss_is_a_plugin_error_naming_the_objective(exact_frames, value, path):
-    objective = _ConstantLoss(value, frames=path == "score_frames")
+    objective = _ConstantPointLoss(value) if path == "point_loss" else _ConstantLoss(value)
     optimizer = _OneBatch() if path == "task" else "pso"
     with pytest.raises(errors.PluginError, match=r"objective constant-loss: .*(nan|inf)") as err:
         hybridfit.fit(exact_frames["proposals"][:2], exact_frames["confidences"][:2], objective=objective,

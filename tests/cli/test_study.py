@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import shutil
 
 import pytest
@@ -72,6 +73,12 @@ def finished_study(tmp_path_factory):
     study.write_text(TINY)
     assert main(["study", str(study), "--quick", "--out", str(root / "out")]) == 0
     return study, root / "out"
+
+
+def test_the_record_names_the_command_that_ran_the_study(finished_study):
+    study, done = finished_study
+    record = json.loads((done / "results.json").read_text())
+    assert record["command"] == f"hybridfit study {study} --quick" and record["tables"]["results"]["rows"]
 
 
 def test_report_follows_no_link_planted_at_a_temporary_or_final_name(finished_study, tmp_path):

@@ -16,10 +16,12 @@ import hybridfit
 from hybridfit import registry, testing
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-PACKAGES = {  # folder: (kind, registered name, module)
-    "hybridfit-tripod-hand": ("model", "tripod-hand", "hybridfit_tripod_hand"),
-    "hybridfit-numpy-objective": ("objective", "numpy-clamped", "hybridfit_numpy_objective"),
-    "hybridfit-numpy-pso": ("optimizer", "numpy-pso", "hybridfit_numpy_pso"),
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "plugins.md"
+PACKAGES = {  # folder: (module, ((kind, registered name), ...))
+    "hybridfit-tripod-hand": ("hybridfit_tripod_hand", (("model", "tripod-hand"),)),
+    "hybridfit-numpy-objective": ("hybridfit_numpy_objective", (("objective", "clamped-point"),
+                                                                 ("objective", "numpy-clamped"))),
+    "hybridfit-numpy-pso": ("hybridfit_numpy_pso", (("optimizer", "numpy-pso"),)),
 }
 
 
@@ -36,13 +38,14 @@ def installed(tmp_path_factory):
     registry.refresh()
     yield target
     sys.path.remove(str(target))
-    for name in [m for m in sys.modules if m.startswith(tuple(module for _, _, module in PACKAGES.values()))]:
+    for name in [m for m in sys.modules if m.startswith(tuple(module for module, _ in PACKAGES.values()))]:
         del sys.modules[name]
     importlib.invalidate_caches()
     registry.refresh()
 
 
-CASES = [(kind, name, check) for kind, name, _ in PACKAGES.values() for check in testing.checks(kind)]
+CASES = [(kind, name, check) for _, plugins in PACKAGES.values() for kind, name in plugins
+         for check in testing.checks(kind)]
 
 
 @pytest.mark.parametrize("kind, name, check", CASES, ids=[f"{n}-{c.__name__}" for _, n, c in CASES])
@@ -51,50 +54,59 @@ def test_passes_the_conformance_suite(installed, kind, name, check):
     check(registry.create(kind, name))
 
 
-def test_the_numpy_objective_scores_frames_in_batches_and_fits_like_the_built_in(installed):
-    from hybridfit.objective import capability
+def test_the_per_point_objective_runs_compiled_and_fits_like_the_built_in(installed):
+    """clamped-point is the paper's formula as a per-point function: the core compiles it into
+    its loops (a valid point_loss) and fits as with the built-in clamped-confidence."""
+    from hybridfit.objective import point_loss_of
 
-    objective = registry.create("objective", "numpy-clamped")
-    assert capability(objective, "score_frames") is not None
+    objective = registry.create("objective", "clamped-point")
+    assert point_loss_of(objective) is not None
     data = hybridfit.synthetic_proposals(6, k=3, seed=2)
-    ours = hybridfit.fit(data["proposals"], data["confidences"], objective="numpy-clamped", budget=600, seed=1)
+    ours = hybridfit.fit(data["proposals"], data["confidences"], objective="clamped-point", budget=600, seed=1)
     built_in = hybridfit.fit(data["proposals"], data["confidences"], budget=600, seed=1)
     np.testing.assert_allclose(ours.params, built_in.params, rtol=0, atol=1e-6)
 
 
-def test_the_numpy_objective_keeps_aligned_buffers_per_thread_and_scores_like_fresh_ones(installed):
-    """clamped_loss's kept scratch: on a cache line, one set per thread, and a call after a
-    larger or smaller one (or beside one on another thread) scores as a first call does."""
-    import threading
+def test_the_numpy_objective_is_bind_only_and_scores_like_the_per_point_one(installed):
+    from hybridfit.objective import normalise_confidences, point_loss_of
 
-    from hybridfit_numpy_objective import clamped_loss, kept
-
-    assert kept("probe", 1000).ctypes.data % 64 == 0
+    numpy_clamped = registry.create("objective", "numpy-clamped", {"d_max_mm": 30.0})
+    per_point = registry.create("objective", "clamped-point", {"d_max_mm": 30.0})
+    assert point_loss_of(numpy_clamped) is None
     rng = np.random.default_rng(4)
+    Q, K, N = 9, 3, 17
+    proposals = rng.normal(0.0, 30.0, (Q, K, 3))
+    weights = normalise_confidences(rng.random((Q, K)) * (rng.random((Q, 1)) > 0.2))  # some points without any
+    points = proposals[None, :, 0] + rng.normal(0.0, 25.0, (N, Q, 3))
+    for subset in (np.arange(Q), np.array([1, 4, 7]), np.array([5])):
+        want = per_point.bind(proposals, weights)(points, subset)
+        np.testing.assert_allclose(numpy_clamped.bind(proposals, weights)(points, subset), want, rtol=1e-12,
+                                   atol=1e-12)
+    data = hybridfit.synthetic_proposals(3, k=3, seed=2)
+    fit = hybridfit.fit(data["proposals"], data["confidences"], objective="numpy-clamped", budget=300, seed=1)
+    built_in = hybridfit.fit(data["proposals"], data["confidences"], budget=300, seed=1)
+    np.testing.assert_allclose(fit.params, built_in.params, rtol=0, atol=1e-6)
 
-    def batch(F, N, m):
-        proposals = rng.normal(0.0, 30.0, (F, m, 3, 3))
-        points = proposals[:, None, :, 0] + rng.normal(0.0, 20.0, (F, N, m, 3))
-        return testing.frames_arguments(points, np.arange(m), proposals, rng.random((F, m, 3)))
 
-    batches = [batch(40, 29, 21), batch(7, 19, 3), batch(40, 28, 6)]
-    first = [clamped_loss(p, q, w, 40.0) for p, _, q, w in batches]
-    again = [clamped_loss(p, q, w, 40.0) for p, _, q, w in batches[::-1]][::-1]
-    threaded = [None] * len(batches)
+def test_the_complete_objective_of_the_plugin_guide_runs_and_passes_the_suite(tmp_path):
+    """docs/plugins.md's complete per-point objective, run as a user's script (numba caches its
+    function beside the file), then its objective through the conformance suite."""
+    import re
 
-    def score(i):  # each thread's result must not change while the others run
-        results = [clamped_loss(batches[i][0], batches[i][2], batches[i][3], 40.0) for _ in range(10)]
-        threaded[i] = results[0] if all(np.array_equal(r, results[0]) for r in results) else None
+    code = next(block for block in re.findall(r"```python\n(.*?)```", DOCS.read_text(), re.S)
+                if "def point_loss" in block and "hybridfit.fit(" in block)
+    script = tmp_path / "my_objective.py"
+    script.write_text(code)
+    done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    sys.path.insert(0, str(tmp_path))
+    try:
+        import my_objective
 
-    workers = [threading.Thread(target=score, args=(i,)) for i in range(len(batches))]
-    for worker in workers:
-        worker.start()
-    for worker in workers:
-        worker.join()
-    for a, b, c in zip(first, again, threaded):
-        np.testing.assert_array_equal(a, b)
-        assert c is not None
-        np.testing.assert_array_equal(a, c)
+        testing.check_objective(my_objective.ClampedPoint())
+    finally:
+        sys.path.remove(str(tmp_path))
+        sys.modules.pop("my_objective", None)
 
 
 def test_the_numpy_optimizer_runs_stepwise_and_fits(installed):

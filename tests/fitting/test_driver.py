@@ -3,6 +3,7 @@ frame only (not its chunk, batch, threads or --jobs)."""
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -10,44 +11,66 @@ from hypothesis import strategies as st
 
 import hybridfit
 from hybridfit.fitting import driver, frames as fitting
-from hybridfit.fitting.evaluator import NumpyScorer
-from hybridfit.objective import capability
+from hybridfit.objective import Objective, point_loss_of
 from hybridfit.optimizer import Task
 from hybridfit.problem import Problem
+from hybridfit.testing import ToyLeastSquares
+from hybridfit_plugins.objectives.clamped_confidence import ClampedConfidence
+from hybridfit.fitting.driver import run_problem
 
 
-def _frames_clamped():
-    """clamped-confidence with a frame-batched ``score_frames``: its bound loss per frame on
-    the driver's arguments (the subset's points and proposals only)."""
-    from hybridfit_plugins.objectives.clamped_confidence import ClampedConfidence
-
-    class FramesClamped(ClampedConfidence):
-        def score_frames(self, points, subset, proposals, weights):
-            every = np.arange(len(subset))
-            return np.stack([self.bind(p, w)(x, every) for x, p, w in zip(points, proposals, weights)])
-
-    return FramesClamped()
+@nb.njit(cache=True)
+def user_clamped_point(x, y, z, proposals, weights, constants, out):
+    """A user's clamped-confidence (the paper's Eq. 1), written as one point's loss."""
+    for i in range(x.shape[0]):
+        best = 0.0
+        for r in range(proposals.shape[0]):
+            d2 = (proposals[r, 0] - x[i]) ** 2 + (proposals[r, 1] - y[i]) ** 2 + (proposals[r, 2] - z[i]) ** 2
+            best = min(best, weights[r] * (d2 * constants[0] - 1.0))
+        out[i] = best
 
 
-def driver_path(data, optimizer, budget, seed, frames, names=None, threads=1, model=None, scorer="frames-kernel",
+class UserClamped(Objective):
+    """clamped-confidence as a user writes it in a point_loss, outside hybridfit's plugins."""
+
+    def point_loss(self):
+        return user_clamped_point, np.array([1.0 / 40.0**2])
+
+
+class NumpyClamped(ClampedConfidence):
+    """clamped-confidence in numpy, its terms summed point by point as the driver's loop sums
+    them. It defines bind: its parent's point_loss is never run (the capability rule)."""
+
+    def bind(self, proposals, weights):
+        scale = 1.0 / self.settings.d_max_mm**2
+
+        def loss(points, subset):
+            d2 = np.square(points[:, subset, None, :] - proposals[subset]).sum(axis=-1)  # (N, m, K)
+            terms = np.minimum(weights[subset] * (d2 * scale - 1.0), 0.0).min(axis=-1)  # (N, m)
+            out = np.zeros(len(points))
+            for t in range(len(subset)):
+                out += terms[:, t]
+            return out
+
+        return loss
+
+
+def driver_path(data, optimizer, budget, seed, frames, names=None, threads=1, model=None, scorer="point",
                 objective=None):
     """(params (F, P), loss (F,), evaluations (F,)) fitted by the driver, scoring with the
-    objective's compiled frames kernel ("frames-kernel"), its compiled kernel ("kernel"), its
-    ``bind`` per frame ("bind"), bind on a model without a kinematic tree ("forward"), or a
-    frame-batched numpy ``score_frames`` ("frames", "frames-forward")."""
+    objective's point_loss compiled into its loop ("point", PointScorer), its ``bind`` per frame
+    ("bind", BoundScorer), or bind on a model without a kinematic tree ("forward")."""
     model = model or hybridfit.create("model", "hand26")
-    numpy_frames = scorer in ("frames", "frames-forward")
-    objective = objective or (_frames_clamped() if numpy_frames else
-                              hybridfit.create("objective", "clamped-confidence"))
+    objective = objective or hybridfit.create("objective", "clamped-confidence")
     problem = Problem(model, objective, data["proposals"][0], data["confidences"][0], names or data["joint_names"])
-    assert driver.supports(model, objective, optimizer, problem, budget)
+    assert driver.batched_layout(model, objective, optimizer, problem, budget)
     fitter = driver.Driver(model, objective, optimizer, names or data["joint_names"], budget, seed)
-    assert (fitter.score_frames is not None) == numpy_frames
-    if scorer != "frames-kernel":
-        fitter.frames_kernel = None
-    if scorer not in ("frames-kernel", "kernel"):
-        fitter.kernel = None
-    if scorer.endswith("forward"):
+    assert (fitter.compiled is not None) == (point_loss_of(objective) is not None)
+    if scorer == "point":
+        assert fitter.compiled is not None
+    else:
+        fitter.compiled = None  # bind per frame (clamped-confidence's: the one built from its point_loss)
+    if scorer == "forward":
         fitter.tree = None
     items = fitter.fit_chunk(list(frames), data["proposals"][frames], data["confidences"][frames], threads)
     assert [item[0] for item in items] == list(frames)
@@ -84,6 +107,13 @@ OPTIMIZERS = {
 }
 
 
+#: (scorer, objective) pairs that must fit as clamped-confidence's point_loss in the driver's loop
+#: does: its bind per frame, on a model without a kinematic tree, a user's point_loss, and a
+#: numpy bind (per frame, and without a kinematic tree)
+SCORERS = (("bind", None), ("forward", None), ("point", UserClamped()), ("bind", NumpyClamped()),
+           ("forward", NumpyClamped()))
+
+
 @pytest.mark.parametrize("name", OPTIMIZERS)
 @pytest.mark.parametrize("budget", [300, 1100])
 def test_every_scorer_gives_the_same_fits_and_the_losses_add_up(partial, name, budget):
@@ -91,8 +121,9 @@ def test_every_scorer_gives_the_same_fits_and_the_losses_add_up(partial, name, b
     frames = np.arange(6)
     params, loss, used = driver_path(partial, optimizer, budget, 7, frames)
     assert used.tolist() == [budget] * 6
-    for scorer in ("kernel", "bind", "forward", "frames", "frames-forward"):
-        other_params, other_loss, _ = driver_path(partial, optimizer, budget, 7, frames, scorer=scorer)
+    for scorer, objective in SCORERS:
+        other_params, other_loss, _ = driver_path(partial, optimizer, budget, 7, frames, scorer=scorer,
+                                                  objective=objective)
         np.testing.assert_allclose(other_params, params, rtol=0, atol=1e-9)
         np.testing.assert_allclose(other_loss, loss, rtol=0, atol=1e-9)
     np.testing.assert_allclose(frame_losses(partial, params), loss, rtol=0, atol=1e-9)
@@ -103,8 +134,9 @@ def test_derived_points_are_scored_alike_by_every_scorer():
     names = ["palm_centre"] + list(data["joint_names"][1:])  # the wrist replaced by the palm centre
     optimizer = hybridfit.create("optimizer", "stepwise-pso")
     params, loss, _ = driver_path(data, optimizer, 700, 1, np.arange(3), names)
-    for scorer in ("kernel", "bind", "forward", "frames", "frames-forward"):
-        ref_params, ref_loss, _ = driver_path(data, optimizer, 700, 1, np.arange(3), names, scorer=scorer)
+    for scorer, objective in SCORERS:
+        ref_params, ref_loss, _ = driver_path(data, optimizer, 700, 1, np.arange(3), names, scorer=scorer,
+                                              objective=objective)
         np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
         np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)
     np.testing.assert_allclose(frame_losses(data, params, names), loss, rtol=0, atol=1e-9)
@@ -115,8 +147,9 @@ def test_a_left_hand_with_other_bones_is_scored_alike_by_every_scorer():
     data = dict(hybridfit.synthetic_proposals(3, k=3, seed=8, model=model))
     optimizer = hybridfit.create("optimizer", "stepwise-pso")
     params, loss, _ = driver_path(data, optimizer, 500, 2, np.arange(3), model=model)
-    for scorer in ("forward", "frames"):
-        ref_params, ref_loss, _ = driver_path(data, optimizer, 500, 2, np.arange(3), model=model, scorer=scorer)
+    for scorer, objective in (("forward", None), ("bind", NumpyClamped())):
+        ref_params, ref_loss, _ = driver_path(data, optimizer, 500, 2, np.arange(3), model=model, scorer=scorer,
+                                              objective=objective)
         np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
         np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)
 
@@ -189,14 +222,13 @@ def test_the_driver_runs_what_offers_batch_steps_and_follows_overrides():
         def minimize(self, task, rng):
             task.evaluate(task.x0[None])
 
-    assert driver.supports(model, clamped, hybridfit.create("optimizer", "stepwise-pso"), problem, 3400)
-    assert not driver.supports(model, clamped, Greedy(), problem, 3400)
-    assert not driver.supports(model, clamped, hybridfit.create("optimizer", "stepwise", {"optimizer": "cmaes"}),
-                               problem, 3400)
+    assert driver.batched_layout(model, clamped, hybridfit.create("optimizer", "stepwise-pso"), problem, 3400)
+    assert not driver.batched_layout(model, clamped, Greedy(), problem, 3400)
+    stepwise_cmaes = hybridfit.create("optimizer", "stepwise", {"optimizer": "cmaes"})
+    assert not driver.batched_layout(model, clamped, stepwise_cmaes, problem, 3400)
     # an objective with bind only runs through the driver too (scored per frame by bind)
-    mixture = hybridfit.create("objective", "gaussian-mixture")
-    assert capability(mixture, "compiled_kernel") is None
-    assert driver.supports(model, mixture, hybridfit.create("optimizer", "pso"), problem, 3400)
+    assert point_loss_of(ToyLeastSquares()) is None
+    assert driver.batched_layout(model, ToyLeastSquares(), hybridfit.create("optimizer", "pso"), problem, 3400)
 
 
 def test_a_wrong_batch_shape_is_a_plugin_error_naming_the_optimizer(frames):
@@ -253,22 +285,6 @@ def test_a_bug_in_a_bound_loss_is_a_plugin_error_naming_the_plugins(frames):
         hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], objective=Raising(), budget=300)
 
 
-def test_a_frame_scorer_of_the_wrong_shape_is_a_plugin_error_naming_the_objective(frames):
-    from hybridfit.errors import PluginError
-    from hybridfit.objective import Objective
-
-    class OneColumnShort(Objective):
-        def bind(self, proposals, weights):
-            return lambda points, subset: np.zeros(len(points))
-
-        def score_frames(self, points, subset, proposals, weights):
-            return np.zeros((points.shape[0], points.shape[1] - 1))
-
-    with pytest.raises(PluginError, match=r"objective OneColumnShort: score_frames returned shape \(2, \d+\), "
-                                          r"expected \(2, \d+\)"):
-        hybridfit.fit(frames["proposals"][:2], frames["confidences"][:2], objective=OneColumnShort(), budget=300)
-
-
 @pytest.mark.parametrize("short", [False, True], ids=["list-of-ints", "one-frame-short"])
 def test_bound_losses_are_converted_together_and_a_frame_of_the_wrong_shape_names_the_objective(frames, short):
     """The scorer converts the frames' bound losses in one go; one frame's wrong shape among
@@ -296,63 +312,35 @@ def test_bound_losses_are_converted_together_and_a_frame_of_the_wrong_shape_name
         assert not fit.failed.any() and np.all(fit.objective == 0.0)
 
 
-def test_a_frame_scored_by_score_frames_alone_or_beside_others_gets_the_same_losses_bit_for_bit():
-    """A sum over the points of arrays in the frame-batched layout is a pairwise sum over one
-    frame and a running sum over several: the scorer never hands score_frames a single frame."""
-    data = hybridfit.synthetic_proposals(3, k=3, seed=6)
-    model, objective = hybridfit.create("model", "hand26"), _frames_clamped()
-    fitter = driver.Driver(model, objective, hybridfit.create("optimizer", "stepwise-pso"), data["joint_names"], 900, 0)
-    chunk = fitter.prepare(range(3), data["proposals"], data["confidences"])
-    P, Q, n = model.n_params, len(data["joint_names"]), 29
-    every, points = np.arange(P), np.arange(Q)
-    X = chunk.x0[:, None] + np.random.default_rng(2).normal(0.0, 0.05, size=(3, n, P))
+def test_a_users_point_loss_fits_as_its_numpy_bind_equivalent(partial):
+    """A point_loss written outside hybridfit is compiled into the driver's loop and fits, through
+    the public ``fit`` (polished), as the same loss written in numpy (bind, per frame) does."""
+    def run(objective):
+        return hybridfit.fit(partial["proposals"], partial["confidences"], objective=objective, budget=900, seed=2)
 
-    def distance_sums(points, subset, proposals, weights):  # (F, N): summed over the m >= 8 points
-        d2 = np.square(points[..., 0] - proposals[:, None, :, 0, 0])
-        d2 += np.square(points[..., 1] - proposals[:, None, :, 0, 1])
-        return d2.sum(axis=-1)
-
-    def scored(frames):
-        scorer = NumpyScorer(model, fitter.tree, fitter.point_map, fitter.point_matrix, chunk.proposals[frames],
-                             chunk.weights[frames], score_frames=distance_sums)
-        out = np.empty((len(frames), n))
-        scorer.score(scorer.prepare(chunk.x0[frames], every, points, points, n), X[frames], points, out)
-        return out
-
-    together = scored([0, 1, 2])
-    for f in range(3):
-        assert np.array_equal(scored([f])[0], together[f])
-        assert np.array_equal(scored([f, (f + 1) % 3])[0], together[f])
+    ours, numpy = run(UserClamped()), run(NumpyClamped())
+    assert not ours.failed.any() and (ours.evaluations == 900).all()
+    np.testing.assert_allclose(ours.params, numpy.params, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ours.objective, numpy.objective, rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("kinematics", ["tree", "forward"])
-def test_score_frames_gets_the_layout_the_conformance_suite_checks(kinematics):
-    """The driver's arguments to score_frames are laid out (strides) as
-    ``hybridfit.testing.frames_arguments`` lays out arrays of the same shapes: an objective
-    that passes the suite's checks sees no other layout in a fit."""
-    from hybridfit.testing import frames_arguments
+def test_a_subclass_that_defines_bind_never_runs_its_parents_point_loss(partial):
+    """The capability rule: the driver scores a subclass by its own bind, whatever point_loss
+    its parent offers (here one that fails when asked for)."""
 
-    seen = []
+    class Parent(Objective):
+        def point_loss(self):
+            raise AssertionError("the parent's point_loss was run")
 
-    class Recording(hybridfit.objective.Objective):
-        def bind(self, proposals, weights):
-            return lambda points, subset: np.zeros(len(points))
+    class Child(Parent):
+        bind = ToyLeastSquares.bind
 
-        def score_frames(self, points, subset, proposals, weights):
-            seen.append((points, subset, proposals, weights))
-            return np.zeros(points.shape[:2])
+    def run(objective):
+        return hybridfit.fit(partial["proposals"], partial["confidences"], objective=objective, budget=600, seed=1)
 
-    data = hybridfit.synthetic_proposals(3, k=3, seed=6)
-    fitter = driver.Driver(hybridfit.create("model", "hand26"), Recording(), hybridfit.create("optimizer", "stepwise-pso"),
-                           data["joint_names"], 400, 0)
-    if kinematics == "forward":
-        fitter.tree = None
-    fitter.fit_chunk([0, 1, 2], data["proposals"], data["confidences"], 1)
-    assert {len(s[1]) for s in seen} == {6, 3, len(data["joint_names"])}  # palm, fingers, refinement
-    for points, subset, proposals, weights in seen:
-        (F, N), Q, K = points.shape[:2], len(data["joint_names"]), proposals.shape[2]
-        want = frames_arguments(np.zeros((F, N, Q, 3)), subset, np.zeros((F, Q, K, 3)), np.zeros((F, Q, K)))
-        assert [a.strides for a in (points, proposals, weights)] == [want[0].strides, want[2].strides, want[3].strides]
+    assert point_loss_of(Child()) is None
+    child, numpy = run(Child()), run(ToyLeastSquares())
+    assert np.array_equal(child.params, numpy.params) and np.array_equal(child.objective, numpy.objective)
 
 
 @pytest.mark.parametrize("config", [{}, {"refine_share": 0.0}], ids=["default", "paper"])
@@ -373,4 +361,4 @@ def test_the_task_path_fits_every_frame_as_the_driver_does_bit_for_bit(monkeypat
     np.testing.assert_allclose(polished_by_task.objective, polished_by_driver.objective, rtol=1e-12)
     problem = Problem(hybridfit.create("model", "hand26"), hybridfit.create("objective", "clamped-confidence"),
                       data["proposals"][3], data["confidences"][3], data["joint_names"])
-    assert np.array_equal(optimizer.run(problem, 700, 7, 3).params, by_driver.params[3])
+    assert np.array_equal(run_problem(optimizer, problem, 700, 7, 3).params, by_driver.params[3])

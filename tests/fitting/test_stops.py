@@ -31,7 +31,7 @@ def test_a_signal_during_the_driver_interrupts_the_fit_cleanly(monkeypatch):
     """A SIGINT sent from inside a generation's scoring (where compiled code runs) stops the fit
     as an interrupt, with every frame marked: no SystemError."""
     d = hybridfit.synthetic_proposals(4, k=2, seed=1)
-    real = driver.KernelScorer.score
+    real = driver.PointScorer.score
     sent = []
 
     def score(self, *args):
@@ -40,7 +40,7 @@ def test_a_signal_during_the_driver_interrupts_the_fit_cleanly(monkeypatch):
             sent.append("the scoring went on")
         return real(self, *args)
 
-    monkeypatch.setattr(driver.KernelScorer, "score", score)
+    monkeypatch.setattr(driver.PointScorer, "score", score)
     result = hybridfit.fit(d["proposals"], d["confidences"], budget=200, seed=0)
     assert sent == ["the scoring went on"] and result.interrupted and result.failed.all()
     assert set(result.errors.values()) == {"interrupted"}

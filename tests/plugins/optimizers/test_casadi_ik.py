@@ -6,7 +6,8 @@ import pytest
 import hybridfit
 from hybridfit import registry, testing
 from hybridfit.errors import HybridfitError
-from hybridfit.optimizer import Task
+from hybridfit.fitting.driver import run_problem
+from hybridfit.task import StagePlan, Task
 
 pytest.importorskip("casadi")
 
@@ -43,19 +44,24 @@ def test_every_function_and_gradient_is_charged():
 
 def test_reported_loss_is_the_task_objective_of_the_reported_params():
     problem = testing.check_problem()
-    result = registry.create("optimizer", "casadi-ik").run(problem, 200)
+    result = run_problem(registry.create("optimizer", "casadi-ik"), problem, 200)
     assert result.loss == problem.evaluate(result.params[None])[0]
 
 
 def test_frozen_parameters_stay_at_the_base():
     problem = testing.check_problem()
-    root = Task(problem, 1000)
     name, params, points = problem.stage_points()[-1]
-    stage = root.stage(name, params, points, 150)
-    registry.create("optimizer", "casadi-ik").minimize(stage, np.random.default_rng(0))
-    root.commit(stage)
+    inner = registry.create("optimizer", "casadi-ik")
+
+    class OneStage(hybridfit.Optimizer):
+        def plan(self, task):
+            return [StagePlan(name, params, points, points, 150, inner)]
+
+    seen = []
+    run_problem(OneStage(), problem, 150, 0, record=seen)
     others = np.setdiff1d(np.arange(problem.model.n_params), params)
-    np.testing.assert_array_equal(root.base[others], problem.x0[others])
+    X = np.concatenate(seen)
+    np.testing.assert_array_equal(X[:, others], np.repeat(problem.x0[None, others], len(X), axis=0))
 
 
 def test_a_solver_failure_fails_its_frame_only(monkeypatch):
@@ -95,7 +101,7 @@ def test_names_the_surrogate_it_optimises_when_the_objective_has_no_symbols():
     problem = testing.check_problem()  # the suite's ToyClamped: not smooth, no CasADi symbols
     with pytest.warns(UserWarning, match=r"objective 'ToyClamped' offers no CasADi symbols .* surrogate: "
                                           r"the Gaussian-mixture negative log-likelihood .*sigma_mm=15"):
-        registry.create("optimizer", "casadi-ik").run(problem, 100)
+        run_problem(registry.create("optimizer", "casadi-ik"), problem, 100)
 
 
 def test_optimises_the_objective_itself_when_it_offers_casadi_symbols():
@@ -122,5 +128,5 @@ def test_optimises_the_objective_itself_when_it_offers_casadi_symbols():
     problem = Problem(model, SymbolicLeastSquares(), data["proposals"][0], data["confidences"][0])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        result = registry.create("optimizer", "casadi-ik").run(problem, 1000)
+        result = run_problem(registry.create("optimizer", "casadi-ik"), problem, 1000)
     assert calls and result.loss < 1e-3  # the least-squares optimum (0 at the exact pose)

@@ -7,6 +7,7 @@ import hybridfit
 from hybridfit import registry, testing
 from hybridfit.errors import HybridfitError
 from hybridfit.optimizer import Task
+from hybridfit.fitting.driver import run_problem
 
 
 def test_recovers_a_known_pose_from_exact_proposals_stepwise():
@@ -19,7 +20,7 @@ def test_recovers_a_known_pose_from_exact_proposals_stepwise():
 def test_uses_the_budget_exactly_with_a_cut_last_generation():
     problem = testing.check_problem()
     for budget in (13, 100, 257):  # not multiples of the population
-        result = registry.create("optimizer", "cmaes", {"popsize": 10}).run(problem, budget)
+        result = run_problem(registry.create("optimizer", "cmaes", {"popsize": 10}), problem, budget)
         assert result.evaluations == budget
 
 
@@ -40,4 +41,4 @@ def test_settings_and_min_budget():
     with pytest.raises(HybridfitError, match="popsize"):
         registry.create("optimizer", "cmaes", {"popsize": 1})
     with pytest.raises(HybridfitError, match="budget 5 is too small"):
-        cmaes.run(testing.check_problem(), 5)
+        run_problem(cmaes, testing.check_problem(), 5)

@@ -7,6 +7,7 @@ import hybridfit
 from hybridfit import registry, testing
 from hybridfit.errors import HybridfitError, PluginError
 from hybridfit_plugins.optimizers.nlopt_ import ALGORITHMS
+from hybridfit.fitting.driver import run_problem
 
 
 def test_recovers_a_known_pose_from_exact_proposals_stepwise():
@@ -29,7 +30,7 @@ def test_every_algorithm_spends_the_budget_one_point_at_a_time_within_bounds(alg
 
 def test_crs2_never_overruns_a_small_remaining_budget():
     # CRS2's first population (10 (d + 1) points) ignores maxeval: the plugin must stop it
-    result = registry.create("optimizer", "nlopt", {"algorithm": "crs2"}).run(testing.check_problem(), 300)
+    result = run_problem(registry.create("optimizer", "nlopt", {"algorithm": "crs2"}), testing.check_problem(), 300)
     assert result.evaluations == 300
 
 
@@ -51,7 +52,7 @@ def test_an_nlopt_error_is_a_clear_error():
     # CRS2 needs a population of at least dim + 1 points
     problem = testing.check_problem()
     with pytest.raises(HybridfitError, match=f"NLopt crs2 failed on task all \\({problem.model.n_params} parameters\\)"):
-        registry.create("optimizer", "nlopt", {"algorithm": "crs2", "population": 5}).run(problem, 100)
+        run_problem(registry.create("optimizer", "nlopt", {"algorithm": "crs2", "population": 5}), problem, 100)
 
 
 class _Broken(hybridfit.objective.Objective):

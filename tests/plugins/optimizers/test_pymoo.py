@@ -55,7 +55,9 @@ def test_every_algorithm_passes_the_budget_determinism_and_bounds_checks(algorit
     check(registry.create("optimizer", "pymoo", {"algorithm": algorithm, "options": {}}))
 
 
-@pytest.mark.parametrize("algorithm, options", [("PSO", {}), ("G3PCX", {}), ("NelderMead", {}), ("DE", {"pop_size": 20})])
+# DE at the check's 150 evaluations needs generations: a population of 8 closes 28-61 % of the
+# gap over seeds 0-5, one of 20 (7 generations) 0-21 %
+@pytest.mark.parametrize("algorithm, options", [("PSO", {}), ("G3PCX", {}), ("NelderMead", {}), ("DE", {"pop_size": 8})])
 def test_algorithms_improve_on_a_known_optimum(algorithm, options):
     testing.check_optimizer_improves(registry.create("optimizer", "pymoo", {"algorithm": algorithm, "options": options}))
 

@@ -11,6 +11,7 @@ from hybridfit.datasets.skeletons import dataset_model_config, skeleton
 from hybridfit.optimizer import Task
 from hybridfit.problem import Problem
 from hybridfit.stages import rotation_lever_mm
+from hybridfit.fitting.driver import run_problem
 
 
 def nyu_problem(frames_data, f=0, confidences=None):
@@ -86,7 +87,7 @@ def test_the_loss_adds_up_for_any_point_set(nyu_frames, missing, refine, inner):
         return
     p = nyu_problem(nyu_frames, 1, c)
     opt = hybridfit.create("optimizer", "stepwise", {"optimizer": inner, "refine_share": refine})
-    r = opt.run(p, 600, seed=0)
+    r = run_problem(opt, p, 600, seed=0)
     assert r.evaluations == 600
     assert r.loss == pytest.approx(p.evaluate(r.params[None])[0])
 

@@ -4,19 +4,12 @@ The optimiser gives hybridfit three pure functions over arrays with a leading fr
 (``hybridfit.optimizer.BatchSteps``): ``init`` builds the swarms of F frames, ``ask(state,
 m)`` returns the next (F, m, d) hypotheses and ``tell(state, X, losses)`` takes their (F, m)
 losses. hybridfit's driver calls them once per generation for a whole chunk of frames,
-scores the hypotheses itself and keeps the budget, so ``minimize``, stepwise schedules and
-the budget come for free. Frame f's random numbers come only from its key ``keys[f]``
+scores the hypotheses itself and keeps the budget, so stepwise schedules, ``run_problem``
+and the budget come for free. Frame f's random numbers come only from its key ``keys[f]``
 (``hybridfit.fitting.streams``), so a frame's fit does not depend on the frames beside it.
 
-The swarm keeps the frame axis last and the parameter axis first ((d, n, F) arrays, C
-order), the order in which a generation's random numbers are numbered ((2, d, m), as ``pso``
-numbers them): the numbers, the swarm and its bests then have one layout, and every numpy
-operation runs over the same contiguous (m, F) rows of each operand (a transposed operand
-costs a strided pass); a frame's bounds (d, 1, F) broadcast over the particles. The updates
-work in place, in the state's arrays, one scratch array and one buffer that the random
-numbers are drawn into (``uniforms(..., out=)``), all allocated by ``init`` (fresh arrays of
-this size every generation cost page faults). ``ask`` hands the driver an (F, m, d) view of
-the swarm (no copy).
+The swarms are (F, n, d) arrays, updated in place (``+=``, ``out=``): new swarm-sized arrays
+made every generation would cost more than the arithmetic.
 """
 
 from __future__ import annotations
@@ -39,68 +32,61 @@ class NumpyPSOSettings(Settings):
 
 
 def init(start, lower, upper, keys, budget, settings):
-    """start, lower, upper (F, d); settings: (c1, c2, chi, init_sigma, max_velocity, near, particles)."""
+    """start, lower, upper (F, d); settings: (c1, c2, chi, init_sigma, max_velocity, near,
+    particles) -> the state: each frame's swarm of n particles (F, n, d), its velocities and
+    each particle's best."""
     F, d = start.shape
     n = min(int(settings[6]), budget)
     near = min(int(settings[5]), n)
-    start, lower, upper = start.T, lower.T.copy(), upper.T.copy()  # (d, F)
+    start, lower, upper = start[:, None], lower[:, None], upper[:, None]  # (F, 1, d)
     span = upper - lower
-    x = lower + span * uniforms(keys, 0, (n, d), frames_last=True)  # (n, d, F), numbered as pso numbers them
+    x = lower + span * uniforms(keys, 0, (n, d))  # (F, n, d)
     if near:
-        x[:near] = start + settings[3] * normals(keys, 0, (near, d), frames_last=True) * span
-        x[0] = start
-    np.maximum(x, lower, out=x)
-    np.minimum(x, upper, out=x)
-    x = np.ascontiguousarray(x.transpose(1, 0, 2))  # (d, n, F)
-    lower, upper, span = lower[:, None], upper[:, None], span[:, None]  # (d, 1, F)
-    return {"x": x, "v": np.zeros_like(x), "pbest_x": x.copy(), "pbest_f": np.full((n, F), np.inf),
-            "scratch": np.empty_like(x), "random": np.empty(2 * d * n * F), "lower": lower, "upper": upper,
-            "vmax": settings[4] * span, "min_v": -settings[4] * span, "frames": np.arange(F), "keys": keys,
+        x[:, :near] = start + settings[3] * normals(keys, 0, (near, d)) * span
+        x[:, 0] = start[:, 0]
+    x = np.clip(x, lower, upper)
+    vmax = settings[4] * span
+    return {"x": x, "v": np.zeros_like(x), "pbest_x": x.copy(), "pbest_f": np.full((F, n), np.inf),
+            "lower": lower, "upper": upper, "vmax": vmax, "min_v": -vmax, "frames": np.arange(F), "keys": keys,
             "settings": settings, "counter": n * d, "first": True}
 
 
 def ask(state, m):
-    x = state["x"]
+    """The first m particles of every swarm after one update (the first call: the initial
+    swarm) -> (F, m, d)."""
+    x, v = state["x"][:, :m], state["v"][:, :m]
     if state["first"]:
-        return x[:, :m].transpose(2, 1, 0)
+        return x
     c1, c2, chi = state["settings"][:3]
-    d, n, F = x.shape
-    # (2, d, m, F), numbered coordinate by coordinate as pso numbers them
-    r = uniforms(state["keys"], state["counter"], (2, d, m), frames_last=True,
-                 out=state["random"][:2 * d * m * F].reshape(2, d, m, F))
+    d = x.shape[2]
+    r = uniforms(state["keys"], state["counter"], (2, m, d))  # (F, 2, m, d)
     state["counter"] += 2 * m * d
+    r1, r2 = r[:, 0], r[:, 1]
     pbest_x = state["pbest_x"]
-    best = pbest_x[:, state["pbest_f"].argmin(axis=0), state["frames"]][:, None]  # (d, 1, F)
-    xs, vs, scratch = x[:, :m], state["v"][:, :m], state["scratch"][:, :m]
-    # v = chi (v + c1 r1 (pbest - x) + c2 r2 (best - x)), clipped to +-vmax
-    r[0] *= c1
-    r[0] *= np.subtract(pbest_x[:, :m], xs, out=scratch)
-    r[1] *= c2
-    r[1] *= np.subtract(best, xs, out=scratch)
-    vs += r[0]
-    vs += r[1]
-    vs *= chi
-    np.maximum(vs, state["min_v"], out=vs)
-    np.minimum(vs, state["vmax"], out=vs)
-    moved = np.add(xs, vs, out=scratch)
-    np.maximum(moved, state["lower"], out=xs)
-    np.minimum(xs, state["upper"], out=xs)
-    np.copyto(vs, 0.0, where=xs != moved)  # a particle that hits a bound stops there
-    return xs.transpose(2, 1, 0)
+    best = pbest_x[state["frames"], state["pbest_f"].argmin(axis=1)][:, None]  # each swarm's best (F, 1, d)
+    # v = chi (v + c1 r1 (pbest - x) + c2 r2 (best - x)), within +-vmax
+    r1 *= c1
+    r1 *= pbest_x[:, :m] - x
+    r2 *= c2
+    r2 *= best - x
+    v += r1
+    v += r2
+    v *= chi
+    np.maximum(v, state["min_v"], out=v)
+    np.minimum(v, state["vmax"], out=v)
+    moved = x + v
+    np.maximum(moved, state["lower"], out=x)
+    np.minimum(x, state["upper"], out=x)
+    v[x != moved] = 0.0  # a particle that hits a bound stops there
+    return x
 
 
 def tell(state, X, losses):
-    """Each particle's best: the rows of the (d, n, F) bests are (n, F) blocks, so the improved
-    (particle, frame) pairs are the same flat indices in every row, gathered and copied at once
-    (a masked copy, ``np.copyto(..., where=)``, walks every element of every row)."""
+    """Each particle's best, after its hypotheses X (F, m, d) scored losses (F, m)."""
     state["first"] = False
-    m = X.shape[1]
-    d, n, F = state["pbest_x"].shape
-    losses = losses.T  # (m, F)
-    better = losses < state["pbest_f"][:m]
-    np.copyto(state["pbest_f"][:m], losses, where=better)
-    improved = np.flatnonzero(better)
-    state["pbest_x"].reshape(d, n * F)[:, improved] = X.transpose(2, 1, 0).reshape(d, m * F)[:, improved]
+    f, i = np.nonzero(losses < state["pbest_f"][:, :X.shape[1]])
+    state["pbest_f"][f, i] = losses[f, i]
+    state["pbest_x"][f, i] = X[f, i]
 
 
 STEPS = BatchSteps(init, ask, tell)
