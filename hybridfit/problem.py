@@ -62,34 +62,14 @@ class Problem:
         else:
             self.loss = objective.bind(self.proposals, self.weights)
         self.all_points = np.arange(len(self.point_names), dtype=np.int64)
-        self._needed: dict[bytes, np.ndarray | None] = {}
         self.x0 = initial_guess(self) if x0 is None else model.clip(np.asarray(x0, dtype=float)[None])[0]
         lower, upper = search_boxes(self._structure(), self.x0[None], search_radius_mm)
         self.lower, self.upper = lower[0], upper[0]
 
     def points(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
-        """(N, P) -> (N, Q, 3) model points matching the proposals' points, mm.
-
-        With a ``subset`` of point indices only those points are guaranteed (the model may
-        skip joints that no point of the subset depends on)."""
-        joints = self.model.forward(params, None if subset is None else self._joints_for(subset))
-        if self.point_matrix is None:
-            return joints
-        M = self.point_matrix if subset is None else self.point_matrix[subset]
-        pts = np.zeros((len(params), len(self.point_names), 3))
-        pts[:, self.all_points if subset is None else subset] = np.einsum(
-            "qj,njc->nqc", M, np.nan_to_num(joints, nan=0.0))
-        return pts
-
-    def _joints_for(self, subset: np.ndarray) -> np.ndarray | None:
-        """The joints the points in ``subset`` depend on (cached per subset)."""
-        key = np.asarray(subset, dtype=np.int64).tobytes()
-        if key not in self._needed:
-            if self.point_matrix is None:
-                self._needed[key] = np.asarray(subset, dtype=np.int64)
-            else:
-                self._needed[key] = np.flatnonzero(np.abs(self.point_matrix[subset]).sum(axis=0) > 0)
-        return self._needed[key]
+        """(N, P) -> (N, Q, 3) model points matching the proposals' points, mm (``subset``:
+        accepted for callers that name the points they need; every point is computed)."""
+        return self._from_joints(self.model.forward(params))
 
     def evaluate(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
         """(N, P) -> (N,) loss over the points in ``subset`` (all by default). A bound loss

@@ -38,7 +38,7 @@ from .fitting.angles import PARAMETER_NAME
 from .point_loss import bound_point_loss
 from .model.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
 from .model.base import ANGLES, HandModel, Stage
-from .objective import Objective, capability, normalise_confidences, point_loss_of
+from .objective import POINT_LOSS_SIGNATURE, Objective, capability, normalise_confidences, point_loss_of
 from .fitting.driver import run_problem
 from .optimizer import Optimizer
 from .plugin import Settings, defining_class
@@ -294,24 +294,6 @@ def check_model_stages(model: HandModel) -> None:
                  f"{_label(model)}: stage {stage.name!r} moves joints of an earlier stage")
 
 
-def check_model_joint_subset(model: HandModel) -> None:
-    """``forward(X, joints=subset)`` gives the full forward pass's joints for every joint
-    asked for (single joints, each stage's joints, and a random subset)."""
-    rng = np.random.default_rng(4)
-    X = _random_params(model, rng, 6)
-    full = model.forward(X)
-    J = model.n_joints
-    subsets = [np.array([j]) for j in range(J)] + [np.asarray(s.joints) for s in model.stages()]
-    subsets.append(np.sort(rng.choice(J, size=max(1, J // 2), replace=False)))
-    for subset in subsets:
-        subset = subset.astype(np.int64)
-        part = model.forward(X, subset)
-        _require(part.shape == full.shape, f"{_label(model)}: forward(X, joints) gave {part.shape}, expected {full.shape}")
-        close = np.isclose(part[:, subset], full[:, subset], rtol=1e-12, atol=1e-9).all(axis=(0, 2))
-        _require(bool(close.all()), f"{_label(model)}: forward(X, joints={subset.tolist()}) differs from the full "
-                 f"forward pass at " + ", ".join(model.joint_names[j] for j in subset[~close][:5]))
-
-
 def _moved(x: float, lower: float, upper: float, share: float = 0.25) -> float:
     """x moved by ``share`` of its range (10 where unbounded), inwards at an upper bound."""
     step = share * (upper - lower) if np.isfinite(upper - lower) else 10.0
@@ -480,11 +462,17 @@ def _point_loss(objective: Objective):
 
 
 def check_objective_point_loss(objective: Objective) -> None:
-    """Its ``point_loss`` writes out[i] for every hypothesis (an out filled with NaN comes back
-    finite), and a hypothesis's loss does not depend on the others in the batch (scored one at
-    a time, each gets the loss it gets beside the others, to 1e-12): the driver hands it any
-    number of hypotheses, of several frames side by side, in one buffer it reuses."""
+    """Its ``point_loss`` compiles for the contract's types, writes out[i] for every
+    hypothesis (an out filled with NaN comes back finite), and a hypothesis's loss does not
+    depend on the others in the batch (scored one at a time, each gets the loss it gets beside
+    the others, to 1e-12): the driver hands it any number of hypotheses, of several frames
+    side by side, in one buffer it reuses."""
     function, constants = _point_loss(objective)
+    try:  # the contract's argument types (what the core's loops pass it)
+        nb.njit(POINT_LOSS_SIGNATURE)(getattr(function, "py_func", function))
+    except Exception as err:  # numba's typing error, whatever its class
+        raise AssertionError(f"{_label(objective)}: its point_loss does not compile for the contract's types "
+                             f"(hybridfit.objective.POINT_LOSS_SIGNATURE): {err}") from err
     proposals, weights, points = _objective_frame(6)
     for q in np.flatnonzero(weights.max(axis=-1) > 0):  # it is called only for points with proposals
         x, y, z = (np.ascontiguousarray(points[:, q, c]) for c in range(3))
@@ -766,7 +754,7 @@ _COMMON = (check_config_round_trip, check_unknown_setting, check_pickle)
 _CHECKS: dict[str, tuple[Callable, ...]] = {
     "model": _COMMON + (check_model_shapes, check_model_parameter_names, check_model_batching,
                         check_model_default_pose, check_model_bone_lengths, check_model_stages,
-                        check_model_joint_subset, check_model_stage_parameters),
+                        check_model_stage_parameters),
     "objective": _COMMON + (check_objective_forms, check_objective_shapes, check_objective_batching,
                             check_objective_sum_over_points, check_objective_lower_bound,
                             check_objective_deterministic, check_objective_point_loss,

@@ -143,14 +143,6 @@ def test_recording_task_records_every_batch():
 
 
 # ------------------------------------------------------------------ broken models fail their check
-class ZeroSubset(testing.ToyHand):
-    """Its joint-subset path returns zeros."""
-
-    def _forward(self, params, joints=None):
-        out = super()._forward(params)
-        return out if joints is None else np.zeros_like(out)
-
-
 class LeakyStages(testing.ToyHand):
     """Finger a's stage also holds b's abduction, which moves joints of a later stage only...
     and b's stage gets a's flexion, which moves joints of an earlier stage."""
@@ -171,16 +163,16 @@ class IdleParameter(testing.ToyHand):
 class Stretchy(testing.ToyHand):
     """Bones grow with the flexion of their finger's middle joint."""
 
-    def _forward(self, params, joints=None):
-        out = super()._forward(params, joints)
+    def _forward(self, params):
+        out = super()._forward(params)
         return out * (1.0 + 0.1 * params[:, 9])[:, None, None]
 
 
 class RowDependent(testing.ToyHand):
     """A batch's rows are shifted by their index."""
 
-    def _forward(self, params, joints=None):
-        return super()._forward(params, joints) + np.arange(len(params))[:, None, None]
+    def _forward(self, params):
+        return super()._forward(params) + np.arange(len(params))[:, None, None]
 
 
 class BadDefault(testing.ToyHand):
@@ -210,7 +202,6 @@ class DegreeBounds(testing.ToyHand):
     (RepeatedName(), testing.check_model_parameter_names, r"parameter names repeat: \['a_flex2'\]"),
     (SpacedName(), testing.check_model_parameter_names, r"without whitespace, commas or quotes: \['b flex2'\]"),
     (DegreeBounds(), testing.check_model_parameter_names, "angles must be radians"),
-    (ZeroSubset(), testing.check_model_joint_subset, "differs from the full forward pass"),
     (LeakyStages(), testing.check_model_stages, "moves joints of an earlier stage"),
     (IdleParameter(), testing.check_model_stage_parameters, "'a_abduct' of stage 'palm' moves none"),
     (Stretchy(), testing.check_model_bone_lengths, "bones change length"),
@@ -221,12 +212,6 @@ def test_a_broken_model_fails_its_check(model, check, match):
     testing.check_model(testing.ToyHand())  # the unbroken toy passes them all
     with pytest.raises(AssertionError, match=match):
         check(model)
-
-
-def test_a_model_whose_subset_path_returns_zeros_passes_every_other_model_check():
-    for check in testing.checks("model"):
-        if check is not testing.check_model_joint_subset:
-            check(ZeroSubset())
 
 
 # ------------------------------------------------------------------ broken optimisers fail their check
@@ -316,6 +301,11 @@ def _doubled(x, y, z, proposals, weights, constants, out):
         out[i] *= 2.0
 
 
+def _integer_constants(x, y, z, proposals, weights, constants, out):  # reads its constants as ints
+    for i in range(out.shape[0]):
+        out[i] = constants[0] & 1
+
+
 class Nothing(Objective):
     """Offers its loss in no form."""
 
@@ -346,7 +336,8 @@ def test_an_objective_offering_no_form_fails_its_check_with_a_clear_message():
 @pytest.mark.parametrize("function, match", [
     (_skips_the_last, r"left out\[i\] unwritten .* hypotheses \[4\] of 5 .*: it must write every out\[i\]"),
     (_batch_centred, "must not depend on the batch"),
-], ids=["unwritten", "batch"])
+    (_integer_constants, r"does not compile for the contract's types"),
+], ids=["unwritten", "batch", "types"])
 def test_a_broken_point_loss_fails_its_check(function, match):
     testing.check_objective_point_loss(_PointLoss())
     with pytest.raises(AssertionError, match=match):

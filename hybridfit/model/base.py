@@ -129,11 +129,8 @@ class HandModel(Plugin, abc.ABC):
         """The parameter groups for stepwise optimisation, root (global pose) first."""
 
     @abc.abstractmethod
-    def _forward(self, params: np.ndarray, joints: np.ndarray | None = None) -> np.ndarray:
-        """(N, P) float64 C-contiguous -> (N, J, 3) joints in mm.
-
-        joints: if given, only these joints are needed (a model may leave the others NaN
-        to save time; computing all is always correct)."""
+    def _forward(self, params: np.ndarray) -> np.ndarray:
+        """(N, P) float64 C-contiguous -> (N, J, 3) joints in mm."""
 
     def named_poses_deg(self) -> Mapping[str, np.ndarray]:
         """Named hand shapes, {name: (P - 7,) articulation angles in degrees, in parameter
@@ -167,10 +164,8 @@ class HandModel(Plugin, abc.ABC):
     def n_joints(self) -> int:
         return len(self.joint_names)
 
-    def forward(self, params: np.ndarray, joints: np.ndarray | None = None) -> np.ndarray:
-        """Batched forward kinematics: params (N, P) or (P,) -> joints (N, J, 3) or (J, 3), mm.
-
-        joints: optional indices of the joints needed; the others may come back NaN."""
+    def forward(self, params: np.ndarray) -> np.ndarray:
+        """Batched forward kinematics: params (N, P) or (P,) -> joints (N, J, 3) or (J, 3), mm."""
         params = np.asarray(params, dtype=np.float64)
         single = params.ndim == 1
         batch = np.ascontiguousarray(params[None] if single else params)
@@ -179,7 +174,7 @@ class HandModel(Plugin, abc.ABC):
                 f"{self.name or type(self).__name__}: parameters must have shape (N, {self.n_params}), "
                 f"got {params.shape}"
             )
-        out = self._forward(batch) if joints is None else self._forward(batch, joints)
+        out = self._forward(batch)
         return out[0] if single else out
 
     @property

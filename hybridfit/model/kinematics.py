@@ -10,9 +10,8 @@ One kernel, one walker, one block entry, shared by the model, the Problem and th
 innermost axis); :func:`mark_needed` finds the joints a set of points needs;
 :func:`block_setup` lays out a block computation (which joints and angles move, which are
 fixed at a base, the buffers) and :func:`block_kinematics` runs it for one or several frames'
-hypotheses. :func:`tree_forward` (``model.forward``, laid out once per thread, tree and joint
-set by :func:`forward_setup`) and :func:`tree_points` (the polish, laid out once per
-problem and point set) are that entry with all parameters moving; the driver's scorers
+hypotheses. :func:`tree_points` is that entry with all parameters moving (``model.forward``,
+laid out once per thread and tree, and the polish); the driver's scorers
 (:mod:`hybridfit.fitting.evaluator`) use it with a stage's parameters moving.
 
 Frames: joint j's frame is ``R_j = R_parent @ rest_j @ Rot(axis_1, theta_1) @ ...``; its
@@ -478,45 +477,6 @@ def block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, m
                  axis_params, mirror, WB, WpB, GB)
 
 
-#: hypotheses per block of :func:`tree_forward`: a block's joints and its rows of the output
-#: (hypothesis-major, so copied across) stay in the first-level cache
-FORWARD_COLUMNS = 64
-
-
-def forward_setup(parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, active, P: int):
-    """:func:`block_setup` of all P parameters moving, for the joints ``active`` (J,) bool,
-    over :data:`FORWARD_COLUMNS` columns: :func:`tree_forward`'s layout and buffers."""
-    J = len(parents)
-    identity = np.arange(J + 1, dtype=np.int64)  # each joint is its own point
-    joints = np.flatnonzero(active).astype(np.int64)
-    return block_setup(parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, identity, identity[:J],
-                       np.ones(J), np.zeros((0, P)), np.arange(P, dtype=np.int64), joints, joints, FORWARD_COLUMNS)
-
-
-@nb.njit(cache=True, nogil=True)
-def tree_forward(params, parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, ints, floats, active,
-                 out):
-    """params (N, P) C-contiguous -> out (N, J, 3) mm: forward kinematics of a KinematicTree,
-    by the block kinematics of :func:`forward_setup` (``ints``, ``floats``).
-
-    Only joints with ``active[j]`` are computed (the others are NaN); the active set must
-    contain the parents of its joints."""
-    N, P = params.shape
-    J = parents.shape[0]
-    n = ints[4]
-    WpB = block_views(ints, floats)[9]
-    X = params.reshape((1, N, P))
-    for n0 in range(0, N, n):
-        B = min(n, N - n0)
-        block_kinematics(parents, offsets, rest, rest_is_identity, axes, axis_params, mirror, ints, floats, 0, 1, X,
-                         n0, B)
-        for i in range(B):
-            for j in range(J):
-                for c in range(3):
-                    out[n0 + i, j, c] = WpB[j, c, i] if active[j] else np.nan
-    return out
-
-
 @nb.njit(cache=True, nogil=True)
 def tree_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
                 ints, floats, params, subset, out):
@@ -533,8 +493,8 @@ def tree_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror
         block_points(B, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out, 0, n0)
 
 
-#: per thread (the setups hold working buffers), per kinematic tree and set of active joints:
-#: :func:`forward_setup`
+#: per thread (a setup holds working buffers), per kinematic tree: ``model.forward``'s
+#: :func:`block_setup` (all parameters moving, every joint, :data:`COLUMNS` hypotheses a block)
 _FORWARD_SETUPS = threading.local()
 
 
@@ -552,45 +512,23 @@ class TreeHandModel(HandModel):
     def parents(self) -> np.ndarray:
         return self._tree.parents
 
-    @cached_property
-    def _all_active(self) -> np.ndarray:
-        return np.ones(len(self._tree.parents), dtype=np.bool_)
-
-    @cached_property
-    def _active_cache(self) -> dict[bytes, np.ndarray]:
-        return {}
-
-    def active_joints(self, joints) -> np.ndarray:
-        """(J,) bool: the given joints and all their ancestors (cached per joint set)."""
-        joints = np.asarray(joints, dtype=np.int64)
-        key = joints.tobytes()
-        active = self._active_cache.get(key)
-        if active is None:
-            parents = np.ascontiguousarray(self._tree.parents, dtype=np.int64)
-            active = np.zeros(len(parents), dtype=np.bool_)
-            # each joint is its own point: the identity point map
-            mark_needed(parents, np.arange(len(parents) + 1, dtype=np.int64), np.arange(len(parents), dtype=np.int64),
-                        joints, active)
-            self._active_cache[key] = active
-        return active
-
-    def _forward(self, params: np.ndarray, joints=None) -> np.ndarray:
+    def _forward(self, params: np.ndarray) -> np.ndarray:
+        """:func:`tree_points` of every joint (the identity point map), as (N, J, 3)."""
         t = self._tree
-        active = self._all_active if joints is None else self.active_joints(joints)
         trees = getattr(_FORWARD_SETUPS, "trees", None)
         if trees is None:
             trees = _FORWARD_SETUPS.trees = weakref.WeakKeyDictionary()
-        setups = trees.get(t)
-        if setups is None:
-            setups = trees[t] = {}
-        key = None if joints is None else active.tobytes()
-        setup = setups.get(key)
-        if setup is None:
-            setup = setups[key] = forward_setup(
-                np.ascontiguousarray(t.parents, dtype=np.int64), np.ascontiguousarray(t.offsets, dtype=np.float64),
-                np.ascontiguousarray(t.rest, dtype=np.float64), np.ascontiguousarray(t.rest_is_identity),
-                np.ascontiguousarray(t.axes, dtype=np.int64), np.ascontiguousarray(t.axis_params, dtype=np.int64),
-                float(t.mirror), active, self.n_params)
-        out = np.empty((params.shape[0], len(t.parents), 3))
-        return tree_forward(np.ascontiguousarray(params, dtype=np.float64), t.parents, t.offsets, t.rest,
-                            t.rest_is_identity, t.axes, t.axis_params, float(t.mirror), *setup, active, out)
+        entry = trees.get(t)
+        if entry is None:
+            J, P = len(t.parents), self.n_params
+            every = np.arange(J + 1, dtype=np.int64)
+            arrays = (np.ascontiguousarray(t.parents, dtype=np.int64), np.ascontiguousarray(t.offsets, dtype=np.float64),
+                      np.ascontiguousarray(t.rest, dtype=np.float64), np.ascontiguousarray(t.rest_is_identity),
+                      np.ascontiguousarray(t.axes, dtype=np.int64), np.ascontiguousarray(t.axis_params, dtype=np.int64),
+                      float(t.mirror), every, every[:J], np.ones(J))
+            setup = block_setup(*arrays, np.zeros((0, P)), np.arange(P, dtype=np.int64), every[:J], every[:J], COLUMNS)
+            entry = trees[t] = (arrays + setup, every[:J])
+        arrays, joints = entry
+        out = np.empty((len(joints), 3, len(params)))
+        tree_points(*arrays, np.ascontiguousarray(params, dtype=np.float64), joints, out)
+        return np.ascontiguousarray(out.transpose(2, 0, 1))

@@ -194,7 +194,7 @@ class ToyHand(HandModel):
     def stages(self):
         return Stage("palm", tuple(range(7)), (0, 1, 2)), Stage("finger", (7,), (3,))
 
-    def _forward(self, params, joints=None):
+    def _forward(self, params):
         s = self.settings
         a = params[:, 7]
         local = np.zeros((len(params), 4, 3))
