@@ -1,18 +1,16 @@
-"""Speed of the core on one core: kernel throughput, fitting per frame (the driver and the
-per-frame Task path), their accuracy side by side, --jobs scaling and start-up.
+"""Speed of the core on one core: scoring throughput, fitting per frame, its spread over
+seeds, --jobs scaling and start-up.
 
     python benchmarks/bench_core.py [--frames 200 --seeds 20]
 
 Prints (medians of CPU time, so other jobs on a shared machine disturb little):
-1. batched forward kinematics + clamped-confidence objective (the Task path's kernel),
+1. ``Problem.evaluate`` (the model's forward kinematics and clamped-confidence's bound loss),
    hypotheses per second at batches of 64 and 1000 (21 joints, k = 3);
 2. stepwise PSO per frame at budgets 1000 and 3400, with the default schedule (a final joint
    refinement, ``refine_share`` 0.25) and the paper's (none): the driver's run of one chunk
-   alone, ``hybridfit.fit`` end to end (problem set-up included) and the Task path
-   (``Optimizer.run`` per frame);
-3. the driver against the Task path over ``--seeds`` seeds x ``--frames`` frames: mean joint
-   error, paired over seeds (their random keys differ: (seed, frame, stage) against draws from
-   ``default_rng([seed, frame])``, so this also shows whether the key source matters);
+   alone, ``hybridfit.fit`` end to end (problem set-up included) and one frame at a time
+   through the same driver (``run_problem``: a group of one, as tracking runs);
+3. the mean joint error over ``--seeds`` seeds x ``--frames`` frames, and its seed-to-seed sd;
 4. ``hybridfit.fit`` with ``--jobs`` 1 and 2 (threads), wall time (without taskset);
 5. start-up: a fresh process's import + first fit, compiling and from numba's cache.
 
@@ -57,18 +55,17 @@ def stepwise_pso(schedule: str = "default"):
     return hybridfit.create("optimizer", "stepwise-pso", SCHEDULES[schedule])
 
 
-def task_path(data, budget: int, seed: int, schedule: str = "default") -> tuple[np.ndarray, float]:
-    """(params (F, P), median CPU seconds per frame) of Optimizer.run per frame."""
+def one_at_a_time(data, budget: int, schedule: str = "default") -> float:
+    """Median CPU seconds per frame of ``run_problem`` (the driver on a group of one frame)."""
     model = hybridfit.create("model", "hand26")
-    spec = fitting._Spec(model, hybridfit.create("objective", "clamped-confidence"),
-                         stepwise_pso(schedule), budget, seed, tuple(model.joint_names), 60.0)
-    params, times = [], []
-    for f in range(len(data["proposals"])):
+    objective = hybridfit.create("objective", "clamped-confidence")
+    problems = [Problem(model, objective, p, c) for p, c in zip(data["proposals"], data["confidences"])]
+    times = []
+    for f, problem in enumerate(problems):
         t = time.process_time()
-        (item,) = fitting._fit_chunk(spec, [f], data["proposals"][f:f + 1], data["confidences"][f:f + 1])
+        driver.run_problem(stepwise_pso(schedule), problem, budget, 0, f)
         times.append(time.process_time() - t)
-        params.append(item[1][0])
-    return np.array(params), float(np.median(times))
+    return float(np.median(times))
 
 
 def driver_call(data, budget: int, schedule: str = "default") -> float:
@@ -105,7 +102,7 @@ def startup() -> list[float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=200)
-    parser.add_argument("--seeds", type=int, default=20, help="seeds of the driver-vs-Task accuracy comparison")
+    parser.add_argument("--seeds", type=int, default=20, help="seeds of the error's spread")
     json_argument(parser, "core")
     args = parser.parse_args()
     data = hybridfit.synthetic_proposals(args.frames, k=3, seed=2015)
@@ -125,22 +122,13 @@ def main() -> None:
                 [f"{name}, driver run (one chunk), CPU ms/frame", f"{driver_call(chunk, budget, schedule) * 1e3:.3f}"],
                 [f"{name}, hybridfit.fit end to end, CPU ms/frame",
                  f"{fit_time(data, budget, schedule=schedule) * 1e3:.3f}"],
-                [f"{name}, Task path, CPU ms/frame", f"{task_path(small, budget, 0, schedule)[1] * 1e3:.3f}"],
+                [f"{name}, one frame at a time (run_problem), CPU ms/frame",
+                 f"{one_at_a_time(small, budget, schedule) * 1e3:.3f}"],
             ]
-    errors = {"driver": [], "task": []}
-    for seed in range(args.seeds):
-        fast = hybridfit.fit(data["proposals"], data["confidences"], seed=seed)
-        slow, _ = task_path(data, 3400, seed)
-        for name, params in (("driver", fast.params), ("task", slow)):
-            errors[name].append(joint_errors(model.forward(params), data["ground_truth"]).mean())
-    diff = np.array(errors["driver"]) - np.array(errors["task"])
-    rows += [
-        [f"mean joint error over {args.seeds} seeds x {args.frames} frames, driver (keys of seed, frame, stage) / "
-         f"Task path (keys drawn from default_rng([seed, frame])) (mm)",
-         f"{np.mean(errors['driver']):.3f} / {np.mean(errors['task']):.3f} (paired difference "
-         f"{diff.mean():+.4f} +- {diff.std(ddof=1) / np.sqrt(len(diff)):.4f} standard error, "
-         f"seed-to-seed sd {np.std(errors['task'], ddof=1):.4f})"],
-    ]
+    errors = [joint_errors(model.forward(hybridfit.fit(data["proposals"], data["confidences"], seed=seed).params),
+                           data["ground_truth"]).mean() for seed in range(args.seeds)]
+    rows.append([f"mean joint error over {args.seeds} seeds x {args.frames} frames (mm)",
+                 f"{np.mean(errors):.3f} (seed-to-seed sd {np.std(errors, ddof=1):.4f})"])
     one = fit_time(data, 3400, 1, time.perf_counter)
     two = fit_time(data, 3400, 2, time.perf_counter)
     rows.append(["hybridfit.fit --jobs 1 / 2, wall ms/frame (speed-up)", f"{one * 1e3:.3f} / {two * 1e3:.3f} ({one / two:.2f}x)"])

@@ -69,6 +69,7 @@ JOBS: list[Job] = [
     bench("strong_tuning", "--data", "icvl", "--model", "hand27", "hand29", "--calibrate", "0:80", "--test", "80:100",
           script="bench_strong.py", quick=STRONG_QUICK),
     bench("icvl", quick=("--frames", "130", "--budget", "300", "--out", "{work}/icvl")),
+    bench("icvl_rigid_hand", quick=("--frames", "130")),
     bench("core", pin=True, quick=("--frames", "20", "--seeds", "2")),
     bench("peers", pin=True, quick=("--frames", "4", "--budget", "300", "--seeds", "2")),
     bench("thirdparty", quick=("--frames", "20", "--repeat", "1")),
