@@ -22,23 +22,33 @@ from ..point_loss import has_proposals, specialise
 point_loss = None
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def stage_block(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
+                joints_are_points, ints, floats, f0, f1, X, m, particles_last, subset):
+    """The points (Q, 3, C) mm of frames f0 <= f < f1's hypotheses X[f] (m, d), or with
+    ``particles_last`` X (F, d, m), frame f's hypothesis i in column (f - f0) m + i: the stage's
+    block kinematics (:func:`block_kinematics`), then the points (unless the point map is
+    the identity, when they are the joints)."""
+    block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X,
+                     0, m, particles_last)
+    views = block_views(ints, floats)
+    if joints_are_points:
+        return views[9]
+    block_points((f1 - f0) * m, views[9], pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], views[11])
+    return views[11]
+
+
 def score_blocks(constants, proposals, weights, parents, offsets, rest, rest_identity, axes, axis_params, mirror,
                  pm_ptr, pm_joint, pm_weight, joints_are_points, ints, floats, X, particles_last, subset, losses):
     """losses[f, :m] = the loss over ``subset`` of frame f's hypotheses X[f] (m, d), or with
     ``particles_last`` X (F, d, m), against proposals (F, Q, K, 3) and weights (F, Q, K): block
-    by block of frames, the kinematics (:func:`block_kinematics`), the points (unless the
-    point map is the identity) and the per-point loss."""
+    by block of frames, the points (:func:`stage_block`) and the per-point loss."""
     F, m = X.shape[0], X.shape[2 if particles_last else 1]
-    G = ints[9]
-    views = block_views(ints, floats)
-    pts = views[9] if joints_are_points else views[11]
     term = np.empty(m)
-    for f0 in range(0, F, G):
-        f1 = min(F, f0 + G)
-        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X,
-                         0, m, particles_last)
-        if not joints_are_points:
-            block_points((f1 - f0) * m, views[9], pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], pts)
+    for f0 in range(0, F, ints[9]):
+        f1 = min(F, f0 + ints[9])
+        pts = stage_block(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint,
+                          pm_weight, joints_are_points, ints, floats, f0, f1, X, m, particles_last, subset)
         for f in range(f0, f1):
             c0, c1 = (f - f0) * m, (f - f0 + 1) * m
             out = losses[f, :m]
@@ -106,25 +116,19 @@ class PointScorer:
 def stage_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
                  joints_are_points, ints, floats, X, particles_last, subset, out):
     """out[f, q, :, :m] = the points ``subset`` of frame f's hypotheses X[f] (m, d) (or with
-    ``particles_last`` X (F, d, m)), mm, out (F, Q, 3, >= m): the stage kinematics of
-    :func:`score_blocks`, the points written out instead of scored."""
+    ``particles_last`` X (F, d, m)), mm, out (F, Q, 3, >= m): :func:`stage_block`, the points
+    written out instead of scored."""
     F, m = X.shape[0], X.shape[2 if particles_last else 1]
-    G = ints[9]
-    views = block_views(ints, floats)
-    pts = views[9] if joints_are_points else views[11]
-    for f0 in range(0, F, G):
-        f1 = min(F, f0 + G)
-        block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X,
-                         0, m, particles_last)
-        if not joints_are_points:
-            block_points((f1 - f0) * m, views[9], pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], pts)
+    for f0 in range(0, F, ints[9]):
+        f1 = min(F, f0 + ints[9])
+        pts = stage_block(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint,
+                          pm_weight, joints_are_points, ints, floats, f0, f1, X, m, particles_last, subset)
         for f in range(f0, f1):
-            c0 = (f - f0) * m
             for t in range(subset.shape[0]):
                 q = subset[t]
                 for c in range(3):
                     for i in range(m):
-                        out[f, q, c, i] = pts[q, c, c0 + i]
+                        out[f, q, c, i] = pts[q, c, (f - f0) * m + i]
 
 
 class BoundScorer:
