@@ -88,17 +88,6 @@ def sincos1(v):
     return (-a if q >= 2 else a), (-b if q == 1 or q == 2 else b)
 
 
-@nb.njit(cache=True, fastmath=_NO_REASSOC)
-def sincos(x, s, c):
-    """Elementwise s = sin(x), c = cos(x) of C-contiguous arrays of the same shape (radians,
-    |x| < 1e6; see :func:`sincos1`)."""
-    xf = x.reshape(-1)
-    sf = s.reshape(-1)
-    cf = c.reshape(-1)
-    for i in range(xf.size):
-        sf[i], cf[i] = sincos1(xf[i])
-
-
 @nb.njit(cache=True, fastmath=True)
 def block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, rest, rest_identity, axes,
                   axis_params, mirror, WB, WpB, GB):

@@ -178,13 +178,13 @@ class _OneLossTooMany(hybridfit.Objective):
 
 
 class _OneBatch(Optimizer):
-    """A callback solver (run on a Task per frame): evaluates its start, budget times."""
+    """A callback solver (minimize on each frame's Task): evaluates its start, budget times."""
 
     def minimize(self, task, rng) -> None:
         task.evaluate(np.tile(task.x0, (task.remaining, 1)))
 
 
-@pytest.mark.parametrize("optimizer", ["pso", _OneBatch()])  # the driver and the Task path
+@pytest.mark.parametrize("optimizer", ["pso", _OneBatch()])  # batch steps and a callback solver
 def test_a_bound_loss_of_the_wrong_shape_is_a_plugin_error_naming_the_objective(exact_frames, optimizer):
     with pytest.raises(errors.PluginError, match=r"objective one-too-many: its bound loss returned shape"):
         hybridfit.fit(exact_frames["proposals"][:2], exact_frames["confidences"][:2], objective=_OneLossTooMany(),

@@ -128,8 +128,8 @@ def test_the_polished_fit_is_never_worse_than_the_fit_or_top1_on_stress_data(dat
     assert polished <= fitted and polished <= err(z["proposals"][:, :, 0]), (polished, fitted)
 
 
-def test_the_polish_is_the_same_on_the_task_path_and_in_tracking(model):
-    """Frames fitted one by one on the Task path (a callback-style optimiser) and tracked frames
+def test_the_polish_is_the_same_for_callback_solvers_and_in_tracking(model):
+    """Frames fitted by a callback-style optimiser (frame by frame) and tracked frames
     are polished too: one rigid hand, the objective at the polished pose."""
     frames = hybridfit.synthetic_proposals(3, k=3, noise_mm=5.0, seed=8)
     from hybridfit.fitting.tracking import track

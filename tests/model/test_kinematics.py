@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from hybridfit.model.kinematics import COLUMNS, sincos
+from hybridfit.model.kinematics import _NO_REASSOC, COLUMNS, sincos1
 
 from ..conftest import random_params
+
+
+@nb.njit(fastmath=_NO_REASSOC)
+def sincos(x, s, c):
+    """Elementwise s = sin(x), c = cos(x) by the kernel's :func:`sincos1` (C-contiguous arrays)."""
+    xf, sf, cf = x.reshape(-1), s.reshape(-1), c.reshape(-1)
+    for i in range(xf.size):
+        sf[i], cf[i] = sincos1(xf[i])
 
 
 @settings(max_examples=50, deadline=None)

@@ -79,7 +79,7 @@ def test_d_max_setting():
 
 def test_a_subclass_that_overrides_bind_moves_the_fit():
     """The issue: a subclass moving every proposal 30 mm in x was fitted with its parent's
-    compiled kernel (0.0 mm). Its bind is what scores now."""
+    compiled kernel (0.0 mm). Its bind is what scores now, never its parent's point_loss."""
     import hybridfit
     from hybridfit_plugins.objectives.clamped_confidence import ClampedConfidence
 
