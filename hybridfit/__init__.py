@@ -19,7 +19,8 @@ if TYPE_CHECKING:  # the same names for type checkers and the API docs (never im
     from .fitting.frames import FitResult, fit
     from .model.base import HandModel, Stage
     from .objective import Objective
-    from .optimizer import OptimizeResult, Optimizer, Task
+    from .optimizer import Optimizer
+    from .task import OptimizeResult, Task
     from .plugin import Plugin, Settings
     from .problem import Problem
     from .registry import available, create
@@ -32,7 +33,7 @@ if TYPE_CHECKING:  # the same names for type checkers and the API docs (never im
 _LAZY = {
     "HybridfitError": "errors", "HybridEstimator": "fitting.estimator", "FitResult": "fitting.frames",
     "fit": "fitting.frames", "HandModel": "model.base", "Stage": "model.base", "Objective": "objective",
-    "OptimizeResult": "optimizer", "Optimizer": "optimizer", "Task": "optimizer", "Plugin": "plugin",
+    "OptimizeResult": "task", "Optimizer": "optimizer", "Task": "task", "Plugin": "plugin",
     "Settings": "plugin", "Problem": "problem", "available": "registry", "create": "registry",
     "stress_proposals": "synthetic.stress", "synthetic_proposals": "synthetic.proposals",
 }
