@@ -66,20 +66,18 @@ class Problem:
         lower, upper = search_boxes(self._structure(), self.x0[None], search_radius_mm)
         self.lower, self.upper = lower[0], upper[0]
 
-    def points(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
-        """(N, P) -> (N, Q, 3) model points matching the proposals' points, mm (``subset``:
-        accepted for callers that name the points they need; every point is computed)."""
+    def points(self, params: np.ndarray) -> np.ndarray:
+        """(N, P) -> (N, Q, 3) model points matching the proposals' points, mm."""
         return self._from_joints(self.model.forward(params))
 
     def evaluate(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
         """(N, P) -> (N,) loss over the points in ``subset`` (all by default). A bound loss
         returning another shape is a PluginError naming the objective."""
         subset = self.all_points if subset is None else subset
-        if self.observed:  # an image term needs the whole hand
-            joints = self.model.forward(params)
-            out = self.loss(self._from_joints(joints), subset, joints)
-        else:
-            out = self.loss(self.points(params, subset), subset)
+        joints = self.model.forward(params)
+        points = self._from_joints(joints)
+        # an image term (observed) scores the whole hand's joints too
+        out = self.loss(points, subset, joints) if self.observed else self.loss(points, subset)
         return checked_losses(out, len(params), self.objective)
 
     def _from_joints(self, joints: np.ndarray) -> np.ndarray:
@@ -114,12 +112,12 @@ def search_boxes(structure: "_Structure", x0: np.ndarray, search_radius_mm: floa
 
 
 def prepare_frames(model: HandModel, objective: Objective, proposals: np.ndarray, confidences: np.ndarray,
-                   point_names: Sequence[str], search_radius_mm: float = 60.0, guess: bool = True):
+                   point_names: Sequence[str], search_radius_mm: float = 60.0, x0: np.ndarray | None = None):
     """What :class:`Problem` computes, for F frames at once: proposals (F, Q, K, 3) mm and
     confidences (F, Q, K) -> (weights (F, Q, K), x0 (F, P), lower (F, P), upper (F, P), errors
     {frame position: message} for frames that cannot be fitted, whose rows are unspecified).
     Frames whose guess is not an alignment (fewer than 3 observed points) get a Problem each.
-    Without ``guess`` (the caller has its own) x0 is the model's default pose."""
+    With ``x0`` (F, P) given (tracking's start) the guesses are it, clipped to the model's bounds."""
     proposals = np.ascontiguousarray(proposals, dtype=np.float64)
     weights = np.ascontiguousarray(normalise_confidences(confidences))
     F = len(proposals)
@@ -127,8 +125,8 @@ def prepare_frames(model: HandModel, objective: Objective, proposals: np.ndarray
         P = model.n_params
         return weights, np.empty((0, P)), np.empty((0, P)), np.empty((0, P)), {}
     structure = structure_of(model, point_names)
-    if not guess:
-        x0 = np.repeat(structure.default_params[None], F, axis=0)
+    if x0 is not None:
+        x0 = model.clip(np.asarray(x0, dtype=np.float64).reshape(F, -1))
         return (weights, x0, *search_boxes(structure, x0, search_radius_mm), {})
     observed = weights.sum(axis=-1) > 0
     uses = [alignment_points(structure, observed[f]) for f in range(F)]

@@ -74,7 +74,7 @@ def test_evaluation_is_the_papers_formula_of_the_points(hand26, clamped, frames,
     X = p.x0 + np.random.default_rng(0).normal(0.0, 0.1, (150, hand26.n_params))
     for subset in (None, np.array([0, 1, 5, 9]), np.array([6, 7, 8]), np.array([20])):
         s = p.all_points if subset is None else subset
-        points = p.points(X, s)[:, s]
+        points = p.points(X)[:, s]
         d = np.minimum(1.0, np.linalg.norm(points[:, :, None] - p.proposals[s], axis=-1) / 40.0)
         want = -(p.weights[s] * (1.0 - d**2)).max(axis=-1).sum(axis=-1)
         np.testing.assert_allclose(p.evaluate(X, subset), want, rtol=0, atol=1e-12)

@@ -40,7 +40,7 @@ from ..errors import BudgetExceeded, HybridfitError, PluginError
 from ..keys import stage_keys
 from ..objective import point_loss_of, require_finite
 from ..plugin import defining_class
-from ..problem import Problem, prepare_frames, search_boxes
+from ..problem import Problem, prepare_frames
 from ..stages import structure_of
 from ..task import OptimizeResult, StagePlan, Task, steps_of
 from . import stops
@@ -158,18 +158,20 @@ def run_schedule(lay: "Layout", scorer, x0, lower, upper, keys, out_params, out_
                 left -= m
                 stops.check()  # a stop signal lands here, between generations (hybridfit.fitting.stops)
             out_used += budget
-        else:  # a callback solver, frame by frame (a group of one)
-            for f in range(F):
-                task = Task(problem_of(f), budget, pidx, subset, base[f], name, owned,
-                            _frame_scorer(scorer, stage, f, F, subset, n, objective), lo[f], hi[f])
-                try:
-                    optimizer.minimize(task, np.random.default_rng(int(keys[f, s])))
-                except BudgetExceeded as err:
-                    raise BudgetExceeded(f"optimizer {_name(optimizer)}: {err}") from err
-                if task.used == 0:
-                    raise PluginError(f"optimizer {_name(optimizer)} evaluated nothing")
-                best_x[f], best_loss[f] = task.best_x, task.best_loss
-                out_used[f] += task.used
+        else:  # a callback solver: its frame's Task (groups of one frame)
+            if F != 1:
+                raise PluginError(f"optimizer {_name(optimizer)}: a callback solver's stage runs in groups of one "
+                                  f"frame, not {F}")
+            task = Task(problem_of(0), budget, pidx, subset, base[0], name, owned,
+                        _frame_scorer(scorer, stage, subset, n, objective), lo[0], hi[0])
+            try:
+                optimizer.minimize(task, np.random.default_rng(int(keys[0, s])))
+            except BudgetExceeded as err:
+                raise BudgetExceeded(f"optimizer {_name(optimizer)}: {err}") from err
+            if task.used == 0:
+                raise PluginError(f"optimizer {_name(optimizer)} evaluated nothing")
+            best_x[0], best_loss[0] = task.best_x, task.best_loss
+            out_used[0] += task.used
         owned_loss = best_loss
         if not same_points(subset, owned):  # a guided stage: its best over the points it owns
             again = np.empty((F, 1))
@@ -181,12 +183,10 @@ def run_schedule(lay: "Layout", scorer, x0, lower, upper, keys, out_params, out_
     out_loss[:] = frame_loss
 
 
-def _frame_scorer(scorer, stage, f, F, subset, n, objective):
-    """A callback solver's scores of frame f's hypotheses X (k, d) -> (k,) by ``scorer``, in
-    blocks of at most n (a stop signal waits for the frame's end: a solver's callback is no
+def _frame_scorer(scorer, stage, subset, n, objective):
+    """A callback solver's scores of its one frame's hypotheses X (k, d) -> (k,) by ``scorer``,
+    in blocks of at most n (a stop signal waits for the frame's end: a solver's callback is no
     place for an exception it does not expect)."""
-    if F != 1:
-        raise PluginError("a callback solver's stage runs in groups of one frame")
 
     def score(X):
         out = np.empty(len(X))
@@ -347,7 +347,6 @@ class Driver:
         self.observed = bool(getattr(objective, "observes_depth", False))
         self.additive = bool(getattr(objective, "additive", True))
         structure = structure_of(model, self.names)  # computed once per model and points
-        self.structure = structure
         self.point_matrix = structure.point_matrix
         # the structure's model is equal to this one (the same class and settings), with its
         # kinematics already set up by an earlier fit: its forward gives the same joints
@@ -389,11 +388,7 @@ class Driver:
         layouts; frames whose input cannot be fitted get their message."""
         frames = list(frames)
         weights, guess, lower, upper, failed = prepare_frames(self.model, self.objective, proposals, confidences,
-                                                              self.names, self.search_radius_mm,
-                                                              guess=x0 is None)
-        if x0 is not None:
-            guess = self.model.clip(np.asarray(x0, dtype=np.float64).reshape(len(frames), -1))
-            lower, upper = search_boxes(self.structure, guess, self.search_radius_mm)
+                                                              self.names, self.search_radius_mm, x0)
         errors, layouts, kept = [], [], []
         observed = weights.sum(axis=-1) > 0
         for i, f in enumerate(frames):

@@ -89,7 +89,20 @@ def joints_are_points(tree, point_map) -> bool:
             and np.array_equal(pm_joint, np.arange(J)) and bool(np.all(pm_weight == 1.0)))
 
 
-class PointScorer:
+class _Stages:
+    """A scorer's stage set-up on a kinematic tree: :func:`block_setup` in one working buffer
+    kept for all its stages (a fresh one each stage costs page faults)."""
+
+    tree = point_map = _work = None
+
+    def _setup(self, base, pidx, subset, owned, n):
+        ints, floats = block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n, self._work)
+        if self._work is None or floats.shape[0] > self._work.shape[0]:
+            self._work = floats
+        return ints, floats
+
+
+class PointScorer(_Stages):
     """Scores by an objective's per-point loss on a kinematic tree (see the module doc).
     tree: (parents, offsets, rest, rest_identity, axes, axis_params, mirror); point_map:
     (pm_ptr, pm_joint, pm_weight), the (Q, J) point matrix in CSR form; compiled: the
@@ -99,13 +112,9 @@ class PointScorer:
         self.tree, self.point_map, self.compiled = tree, point_map, compiled
         self.proposals, self.weights, self.objective = proposals, weights, objective
         self.identity = joints_are_points(tree, point_map)
-        self._work = None  # the stages' block buffers, reused by later stages (a fresh one costs page faults)
 
     def prepare(self, base, pidx, subset, owned, n):
-        ints, floats = block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n, self._work)
-        if self._work is None or floats.shape[0] > self._work.shape[0]:
-            self._work = floats
-        return ints, floats
+        return self._setup(base, pidx, subset, owned, n)
 
     def score(self, stage, X, subset, losses):
         self.compiled.score_blocks(self.compiled.constants, self.proposals, self.weights, *self.tree, *self.point_map,
@@ -131,7 +140,7 @@ def stage_points(parents, offsets, rest, rest_identity, axes, axis_params, mirro
                         out[f, q, c, i] = pts[q, c, (f - f0) * m + i]
 
 
-class BoundScorer:
+class BoundScorer(_Stages):
     """Scores by bound losses, one frame at a time: ``losses`` (F,) loss(points (m, Q, 3),
     subset) each (``Objective.bind``'s), or with ``observed`` loss(points, subset, joints (m, J,
     3)) (``bind_observed``'s). On a kinematic ``tree`` (as :class:`PointScorer`'s; None: the
@@ -145,15 +154,12 @@ class BoundScorer:
         self.tree = None if observed else tree
         self.point_map = point_map
         self.identity = self.tree is not None and joints_are_points(tree, point_map)
-        self._work = None
 
     def prepare(self, base, pidx, subset, owned, n):
         if self.tree is None:
             return base.copy(), pidx
-        ints, floats = block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n, self._work)
-        if self._work is None or floats.shape[0] > self._work.shape[0]:
-            self._work = floats
-        return ints, floats, np.zeros((len(base), len(self.point_map[0]) - 1, 3, max(n, 1)))
+        return (*self._setup(base, pidx, subset, owned, n),
+                np.zeros((len(base), len(self.point_map[0]) - 1, 3, max(n, 1))))
 
     def _points(self, stage, X, subset):
         """(points (F, m, Q, 3) mm, joints (F, m, J, 3) mm or None) of hypotheses X (F, m, d)."""
