@@ -19,8 +19,9 @@ do not add up to the full loss.
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar
+from typing import Any, ClassVar
 
 import numba as nb
 import numpy as np
@@ -60,7 +61,7 @@ class Observation:
 
     @classmethod
     def from_depth(cls, depth: np.ndarray, intrinsics: Intrinsics, mask: np.ndarray | None = None,
-                   margin: float = 0.15, where: str = "frame") -> "Observation":
+                   margin: float = 0.15, where: str = "frame") -> Observation:
         """A full depth image (H, W) mm and its hand mask (H, W) bool (default: depth > 0) ->
         the hand's bounding box grown by ``margin`` of its size on each side, the depth
         outside the mask set to 0. ``where`` names the frame in errors."""
@@ -121,8 +122,7 @@ class Objective(Plugin, abc.ABC):
         (m,)) -> (N,). The default sums ``point_loss`` over the subset."""
         found = self.point_loss()  # its own, also when a subclass's bind calls this one
         if found is None:
-            raise NotImplementedError(f"objective {self.name or type(self).__name__} offers neither point_loss nor "
-                                      f"bind")
+            raise NotImplementedError(f"{objective_label(self)} offers neither point_loss nor bind")
         return bound_point_loss((found[0], np.ascontiguousarray(found[1], dtype=np.float64)), proposals, weights)
 
     def bind_observed(self, proposals: np.ndarray, weights: np.ndarray, observation: Observation,
@@ -130,7 +130,7 @@ class Objective(Plugin, abc.ABC):
         """Fix an objective that ``observes_depth`` to one frame: its proposals and weights
         as in ``bind``, its depth ``observation`` and the hand ``model`` (for its surface).
         Returns loss(points, subset, joints)."""
-        raise NotImplementedError(f"objective {self.name or type(self).__name__} does not observe depth")
+        raise NotImplementedError(f"{objective_label(self)} does not observe depth")
 
     def lower_bound(self, weights: np.ndarray) -> float:
         """A lower bound of the loss for these weights (-inf when unknown)."""
@@ -157,12 +157,9 @@ def capability(objective: Any, name: str) -> Callable | None:
         raise ValueError(f"unknown objective capability {name!r}; choose from {CAPABILITIES}")
     if not isinstance(objective, Objective):
         return None
-    cls = type(objective)
-    provider = defining_class(cls, name)
-    if provider is Objective:
-        return None
-    binder = defining_class(cls, "bind_observed" if objective.observes_depth else "bind")
-    if binder is not Objective and not issubclass(provider, binder):
+    provider = defining_class(type(objective), name)
+    binder = defining_class(type(objective), "bind_observed" if objective.observes_depth else "bind")
+    if provider is Objective or (binder is not Objective and not issubclass(provider, binder)):
         return None
     return getattr(objective, name)
 
@@ -172,9 +169,7 @@ def point_loss_of(objective: Any) -> tuple[Callable, np.ndarray] | None:
     objective that observes depth scores the whole hand: never per point)."""
     method = capability(objective, "point_loss")
     found = None if method is None or objective.observes_depth else method()
-    if found is None:
-        return None
-    return found[0], np.ascontiguousarray(found[1], dtype=np.float64)
+    return None if found is None else (found[0], np.ascontiguousarray(found[1], dtype=np.float64))
 
 
 def objective_label(objective) -> str:

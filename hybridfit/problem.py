@@ -11,13 +11,11 @@ from typing import Sequence
 
 import numpy as np
 
-from .alignment import INLIER_MM, _aligned_guesses, alignment_points, initial_guess, robust_alignment  # noqa: F401
+from .alignment import INLIER_MM, _aligned_guesses, alignment_points, initial_guess
 from .errors import HybridfitError
 from .model.base import ORIENTATION, POSITION, HandModel
-from .objective import (Objective, Observation, checked_losses, normalise_confidences, objective_label,  # noqa: F401
-                        require_finite)
-from .stages import (MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, _Structure, guide_points, point_depths,  # noqa: F401
-                     rotation_lever_mm, structure_of)
+from .objective import Objective, Observation, checked_losses, normalise_confidences
+from .stages import _Structure, structure_of
 
 
 class Problem:
@@ -66,25 +64,15 @@ class Problem:
         lower, upper = search_boxes(self._structure(), self.x0[None], search_radius_mm)
         self.lower, self.upper = lower[0], upper[0]
 
-    def points(self, params: np.ndarray) -> np.ndarray:
-        """(N, P) -> (N, Q, 3) model points matching the proposals' points, mm."""
-        return self._from_joints(self.model.forward(params))
-
     def evaluate(self, params: np.ndarray, subset: np.ndarray | None = None) -> np.ndarray:
         """(N, P) -> (N,) loss over the points in ``subset`` (all by default). A bound loss
         returning another shape is a PluginError naming the objective."""
         subset = self.all_points if subset is None else subset
         joints = self.model.forward(params)
-        points = self._from_joints(joints)
+        points = joints if self.point_matrix is None else np.einsum("qj,njc->nqc", self.point_matrix, joints)
         # an image term (observed) scores the whole hand's joints too
         out = self.loss(points, subset, joints) if self.observed else self.loss(points, subset)
         return checked_losses(out, len(params), self.objective)
-
-    def _from_joints(self, joints: np.ndarray) -> np.ndarray:
-        """All model joints (N, J, 3) -> (N, Q, 3) points."""
-        if self.point_matrix is None:
-            return joints
-        return np.einsum("qj,njc->nqc", self.point_matrix, joints)
 
     def stage_points(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """The model's stages as (name, parameter indices, point indices).

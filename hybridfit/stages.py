@@ -15,16 +15,7 @@ import numpy as np
 from .model.base import HandModel
 
 
-
-
-def point_matrix_of(model: HandModel, point_names) -> np.ndarray | None:
-    """The (Q, J) matrix of these points over the model's joints (``model.point_matrix``),
-    None when they are the model's joints."""
-    names = tuple(point_names)
-    return None if names == tuple(model.joint_names) else model.point_matrix(names)
-
-
-def structure_of(model: HandModel, point_names) -> "_Structure":
+def structure_of(model: HandModel, point_names) -> _Structure:
     """The model's :class:`_Structure` over these points, computed once per model and points: a
     model equal to one seen before (the same class and equal settings, which a plugin's
     structure depends on only) shares its structure, so a model created again by name for
@@ -42,7 +33,7 @@ def structure_of(model: HandModel, point_names) -> "_Structure":
         if sum(len(b) for b in _STRUCTURES.values()) >= 32:
             _STRUCTURES.clear()
             bucket = _STRUCTURES.setdefault((type(model), point_names), [])
-        found = _Structure(model, point_matrix_of(model, point_names))
+        found = _Structure(model, None if point_names == tuple(model.joint_names) else model.point_matrix(point_names))
         bucket.append(found)
     if len(_LAST) >= 32:
         _LAST.clear()
@@ -51,8 +42,9 @@ def structure_of(model: HandModel, point_names) -> "_Structure":
 
 
 class _Structure:
-    """A model's stages over a set of points, the points' depths in the kinematic tree and
-    their positions in the model's neutral pose (mm), computed once per model and points."""
+    """A model's stages over a set of points (``point_matrix`` (Q, J), None: the joints), the
+    points' depths in the kinematic tree and their positions in the default pose (mm), computed
+    once per model and points."""
 
     def __init__(self, model: HandModel, point_matrix: np.ndarray | None) -> None:
         self.model = model
@@ -65,31 +57,30 @@ class _Structure:
             for s, st in enumerate(model.stages())
         ]
         self.depths = point_depths(model.parents, M)
-        self.neutral = np.einsum("qj,jc->qc", M, model.forward(model.default_params()))
         self.guides: dict[tuple, np.ndarray] = {}
         self.alignments: dict[bytes, np.ndarray | None] = {}
         lower, upper = model.bounds()
-        self.bounds = lower.astype(float).copy(), upper.astype(float).copy()
-        self.default_params = model.default_params().astype(float).copy()
-        # the points in the default pose, as Problem.points gives them
+        self.bounds = lower.astype(float), upper.astype(float)  # copies
+        self.default_params = model.default_params().astype(float)
+        # the points in the default pose (Q, 3) mm, as Problem.points gives them
         joints = model.forward(self.default_params[None])
         #: the median distance of the neutral pose's joints from their centre, mm (the model's size)
         self.spread_mm = float(np.median(np.linalg.norm(joints[0] - np.median(joints[0], axis=0), axis=-1)))
         self.canonical = np.ascontiguousarray(
             joints[0] if point_matrix is None else np.einsum("qj,njc->nqc", M, np.nan_to_num(joints, nan=0.0))[0])
         self.point_matrix = point_matrix
+        rows, cols = np.nonzero(M)
+        self._point_map = (_require(np.searchsorted(rows, np.arange(len(M) + 1)), np.int64),
+                           _require(cols, np.int64), _require(M[rows, cols], np.float64))
         self._tree: _Tree | None = None
-        self._point_map: tuple | None = None
 
     def point_map(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The point map (Q, J) in CSR form (row starts, joints, weights), as the block
+        """The point map (Q, J) in CSR form (row starts (Q + 1,), joints, weights), as the block
         kinematics (:mod:`hybridfit.model.kinematics`) read it."""
-        if self._point_map is None:
-            self._point_map = csr_point_map(self.point_matrix, self.model.n_joints)
         return self._point_map
 
-    def tree(self) -> "_Tree | None":
-        """The model's kinematic tree and point map as :func:`tree_points` reads them (None
+    def tree(self) -> _Tree | None:
+        """The model's kinematic tree and point map as the block kinematics read them (None
         when its ``kinematic_tree`` returns None)."""
         if self._tree is None:
             tree = self.model.kinematic_tree()
@@ -109,15 +100,6 @@ class _Tree:
         self.arrays = (self.parents, _require(tree.offsets, np.float64), _require(tree.rest, np.float64),
                        _require(tree.rest_is_identity, np.bool_), self.axes, self.axis_params, float(tree.mirror))
         self.point_map = point_map
-
-
-def csr_point_map(point_matrix: np.ndarray | None, n_joints: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A point map (Q, J) (None: the identity) in CSR form: (row starts (Q + 1,), joints,
-    weights)."""
-    M = np.eye(n_joints) if point_matrix is None else point_matrix
-    rows, cols = np.nonzero(M)
-    return (_require(np.searchsorted(rows, np.arange(len(M) + 1)), np.int64), _require(cols, np.int64),
-            _require(M[rows, cols], np.float64))
 
 
 def _require(a, dtype) -> np.ndarray:
@@ -141,7 +123,6 @@ def point_depths(parents: np.ndarray, point_matrix: np.ndarray) -> np.ndarray:
     return np.array([depth[np.flatnonzero(row)].max() for row in point_matrix], dtype=np.int64)
 
 
-
 #: a root stage with fewer observed points than this cannot determine the global rotation
 #: robustly (one wrong proposal of three moves it freely) ...
 MIN_ROOT_POINTS = 4
@@ -163,19 +144,19 @@ def rotation_lever_mm(points: np.ndarray) -> float:
 def guide_points(problem, root_points: np.ndarray, later: list[np.ndarray],
                  min_points: int = MIN_ROOT_POINTS, min_lever_mm: float = MIN_ROOT_LEVER_MM) -> np.ndarray:
     """The points that guide an ill-posed root stage: each later stage's observed points
-    nearest to the root in the kinematic tree (``later``: each stage's points); none when
-    the root's own observed points (fewer than ``min_points``, or nearly collinear) suffice."""
+    nearest to the root in the kinematic tree (``later``: each stage's points); none when the
+    root's own observed points suffice (at least ``min_points``, not nearly collinear)."""
     return _guides(problem._structure(), problem.weights.sum(axis=-1) > 0, root_points, later, min_points,
                    min_lever_mm)
 
 
-def _guides(structure: "_Structure", observed: np.ndarray, root_points: np.ndarray, later: list[np.ndarray],
+def _guides(structure: _Structure, observed: np.ndarray, root_points: np.ndarray, later: list[np.ndarray],
             min_points: int = MIN_ROOT_POINTS, min_lever_mm: float = MIN_ROOT_LEVER_MM) -> np.ndarray:
     """:func:`guide_points` for the points ``observed`` (Q,) bool (cached per structure)."""
     key = (observed.tobytes(), root_points.tobytes(), tuple(p.tobytes() for p in later), min_points, min_lever_mm)
     if key not in structure.guides:
         own = root_points[observed[root_points]]
-        if len(own) >= min_points and rotation_lever_mm(structure.neutral[own]) >= min_lever_mm:
+        if len(own) >= min_points and rotation_lever_mm(structure.canonical[own]) >= min_lever_mm:
             structure.guides[key] = np.zeros(0, dtype=np.int64)
         else:
             depth = structure.depths

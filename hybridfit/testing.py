@@ -1,9 +1,7 @@
 """Conformance checks that every hybridfit plugin, built-in or third-party, must pass.
 
-In the spirit of scikit-learn's ``check_estimator``: each check is a separate public
-function taking a configured plugin and raising ``AssertionError`` with a message naming
-the plugin and what is wrong, so a test suite can parametrize over (plugin, check) with
-one test id each::
+As with scikit-learn's ``check_estimator``, each check is a public function taking a configured
+plugin and raising ``AssertionError`` naming the plugin and the fault, one test id each::
 
     from hybridfit import registry, testing
 
@@ -12,13 +10,11 @@ one test id each::
         check(registry.create("optimizer", "my-optimizer"))
 
 ``check_model``, ``check_objective`` and ``check_optimizer`` run all checks of a kind. A check
-that does not apply to a plugin (a capability it does not declare) is skipped with its
-reason (``unittest.SkipTest``, which pytest reports as skipped), never passed.
-Optimiser checks fit small synthetic frames of the suite's own :class:`ToyHand` (a wrist and
-two 3-joint fingers, 13 parameters, 7 joints) with its own objectives, one in each form an
-objective may take: :class:`ToyClamped` (the paper's, a ``point_loss``) and
-:class:`ToyLeastSquares` (a numpy ``bind``), so they take seconds and depend on no plugin.
-(The checks of objectives that observe depth render the suite's ToyHand too.)
+that does not apply (a capability the plugin does not declare) is skipped with its reason
+(``unittest.SkipTest``, reported by pytest as skipped), never passed. The optimiser checks fit
+the suite's own :class:`ToyHand` (13 parameters, 7 joints) with its own objectives,
+:class:`ToyClamped` (a ``point_loss``) and :class:`ToyLeastSquares` (a numpy ``bind``), so they
+take seconds and depend on no plugin; the checks of depth objectives render ToyHand too.
 """
 
 from __future__ import annotations
@@ -26,29 +22,34 @@ from __future__ import annotations
 import json
 import pickle
 import unittest
-from typing import Callable
+from collections.abc import Callable
 
 import numba as nb
 import numpy as np
-
 from pydantic import Field
 
 from .errors import HybridfitError, PluginError
 from .fitting.angles import PARAMETER_NAME
-from .point_loss import bound_point_loss
-from .model.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
-from .model.base import ANGLES, HandModel, Stage
-from .objective import POINT_LOSS_SIGNATURE, Objective, capability, normalise_confidences, point_loss_of
 from .fitting.driver import run_problem
+from .model.base import ANGLES, HandModel, Stage
+from .model.kinematics import NO_AXIS, X_AXIS, Z_AXIS, KinematicTree, TreeHandModel
+from .objective import (
+    POINT_LOSS_SIGNATURE,
+    Objective,
+    capability,
+    normalise_confidences,
+    point_loss_of,
+)
 from .optimizer import Optimizer
 from .plugin import Settings, defining_class
+from .point_loss import bound_point_loss
 from .problem import Problem
 from .synthetic.proposals import synthetic_proposals
 from .task import StagePlan, Task
 
 __all__ = [
-    "ToyHand", "ToyClamped", "ToyLeastSquares", "RecordingTask", "check_config_round_trip", "check_pickle",
-    "check_unknown_setting", "checks", "check_model", "check_objective", "check_optimizer", "check_plugin",
+    "RecordingTask", "ToyClamped", "ToyHand", "ToyLeastSquares", "check_config_round_trip", "check_model",
+    "check_objective", "check_optimizer", "check_pickle", "check_plugin", "check_unknown_setting", "checks",
 ]
 
 #: evaluations per optimiser check (raised to the optimiser's min_budget when that is larger)
@@ -165,10 +166,20 @@ class ToyLeastSquares(Objective):
 
 
 # ------------------------------------------------------------------ every plugin
+def _refuses(plugin, call: Callable[[], object], accepted: str, naming: str) -> None:
+    """``call()`` must raise a HybridfitError whose message names ``naming``; ``accepted``: what it took."""
+    try:
+        call()
+    except HybridfitError as err:
+        _require(naming in str(err), f"{_label(plugin)}: the error does not name {naming!r}: {err}")
+    else:
+        raise AssertionError(f"{_label(plugin)}: {accepted} was accepted")
+
+
 def check_config_round_trip(plugin) -> None:
     """``type(p)(**p.get_params()) == p``, through JSON too, and ``with_params()`` equals p."""
     params = plugin.get_params()
-    _require(type(plugin)(**params) == plugin, f"{_label(plugin)}: rebuilding from get_params() gives a different plugin")
+    _require(type(plugin)(**params) == plugin, f"{_label(plugin)}: get_params() rebuilds a different plugin")
     again = json.loads(json.dumps(params))
     _require(type(plugin)(**again) == plugin, f"{_label(plugin)}: get_params() does not survive a JSON round trip")
     _require(plugin.with_params() == plugin, f"{_label(plugin)}: with_params() without changes is not equal")
@@ -177,12 +188,8 @@ def check_config_round_trip(plugin) -> None:
 
 def check_unknown_setting(plugin) -> None:
     """An unknown setting is refused with a HybridfitError naming it."""
-    try:
-        type(plugin)(**plugin.get_params(), no_such_setting_xyz=1)
-    except HybridfitError as err:
-        _require("no_such_setting_xyz" in str(err), f"{_label(plugin)}: the error does not name the setting: {err}")
-    else:
-        raise AssertionError(f"{_label(plugin)}: an unknown setting was accepted")
+    _refuses(plugin, lambda: type(plugin)(**plugin.get_params(), no_such_setting_xyz=1), "an unknown setting",
+             "no_such_setting_xyz")
 
 
 def check_pickle(plugin) -> None:
@@ -203,7 +210,9 @@ def _random_params(model: HandModel, rng: np.random.Generator, n: int) -> np.nda
 
 
 def check_model_shapes(model: HandModel) -> None:
-    """Names, parents, bounds and forward() have the documented shapes; bad shapes are refused."""
+    """parents (J,), bounds two (P,) arrays, default_params (P,) within them with finite joints;
+    forward (N, P) -> (N, J, 3) float64 ((P,) -> (J, 3), N = 0 included), a batch giving the
+    joints of its rows one at a time; parameters of the wrong length are refused."""
     P, J = model.n_params, model.n_joints
     _require(P >= 7, f"{_label(model)}: needs at least the 7 global pose parameters, has {P}")
     parents = np.asarray(model.parents)
@@ -213,23 +222,23 @@ def check_model_shapes(model: HandModel) -> None:
     lower, upper = model.bounds()
     _require(lower.shape == (P,) and upper.shape == (P,), f"{_label(model)}: bounds must be two ({P},) arrays")
     _require(bool((lower <= upper).all()), f"{_label(model)}: some lower bounds exceed the upper bounds")
-    X = _random_params(model, np.random.default_rng(0), 4)
+    x0 = model.default_params()
+    _require(x0.shape == (P,), f"{_label(model)}: default_params has shape {x0.shape}")
+    _require(bool(((x0 >= lower) & (x0 <= upper)).all()), f"{_label(model)}: the default pose violates the bounds")
+    _require(bool(np.isfinite(model.forward(x0)).all()), f"{_label(model)}: the default pose has non-finite joints")
+    X = _random_params(model, np.random.default_rng(1), 8)
     out = model.forward(X)
-    _require(out.shape == (4, J, 3) and out.dtype == np.float64, f"{_label(model)}: forward((4, P)) gave {out.shape}")
+    _require(out.shape == (8, J, 3) and out.dtype == np.float64, f"{_label(model)}: forward((8, P)) gave {out.shape}")
     _require(model.forward(X[0]).shape == (J, 3), f"{_label(model)}: forward((P,)) must give (J, 3)")
     _require(model.forward(X[:0]).shape == (0, J, 3), f"{_label(model)}: forward((0, P)) must give (0, J, 3)")
-    try:
-        model.forward(np.zeros((2, P + 1)))
-    except HybridfitError:
-        pass
-    else:
-        raise AssertionError(f"{_label(model)}: forward accepted parameters of the wrong length")
+    rows = np.stack([model.forward(X[i : i + 1])[0] for i in range(len(X))])
+    np.testing.assert_allclose(out, rows, rtol=1e-12, atol=1e-9, err_msg=f"{_label(model)}: batch != rows")
+    _refuses(model, lambda: model.forward(np.zeros((2, P + 1))), "forward of parameters of the wrong length", "")
 
 
 def check_model_parameter_names(model: HandModel) -> None:
-    """The P parameter names are unique strings that can name a column (no whitespace,
-    commas or quotes), and the joint angles (every parameter after the global pose's 7) are
-    in radians: their finite bounds lie within +-2 pi."""
+    """The P parameter names are unique strings that can name a column (no whitespace, commas or
+    quotes); the joint angles (parameters 7..P-1) are radians: finite bounds within +-2 pi."""
     names = tuple(model.parameter_names)
     bad = [n for n in names if not (isinstance(n, str) and PARAMETER_NAME.fullmatch(n))]
     _require(not bad, f"{_label(model)}: parameter names must be strings without whitespace, commas or quotes: {bad}")
@@ -239,23 +248,6 @@ def check_model_parameter_names(model: HandModel) -> None:
     limits = np.abs(np.concatenate([lower[np.isfinite(lower)], upper[np.isfinite(upper)]]))
     _require(bool((limits <= 2 * np.pi).all()), f"{_label(model)}: joint angle bounds beyond +-2 pi "
              f"(largest {limits.max() if len(limits) else 0:.4g}): angles must be radians")
-
-
-def check_model_batching(model: HandModel) -> None:
-    """A batch gives the same joints as its rows one at a time."""
-    X = _random_params(model, np.random.default_rng(1), 8)
-    batch = model.forward(X)
-    rows = np.stack([model.forward(X[i : i + 1])[0] for i in range(len(X))])
-    np.testing.assert_allclose(batch, rows, rtol=1e-12, atol=1e-9, err_msg=f"{_label(model)}: batch != rows")
-
-
-def check_model_default_pose(model: HandModel) -> None:
-    """The default pose lies within the bounds and its joints are finite."""
-    x0 = model.default_params()
-    lower, upper = model.bounds()
-    _require(x0.shape == (model.n_params,), f"{_label(model)}: default_params has shape {x0.shape}")
-    _require(bool(((x0 >= lower) & (x0 <= upper)).all()), f"{_label(model)}: the default pose violates the bounds")
-    _require(bool(np.isfinite(model.forward(x0)).all()), f"{_label(model)}: the default pose has non-finite joints")
 
 
 def check_model_bone_lengths(model: HandModel) -> None:
@@ -272,99 +264,72 @@ def check_model_bone_lengths(model: HandModel) -> None:
 
 
 def check_model_stages(model: HandModel) -> None:
-    """Stages partition the parameters and the joints; the root stage holds the global pose;
-    a stage's parameters never move the joints of earlier stages."""
+    """Stages partition the parameters and the joints, the first holding the global pose (0..6);
+    at a few random poses, each parameter of a stage (moved by a quarter of its range, 10 where
+    unbounded) moves none of an earlier stage's joints and some of its own (else stepwise fitting
+    cannot see it in its stage)."""
     stages = model.stages()
     params = sorted(p for s in stages for p in s.parameters)
     joints = sorted(j for s in stages for j in s.joints)
     _require(params == list(range(model.n_params)), f"{_label(model)}: stage parameters do not partition 0..P-1")
     _require(joints == list(range(model.n_joints)), f"{_label(model)}: stage joints do not partition 0..J-1")
     _require(set(range(7)) <= set(stages[0].parameters), f"{_label(model)}: the first stage must hold parameters 0..6")
-    rng = np.random.default_rng(3)
-    x = _random_params(model, rng, 1)[0]
     lower, upper = model.bounds()
-    base = model.forward(x)
-    for s, stage in enumerate(stages):
-        moved = x.copy()
-        idx = list(stage.parameters)
-        moved[idx] = np.clip(x[idx] + rng.normal(0, 0.1, len(idx)) * np.maximum(1.0, np.abs(x[idx])), lower[idx], upper[idx])
-        delta = np.abs(model.forward(moved) - base).max(axis=-1)
-        earlier = [j for t in stages[:s] for j in t.joints]
-        _require(bool((delta[earlier] < 1e-9).all()) if earlier else True,
-                 f"{_label(model)}: stage {stage.name!r} moves joints of an earlier stage")
-
-
-def _moved(x: float, lower: float, upper: float, share: float = 0.25) -> float:
-    """x moved by ``share`` of its range (10 where unbounded), inwards at an upper bound."""
-    step = share * (upper - lower) if np.isfinite(upper - lower) else 10.0
-    return x + step if x + step <= upper else x - step
-
-
-def check_model_stage_parameters(model: HandModel) -> None:
-    """Every parameter of a stage moves at least one of that stage's own joints (else
-    stepwise fitting cannot see it in its stage), at one of a few random poses."""
-    lower, upper = model.bounds()
+    step = np.where(np.isfinite(upper - lower), 0.25 * (upper - lower), 10.0)  # (P,)
     X = _random_params(model, np.random.default_rng(5), 4)
     base = model.forward(X)
-    for stage in model.stages():
-        own = list(stage.joints)
+    earlier: list[int] = []
+    for stage in stages:
         for p in stage.parameters:
             moved = X.copy()
-            moved[:, p] = [_moved(x, lower[p], upper[p]) for x in X[:, p]]
-            delta = np.abs(model.forward(moved)[:, own] - base[:, own]).max()
-            _require(delta > 1e-6, f"{_label(model)}: parameter {model.parameter_names[p]!r} of stage "
-                     f"{stage.name!r} moves none of the stage's joints")
+            moved[:, p] = np.where(X[:, p] + step[p] <= upper[p], X[:, p] + step[p], X[:, p] - step[p])
+            delta = np.abs(model.forward(moved) - base).max(axis=(0, 2))  # (J,)
+            which = f"{_label(model)}: parameter {model.parameter_names[p]!r} of stage {stage.name!r}"
+            _require(bool((delta[earlier] < 1e-9).all()), f"{which} moves joints of an earlier stage")
+            _require(bool(delta[list(stage.joints)].max() > 1e-6), f"{which} moves none of the stage's joints")
+        earlier += stage.joints
 
 
 # ------------------------------------------------------------------ objectives
-def _objective_frame(seed: int = 0, Q: int = 6, K: int = 3):
-    """Random proposals (Q, K, 3), weights (Q, K) with point 1 empty and a proposal of point 2
-    at weight 0, points (5, Q, 3)."""
+def _frame(seed: int, objective: Objective | None = None, K: int = 3):
+    """(proposals (Q, K, 3), weights (Q, K), points (5, Q, 3), loss) of a check frame, point 1 without
+    proposals and a proposal of point 2 at weight 0: random points (Q = 6) or, when ``objective``
+    observes depth, ToyHand's joints (Q = 7) at a pose rendered 400 mm in front of the camera (row 0)
+    and perturbed. loss(points, subset=every point) -> (N,) is ``objective`` bound (None without one);
+    an objective observing depth scores the points as the model's joints."""
     rng = np.random.default_rng(seed)
-    proposals = rng.normal(0.0, 30.0, size=(Q, K, 3))
-    conf = rng.random((Q, K))
+    observed = objective is not None and objective.observes_depth
+    if observed:
+        from .datasets.camera import Intrinsics
+        from .model.render import Renderer
+        from .model.rotations import matrix_to_quaternion
+        from .objective import Observation
+        from .synthetic.proposals import PALM_TO_CAMERA
+
+        model = ToyHand()
+        pose = model.default_params()
+        pose[:3], pose[3:7] = (0.0, 0.0, 400.0), matrix_to_quaternion(PALM_TO_CAMERA)
+        params = np.repeat(pose[None], 5, axis=0)
+        params[1:, :3] += rng.normal(0.0, 10.0, size=(4, 3))
+        params[1:, 7:] += rng.normal(0.0, 0.2, size=(4, model.n_params - 7))
+        points = model.forward(model.clip(params))
+        proposals = points[0][:, None] + rng.normal(0.0, 8.0, size=(model.n_joints, K, 3))
+        conf = rng.random((model.n_joints, K))
+    else:
+        proposals = rng.normal(0.0, 30.0, size=(6, K, 3))
+        conf = rng.random((6, K))
+        points = proposals[None, :, 0] + rng.normal(0.0, 15.0, size=(5, 6, 3))
     conf[1], conf[2, 0] = 0.0, 0.0
-    points = proposals[None, :, 0] + rng.normal(0.0, 15.0, size=(5, Q, 3))
-    return proposals, normalise_confidences(conf), points
-
-
-def _observed_frame(seed: int = 0, K: int = 3):
-    """For objectives that observe depth: ToyHand, the depth Observation of a pose 400 mm in
-    front of the camera, proposals (J, K, 3) around its joints, weights (J, K), and the joints
-    (5, J, 3) of that pose perturbed (row 0 unperturbed)."""
-    from .datasets.camera import Intrinsics
-    from .objective import Observation
-    from .model.render import Renderer
-    from .synthetic.proposals import PALM_TO_CAMERA
-    from .model.rotations import matrix_to_quaternion
-
-    rng = np.random.default_rng(seed)
-    model = ToyHand()
-    pose = model.default_params().astype(float)
-    pose[:3] = (0.0, 0.0, 400.0)
-    pose[3:7] = matrix_to_quaternion(PALM_TO_CAMERA)
+    weights, every = normalise_confidences(conf), np.arange(len(proposals), dtype=np.int64)
+    if objective is None:
+        return proposals, weights, points, None
+    if not observed:
+        bound = objective.bind(proposals, weights)
+        return proposals, weights, points, lambda points, subset=every: bound(points, subset)
     intrinsics = Intrinsics(width=160, height=120, cx=80.0, cy=60.0, fx=120.0, fy=120.0)
-    depth = Renderer(model, intrinsics).render(pose)[0][0]
-    params = np.repeat(pose[None], 5, axis=0)
-    params[1:, :3] += rng.normal(0.0, 10.0, size=(4, 3))
-    params[1:, 7:] += rng.normal(0.0, 0.2, size=(4, model.n_params - 7))
-    joints = model.forward(model.clip(params))
-    proposals = joints[0][:, None] + rng.normal(0.0, 8.0, size=(model.n_joints, K, 3))
-    conf = rng.random((model.n_joints, K))
-    conf[1] = 0.0
-    return model, Observation.from_depth(depth, intrinsics), proposals, normalise_confidences(conf), joints
-
-
-def _bound_frame(objective: Objective, seed: int = 0):
-    """(loss(points, subset), proposals, weights, points) of a check frame: random points for
-    proposal objectives, a rendered hand's joints for objectives that observe depth (which
-    then score the points as the model's joints)."""
-    if not getattr(objective, "observes_depth", False):
-        proposals, weights, points = _objective_frame(seed)
-        return objective.bind(proposals, weights), proposals, weights, points
-    model, observation, proposals, weights, joints = _observed_frame(seed)
+    observation = Observation.from_depth(Renderer(model, intrinsics).render(pose)[0][0], intrinsics)
     bound = objective.bind_observed(proposals, weights, observation, model)
-    return (lambda points, subset: bound(points, subset, points)), proposals, weights, joints
+    return proposals, weights, points, lambda points, subset=every: bound(points, subset, points)
 
 
 def check_objective_forms(objective: Objective) -> None:
@@ -381,32 +346,25 @@ def check_objective_forms(objective: Objective) -> None:
 
 
 def check_objective_shapes(objective: Objective) -> None:
-    """loss(points (N, Q, 3), subset) is (N,) finite float64, N = 0 included."""
-    loss, proposals, weights, points = _bound_frame(objective)
-    every = np.arange(len(proposals), dtype=np.int64)
-    out = loss(points, every)
+    """loss(points (N, Q, 3), subset) is (N,) finite float64, N = 0 included, and a batch scores
+    as its hypotheses one at a time."""
+    _, _, points, loss = _frame(0, objective)
+    out = loss(points)
     _require(isinstance(out, np.ndarray) and out.shape == (5,) and out.dtype == np.float64,
              f"{_label(objective)}: loss must be a (N,) float64 array, got {getattr(out, 'shape', type(out))}")
     _require(bool(np.isfinite(out).all()), f"{_label(objective)}: non-finite losses {out}")
-    _require(loss(points[:0], every).shape == (0,), f"{_label(objective)}: N = 0 must give an empty array")
-
-
-def check_objective_batching(objective: Objective) -> None:
-    """Scoring a batch gives the same losses as scoring each hypothesis alone."""
-    loss, proposals, weights, points = _bound_frame(objective, 1)
-    every = np.arange(len(proposals), dtype=np.int64)
-    rows = np.array([loss(points[i : i + 1], every)[0] for i in range(len(points))])
-    np.testing.assert_allclose(loss(points, every), rows, rtol=1e-12, atol=1e-12,
-                               err_msg=f"{_label(objective)}: batch != rows")
+    _require(loss(points[:0]).shape == (0,), f"{_label(objective)}: N = 0 must give an empty array")
+    rows = np.array([loss(points[i : i + 1])[0] for i in range(len(points))])
+    np.testing.assert_allclose(out, rows, rtol=1e-12, atol=1e-12, err_msg=f"{_label(objective)}: batch != rows")
 
 
 def check_objective_sum_over_points(objective: Objective) -> None:
-    """The loss is a sum over points: disjoint subsets add up, the empty subset scores 0,
-    and a point without proposals contributes nothing wherever it is. (Only for objectives
-    declared ``additive``; an image term scores the whole hand on any subset.)"""
-    if not getattr(objective, "additive", True):
+    """The loss is a sum over points: disjoint subsets add up, the empty subset scores 0, and a
+    point without proposals contributes nothing wherever it is. (Only for ``additive`` objectives;
+    an image term scores the whole hand on any subset.)"""
+    if not objective.additive:
         not_applicable(objective, "its loss is not a sum over points (additive = False)")
-    proposals, weights, points = _objective_frame(2)
+    proposals, weights, points, _ = _frame(2)
     loss = objective.bind(proposals, weights)
     Q = len(proposals)
     a, b = np.arange(0, Q, 2, dtype=np.int64), np.arange(1, Q, 2, dtype=np.int64)
@@ -424,22 +382,19 @@ def check_objective_sum_over_points(objective: Objective) -> None:
 
 def check_objective_lower_bound(objective: Objective) -> None:
     """No loss is below ``lower_bound(weights)``, at the proposals themselves included."""
-    loss, proposals, weights, points = _bound_frame(objective, 3)
-    every = np.arange(len(proposals), dtype=np.int64)
+    proposals, weights, points, loss = _frame(3, objective)
     at_top = proposals[np.arange(len(proposals)), weights.argmax(axis=-1)][None]
     low = objective.lower_bound(weights)
-    values = np.concatenate([loss(points, every), loss(at_top, every)])
+    values = np.concatenate([loss(points), loss(at_top)])
     _require(bool((values >= low - 1e-9 * max(1.0, abs(low))).all()),
              f"{_label(objective)}: losses {values.min()} below lower_bound {low}")
 
 
 def check_objective_deterministic(objective: Objective) -> None:
     """Binding twice and scoring twice gives bit-identical losses."""
-    loss, proposals, weights, points = _bound_frame(objective, 4)
-    every = np.arange(len(proposals), dtype=np.int64)
-    first = loss(points, every)
-    second = _bound_frame(objective, 4)[0](points.copy(), every)
-    np.testing.assert_array_equal(first, second, err_msg=f"{_label(objective)}: not deterministic")
+    _, _, points, loss = _frame(4, objective)
+    np.testing.assert_array_equal(loss(points), _frame(4, objective)[3](points.copy()),
+                                  err_msg=f"{_label(objective)}: not deterministic")
 
 
 def _unused(objective: Objective, name: str) -> str:
@@ -462,18 +417,16 @@ def _point_loss(objective: Objective):
 
 
 def check_objective_point_loss(objective: Objective) -> None:
-    """Its ``point_loss`` compiles for the contract's types, writes out[i] for every
-    hypothesis (an out filled with NaN comes back finite), and a hypothesis's loss does not
-    depend on the others in the batch (scored one at a time, each gets the loss it gets beside
-    the others, to 1e-12): the driver hands it any number of hypotheses, of several frames
-    side by side, in one buffer it reuses."""
+    """Its ``point_loss`` compiles for the contract's types and writes out[i] for every hypothesis
+    (an out filled with NaN comes back finite), each scored alone as beside the others (1e-12):
+    the driver hands it any number of hypotheses, of several frames, in one reused buffer."""
     function, constants = _point_loss(objective)
     try:  # the contract's argument types (what the core's loops pass it)
         nb.njit(POINT_LOSS_SIGNATURE)(getattr(function, "py_func", function))
     except Exception as err:  # numba's typing error, whatever its class
         raise AssertionError(f"{_label(objective)}: its point_loss does not compile for the contract's types "
                              f"(hybridfit.objective.POINT_LOSS_SIGNATURE): {err}") from err
-    proposals, weights, points = _objective_frame(6)
+    proposals, weights, points, _ = _frame(6)
     for q in np.flatnonzero(weights.max(axis=-1) > 0):  # it is called only for points with proposals
         x, y, z = (np.ascontiguousarray(points[:, q, c]) for c in range(3))
         together = np.full(len(x), np.nan)
@@ -493,7 +446,7 @@ def _agrees_with_bind(objective: Objective, name: str, score) -> None:
     """score(points (N, Q, 3), subset, proposals, weights) -> (N,), the form ``name``, gives
     ``bind``'s losses on random points, on the whole frame and on a subset of points."""
     for seed in (11, 12):
-        proposals, weights, points = _objective_frame(seed)
+        proposals, weights, points, _ = _frame(seed)
         for subset in (np.arange(len(proposals), dtype=np.int64), np.array([0, 2, 3], dtype=np.int64)):
             want = objective.bind(proposals, weights)(points, subset)
             np.testing.assert_allclose(score(points, subset, proposals, weights), want, rtol=1e-9, atol=1e-9,
@@ -531,21 +484,16 @@ def check_objective_casadi_agrees(objective: Objective) -> None:
 
 
 def check_objective_observed(objective: Objective) -> None:
-    """An objective that observes depth scores the rendered pose itself at least as well as
-    perturbed poses, and a Problem without the frame's depth is refused with a clear error.
-    (Nothing to check for proposal-only objectives.)"""
-    if not getattr(objective, "observes_depth", False):
+    """An objective that observes depth scores the rendered pose at least as well as perturbed
+    poses, and a Problem without the frame's depth is refused with an error saying so."""
+    if not objective.observes_depth:
         not_applicable(objective, "it scores proposals only (observes_depth = False)")
-    loss, proposals, weights, joints = _bound_frame(objective, 5)
-    values = loss(joints, np.arange(len(proposals), dtype=np.int64))
+    proposals, weights, joints, loss = _frame(5, objective)
+    values = loss(joints)
     _require(bool(values[0] <= values[1:].min()), f"{_label(objective)}: the observed pose scores {values[0]}, "
              f"worse than a perturbed pose ({values[1:].min()})")
-    try:
-        Problem(ToyHand(), objective, proposals, weights)
-    except HybridfitError as err:
-        _require("depth" in str(err), f"{_label(objective)}: the error does not say the depth is missing: {err}")
-    else:
-        raise AssertionError(f"{_label(objective)}: a Problem without the depth image was accepted")
+    _refuses(objective, lambda: Problem(ToyHand(), objective, proposals, weights),
+             "a Problem without the depth image", "depth")
 
 
 # ------------------------------------------------------------------ optimizers
@@ -571,19 +519,6 @@ def check_problem(seed: int = 0) -> Problem:
     return Problem(model, ToyClamped(), data["proposals"][0], data["confidences"][0])
 
 
-def known_optimum_problem(seed: int = 0) -> tuple[Problem, np.ndarray]:
-    """(problem, truth (P,)): ToyHand with one exact proposal per joint at a random pose and
-    ToyLeastSquares, so the optimum is the pose itself, loss 0. The initial guess (given, not
-    estimated) has the true global pose and the default finger angles."""
-    model = ToyHand()
-    truth = synthetic_proposals(1, k=1, seed=seed, model=model, p_missing=0.0)["params"][0]
-    start = truth.copy()
-    start[7:] = model.default_params()[7:]
-    proposals = model.forward(truth)[:, None]
-    return Problem(model, ToyLeastSquares(), proposals,
-                   np.ones((model.n_joints, 1)), x0=start), truth
-
-
 class _OneStage(Optimizer):
     """Runs ``inner`` on one stage of a frame (its ``parameters`` over its ``points``, the others
     at the initial guess), as ``stepwise`` runs an optimiser on each stage."""
@@ -605,10 +540,9 @@ class _OneStage(Optimizer):
 
 
 def _fit(optimizer: Optimizer, problem: Problem, budget: int | None = None, seed: int = 0, stage=None):
-    """(result, hypotheses (n, P)): the optimiser fitted to ``problem`` by the driver (on one
-    ``stage`` (name, parameters, points) when given) with ``budget`` (None: the check budget),
-    and every hypothesis it had evaluated, as full parameter vectors: those the driver scored,
-    and any the optimiser scored itself through ``task.problem`` (behind the budget's back).
+    """(result, hypotheses (n, P)): the driver's fit of ``problem`` (of its ``stage`` (name, parameters,
+    points) when given) within ``budget`` (None: the check budget), and every hypothesis evaluated,
+    by the driver or by the optimiser itself through ``task.problem`` (behind the budget's back).
     A plugin error (nothing evaluated, a budget overrun) fails the check."""
     runner = optimizer if stage is None else _OneStage(optimizer, stage)
     budget = _budget(runner, Task(problem, 1)) if budget is None else budget
@@ -634,9 +568,15 @@ def _budget(optimizer: Optimizer, task: Task) -> int:
 
 
 def check_optimizer_budget(optimizer: Optimizer) -> None:
-    """Never more evaluations than the budget, and the reported number is the real one."""
+    """min_budget is a positive int and a smaller budget is refused with a HybridfitError saying
+    it; never more evaluations than the budget, and the reported number is the real one."""
     problem = check_problem(1)
-    base = _budget(optimizer, Task(problem, 1))
+    need = optimizer.min_budget(Task(problem, 1))
+    _require(isinstance(need, (int, np.integer)) and need >= 1, f"{_label(optimizer)}: min_budget {need!r}")
+    if need > 1:
+        _refuses(optimizer, lambda: run_problem(optimizer, problem, need - 1),
+                 f"a budget below min_budget ({need})", str(need))
+    base = max(CHECK_BUDGET, int(need))
     for budget in (base, base + 37):
         result, scored = _fit(optimizer, problem, budget)
         _require(len(scored) <= budget, f"{_label(optimizer)}: {len(scored)} evaluations for a budget of {budget}")
@@ -660,7 +600,7 @@ def check_optimizer_deterministic(optimizer: Optimizer) -> None:
     for name, a, b in (("params", first.params, again.params), ("loss", first.loss, again.loss),
                        ("evaluations", first.evaluations, again.evaluations),
                        ("hypotheses scored", first_scored, again_scored)):
-        np.testing.assert_array_equal(a, b, err_msg=f"{_label(optimizer)}: {name}: differs between two runs with one seed")
+        np.testing.assert_array_equal(a, b, err_msg=f"{_label(optimizer)}: {name}: differs between runs with one seed")
 
 
 def check_optimizer_bounds(optimizer: Optimizer) -> None:
@@ -687,31 +627,20 @@ def check_optimizer_subset(optimizer: Optimizer) -> None:
              f"the stage moved")
 
 
-def check_optimizer_min_budget(optimizer: Optimizer) -> None:
-    """min_budget is a positive int; a smaller budget is refused with a HybridfitError."""
-    problem = check_problem(5)
-    need = optimizer.min_budget(Task(problem, 1))
-    _require(isinstance(need, (int, np.integer)) and need >= 1, f"{_label(optimizer)}: min_budget {need!r}")
-    if need > 1:
-        try:
-            run_problem(optimizer, problem, need - 1)
-        except HybridfitError as err:
-            _require(str(need) in str(err), f"{_label(optimizer)}: the error does not say the minimum: {err}")
-        else:
-            raise AssertionError(f"{_label(optimizer)}: a budget below min_budget ({need}) was accepted")
-
-
 #: share of the gap between the start's loss and the known optimum an optimiser must close
 IMPROVE_SHARE = 0.2
 
 
 def check_optimizer_improves(optimizer: Optimizer) -> None:
-    """On a toy problem with a known optimum (loss 0) it closes at least ``IMPROVE_SHARE``
-    of the gap between its start and the optimum, in the median of three seeds, on the whole
-    problem and on one finger's stage alone (as stepwise fitting runs it)."""
-    problem, truth = known_optimum_problem(6)
-    finger = problem.stage_points()[1]
-    for stage in (None, finger):
+    """It closes at least ``IMPROVE_SHARE`` of the gap between its start and the optimum (loss 0)
+    in the median of three seeds, on the whole problem and on one finger's stage alone (as stepwise
+    fitting runs it). The problem: ToyLeastSquares with one exact proposal per ToyHand joint at a
+    random pose; the start has the true global pose and the default finger angles."""
+    model = ToyHand()
+    truth = synthetic_proposals(1, k=1, seed=6, model=model, p_missing=0.0)["params"][0]
+    start = np.concatenate([truth[:7], model.default_params()[7:]])
+    problem = Problem(model, ToyLeastSquares(), model.forward(truth)[:, None], np.ones((model.n_joints, 1)), x0=start)
+    for stage in (None, problem.stage_points()[1]):
         points = problem.all_points if stage is None else stage[2]
         start = float(problem.evaluate(problem.x0[None], points)[0])
         _require(start > 0, "the toy problem's start is already optimal")
@@ -724,45 +653,41 @@ def check_optimizer_improves(optimizer: Optimizer) -> None:
 
 
 def check_optimizer_batch_steps(optimizer: Optimizer) -> None:
-    """An optimiser the driver runs (its plan's stages share batch steps,
-    ``hybridfit.fitting.driver``), fitting several frames in lockstep, spends each frame's
-    budget exactly, and fits each frame as it fits it alone (its random numbers come from its
-    own key). Skipped for optimisers the driver does not run (callback-style solvers)."""
-    from .fitting.driver import Driver, _batched_layout
+    """An optimiser the driver runs (its plan's stages share batch steps, ``hybridfit.fitting.driver``),
+    fitting several frames in lockstep, spends each frame's budget exactly and fits each frame as
+    alone (its random numbers come from its own key). Skipped for callback-style solvers."""
+    from .fitting.driver import Driver, batched_layout
 
     model = ToyHand()
     data = synthetic_proposals(3, k=3, seed=7, model=model)
     objective = ToyClamped()
     problem = Problem(model, objective, data["proposals"][0], data["confidences"][0])
     budget = _budget(optimizer, Task(problem, 1))
-    if _batched_layout(optimizer, Task(problem, budget)) is None:
+    if batched_layout(model, objective, optimizer, problem, budget) is None:
         not_applicable(optimizer, "the driver does not run it: its plan's stages share no batch steps (a "
                        "callback-style solver runs frame by frame on a Task)")
     driver = Driver(model, objective, optimizer, model.joint_names, budget, seed=3)
     together = driver.fit_chunk([0, 1, 2], data["proposals"], data["confidences"])
+    _require(together.fitted == [0, 1, 2], f"{_label(optimizer)}: frames {sorted(together.errors)} failed")
+    _require(bool((together.evaluations == budget).all()), f"{_label(optimizer)}: {together.evaluations} "
+             f"evaluations for a budget of {budget}")
     for f in range(3):
-        alone = driver.fit_chunk([f], data["proposals"][f:f + 1], data["confidences"][f:f + 1])[0]
-        _require(together[f][2] is None and alone[2] is None, f"{_label(optimizer)}: frame {f} failed")
-        _require(together[f][1][4] == budget, f"{_label(optimizer)}: {together[f][1][4]} evaluations for a budget "
-                 f"of {budget}")
-        _require(np.array_equal(together[f][1][0], alone[1][0]),
+        alone = driver.fit_chunk([f], data["proposals"][f:f + 1], data["confidences"][f:f + 1])
+        _require(np.array_equal(together.params[f], alone.params[0]),
                  f"{_label(optimizer)}: frame {f} fitted beside other frames differs from frame {f} fitted alone")
 
 
 # ------------------------------------------------------------------ registry of checks
 _COMMON = (check_config_round_trip, check_unknown_setting, check_pickle)
 _CHECKS: dict[str, tuple[Callable, ...]] = {
-    "model": _COMMON + (check_model_shapes, check_model_parameter_names, check_model_batching,
-                        check_model_default_pose, check_model_bone_lengths, check_model_stages,
-                        check_model_stage_parameters),
-    "objective": _COMMON + (check_objective_forms, check_objective_shapes, check_objective_batching,
-                            check_objective_sum_over_points, check_objective_lower_bound,
-                            check_objective_deterministic, check_objective_point_loss,
+    "model": _COMMON + (check_model_shapes, check_model_parameter_names, check_model_bone_lengths,
+                        check_model_stages),
+    "objective": _COMMON + (check_objective_forms, check_objective_shapes, check_objective_sum_over_points,
+                            check_objective_lower_bound, check_objective_deterministic, check_objective_point_loss,
                             check_objective_point_loss_agrees, check_objective_casadi_agrees,
                             check_objective_observed),
     "optimizer": _COMMON + (check_optimizer_budget, check_optimizer_deterministic, check_optimizer_bounds,
-                            check_optimizer_subset, check_optimizer_min_budget, check_optimizer_improves,
-                            check_optimizer_batch_steps),
+                            check_optimizer_subset, check_optimizer_improves, check_optimizer_batch_steps),
 }
 
 
@@ -787,15 +712,15 @@ def check_plugin(kind: str, plugin) -> list[str]:
 
 
 def check_model(model: HandModel) -> list[str]:
-    """Run every model check on a configured model (raises on the first failure; ``checks("model")`` lists them)."""
+    """``check_plugin("model", model)``: every check of ``checks("model")``."""
     return check_plugin("model", model)
 
 
 def check_objective(objective: Objective) -> list[str]:
-    """Run every objective check on a configured objective (raises on the first failure; ``checks("objective")`` lists them)."""
+    """``check_plugin("objective", objective)``: every check of ``checks("objective")``."""
     return check_plugin("objective", objective)
 
 
 def check_optimizer(optimizer: Optimizer) -> list[str]:
-    """Run every optimizer check on a configured optimizer (raises on the first failure; ``checks("optimizer")`` lists them)."""
+    """``check_plugin("optimizer", optimizer)``: every check of ``checks("optimizer")``."""
     return check_plugin("optimizer", optimizer)

@@ -32,7 +32,7 @@ def test_points_can_be_derived_points(hand26, clamped):
     names = ["palm_centre", "index_tip", "thumb_tip"]
     pts = hand26.points(x, names)[0]
     p = Problem(hand26, clamped, pts[:, None, :], np.ones((3, 1)), names)
-    assert p.points(x[None]).shape == (1, 3, 3)
+    assert p.evaluate(x[None]) == pytest.approx([-3.0])  # each derived point on its one proposal
     stages = p.stage_points()
     assert [list(s[2]) for s in stages] == [[0], [2], [1], [], [], []]  # palm_centre scored with the palm
     with pytest.raises(HybridfitError, match="lacks 2 of the 3 points to fit: 'pinky', 'ring' \\(neither a joint "
@@ -74,7 +74,7 @@ def test_evaluation_is_the_papers_formula_of_the_points(hand26, clamped, frames,
     X = p.x0 + np.random.default_rng(0).normal(0.0, 0.1, (150, hand26.n_params))
     for subset in (None, np.array([0, 1, 5, 9]), np.array([6, 7, 8]), np.array([20])):
         s = p.all_points if subset is None else subset
-        points = p.points(X)[:, s]
+        points = hand26.points(X, p.point_names)[:, s]
         d = np.minimum(1.0, np.linalg.norm(points[:, :, None] - p.proposals[s], axis=-1) / 40.0)
         want = -(p.weights[s] * (1.0 - d**2)).max(axis=-1).sum(axis=-1)
         np.testing.assert_allclose(p.evaluate(X, subset), want, rtol=0, atol=1e-12)

@@ -87,7 +87,7 @@ def test_bounds_check_catches_out_of_bounds_hypotheses():
 
 
 def test_min_budget_check_needs_a_refusal():
-    testing.check_optimizer_min_budget(NoMinimum())  # min_budget 1: nothing to refuse
+    testing.check_optimizer_budget(NoMinimum())  # min_budget 1: nothing to refuse
 
 
 def test_round_trip_check_catches_logic_in_init():
@@ -203,10 +203,10 @@ class DegreeBounds(testing.ToyHand):
     (SpacedName(), testing.check_model_parameter_names, r"without whitespace, commas or quotes: \['b flex2'\]"),
     (DegreeBounds(), testing.check_model_parameter_names, "angles must be radians"),
     (LeakyStages(), testing.check_model_stages, "moves joints of an earlier stage"),
-    (IdleParameter(), testing.check_model_stage_parameters, "'a_abduct' of stage 'palm' moves none"),
+    (IdleParameter(), testing.check_model_stages, "'a_abduct' of stage 'palm' moves none"),
     (Stretchy(), testing.check_model_bone_lengths, "bones change length"),
-    (RowDependent(), testing.check_model_batching, "batch != rows"),
-    (BadDefault(), testing.check_model_default_pose, "violates the bounds"),
+    (RowDependent(), testing.check_model_shapes, "batch != rows"),
+    (BadDefault(), testing.check_model_shapes, "violates the bounds"),
 ], ids=lambda v: getattr(v, "__name__", type(v).__name__))
 def test_a_broken_model_fails_its_check(model, check, match):
     testing.check_model(testing.ToyHand())  # the unbroken toy passes them all
@@ -248,7 +248,7 @@ class IgnoresMinimum(_Base):
     (StartOnly(), testing.check_optimizer_improves, "less than 20% of the gap closed"),
     (Sneaky(), testing.check_optimizer_budget, "151 evaluations for a budget of 150"),
     (Idle(), testing.check_optimizer_subset, "evaluated nothing"),
-    (IgnoresMinimum(), testing.check_optimizer_min_budget, "below min_budget"),
+    (IgnoresMinimum(), testing.check_optimizer_budget, "below min_budget"),
 ], ids=lambda v: getattr(v, "__name__", type(v).__name__))
 def test_a_broken_optimizer_fails_its_check(optimizer, check, match):
     with pytest.raises(AssertionError, match=match):

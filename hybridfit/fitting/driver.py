@@ -32,6 +32,7 @@ from __future__ import annotations
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -42,34 +43,16 @@ from ..objective import point_loss_of, require_finite
 from ..plugin import defining_class
 from ..problem import Problem, prepare_frames
 from ..stages import structure_of
-from ..task import OptimizeResult, StagePlan, Task, steps_of
+from ..task import BatchSteps, OptimizeResult, StagePlan, Task, steps_of
 from . import stops
 from .evaluator import BoundScorer, CompiledLoss, PointScorer
 from .polish import polish
-
-#: columns of the integer stage table: budget, rows per ask, whether the stage owns every
-#: point, and [lo, hi) ranges of ``indices`` for its parameters, points and owned points
-BUDGET, BATCH, OWNS_ALL, PARAMS, POINTS, OWNED = 0, 1, 2, 3, 5, 7
 
 #: hypotheses a callback solver's evaluation is scored in at a time (the scorer's block)
 CALLBACK_BATCH = 256
 
 
 # ---------------------------------------------------------------- helpers of the loop (numba, callable from Python)
-
-@nb.njit(cache=True, nogil=True)
-def stage_box(base, lower, upper, pidx):
-    """(lower, upper, start) (F, d) of a stage's parameters ``pidx``: the start is base, clipped."""
-    F = base.shape[0]
-    d = pidx.shape[0]
-    lo, hi, start = np.empty((F, d)), np.empty((F, d)), np.empty((F, d))
-    for f in range(F):
-        for k in range(d):
-            lo[f, k] = lower[f, pidx[k]]
-            hi[f, k] = upper[f, pidx[k]]
-            start[f, k] = min(max(base[f, pidx[k]], lo[f, k]), hi[f, k])
-    return lo, hi, start
-
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def first_lowest(values, m):
@@ -95,29 +78,15 @@ def keep_best(X, losses, best_x, best_loss):
                 best_x[f, k] = X[f, i, k]
 
 
-@nb.njit(cache=True, nogil=True)
-def same_points(a, b):
-    if a.shape[0] != b.shape[0]:
-        return False
-    for t in range(a.shape[0]):
-        if a[t] != b[t]:
-            return False
-    return True
-
-
-@nb.njit(cache=True, nogil=True)
-def commit(base, pidx, best_x, owned_loss, owns_all, frame_loss, committed):
+def commit(base, pidx, best_x, owned_loss, owns_all: bool, frame_loss, committed) -> None:
     """Fix each frame's stage best into ``base``; a stage owning every point replaces the
     stages before only where it is better."""
-    for f in range(base.shape[0]):
-        if owns_all:
-            if owned_loss[f] >= frame_loss[f]:
-                continue
-            committed[f] = 0.0
-        for k in range(pidx.shape[0]):
-            base[f, pidx[k]] = best_x[f, k]
-        committed[f] += owned_loss[f]
-        frame_loss[f] = committed[f]
+    take = ~(owned_loss >= frame_loss) if owns_all else np.ones(len(base), dtype=bool)
+    if owns_all:
+        committed[take] = 0.0
+    base[np.ix_(take, pidx)] = best_x[take]
+    committed[take] += owned_loss[take]
+    frame_loss[take] = committed[take]
 
 
 def run_schedule(lay: "Layout", scorer, x0, lower, upper, keys, out_params, out_loss, out_used,
@@ -131,12 +100,9 @@ def run_schedule(lay: "Layout", scorer, x0, lower, upper, keys, out_params, out_
     committed = np.zeros(F)
     out_used[:] = 0
     objective = getattr(scorer, "objective", None)
-    for s, (name, optimizer, steps, settings) in enumerate(lay.runs):
-        budget, n = int(lay.stages[s, BUDGET]), int(lay.stages[s, BATCH])
-        pidx = lay.indices[lay.stages[s, PARAMS]:lay.stages[s, PARAMS + 1]]
-        subset = lay.indices[lay.stages[s, POINTS]:lay.stages[s, POINTS + 1]]
-        owned = lay.indices[lay.stages[s, OWNED]:lay.stages[s, OWNED + 1]]
-        lo, hi, start = stage_box(base, lower, upper, pidx)
+    for s, (name, optimizer, steps, settings, budget, n, pidx, subset, owned, owns_all) in enumerate(lay.stages):
+        lo, hi = lower[:, pidx], upper[:, pidx]
+        start = np.minimum(np.maximum(base[:, pidx], lo), hi)
         stage = scorer.prepare(base, pidx, subset, owned, n)
         best_loss = np.full(F, np.inf)
         best_x = start.copy()
@@ -173,12 +139,12 @@ def run_schedule(lay: "Layout", scorer, x0, lower, upper, keys, out_params, out_
             best_x[0], best_loss[0] = task.best_x, task.best_loss
             out_used[0] += task.used
         owned_loss = best_loss
-        if not same_points(subset, owned):  # a guided stage: its best over the points it owns
+        if not np.array_equal(subset, owned):  # a guided stage: its best over the points it owns
             again = np.empty((F, 1))
             scorer.score(stage, best_x.reshape((F, 1, len(pidx))), owned, again)
             require_finite(again, objective)
             owned_loss = again[:, 0].copy()
-        commit(base, pidx, best_x, owned_loss, lay.stages[s, OWNS_ALL] == 1, frame_loss, committed)
+        commit(base, pidx, best_x, owned_loss, owns_all, frame_loss, committed)
     out_params[:] = base
     out_loss[:] = frame_loss
 
@@ -207,38 +173,46 @@ def _require(a, dtype) -> np.ndarray:
     return np.require(a, dtype=dtype, requirements=["C", "W"])
 
 
+class StageRun(NamedTuple):
+    """One stage as the driver runs it: who runs it (its batch steps, or None for a callback
+    solver, and their settings (c,) float64), its budget, rows per ask, and its parameter,
+    point and owned point indices (int64); ``owns_all``: it owns every point (a refinement)."""
+
+    name: str
+    optimizer: object
+    steps: BatchSteps | None
+    settings: np.ndarray
+    budget: int
+    batch: int
+    parameters: np.ndarray
+    points: np.ndarray
+    owned: np.ndarray
+    owns_all: bool
+
+
 @dataclass(frozen=True)
 class Layout:
-    """A schedule as the driver reads it: ``stages`` (S, 9) rows (budget, rows per ask, owns
-    every point, and [lo, hi) ranges of ``indices`` for the parameters, points and owned
-    points) and ``runs`` (S,): each stage's (name, optimizer, its batch steps or None for a
-    callback solver, its settings (c,) float64)."""
+    """A frame's schedule as the driver runs it: its :class:`StageRun` s."""
 
-    stages: np.ndarray
-    indices: np.ndarray
-    runs: tuple
+    stages: tuple[StageRun, ...]
 
     @property
     def lockstep(self) -> bool:
         """Whether every stage has batch steps (frames of this layout run together)."""
-        return all(steps is not None for _, _, steps, _ in self.runs)
+        return all(st.steps is not None for st in self.stages)
 
 
 def layout(plan: list[StagePlan], n_points: int) -> Layout:
     """Lay out a frame's stages (see :class:`Layout`)."""
-    rows, parts, runs, at = [], [], [], 0
+    stages = []
     for st in plan:
         steps, budget = steps_of(st.optimizer), int(st.budget)
         n, values = st.optimizer.batch_settings(budget) if steps is not None else (CALLBACK_BATCH, ())
-        row = [budget, max(1, min(int(n), budget)), int(len(st.owned) == n_points)]
-        for idx in (st.parameters, st.points, st.owned):
-            parts.append(np.asarray(idx, dtype=np.int64))
-            row += [at, at + len(idx)]
-            at += len(idx)
-        rows.append(row)
-        runs.append((st.name, st.optimizer, steps, _require(np.asarray(values, dtype=np.float64), np.float64)))
-    return Layout(_require(np.array(rows, dtype=np.int64).reshape(-1, 9), np.int64),
-                  _require(np.concatenate(parts), np.int64), tuple(runs))
+        settings = _require(np.asarray(values, dtype=np.float64), np.float64)
+        indices = (_require(np.asarray(i, dtype=np.int64), np.int64) for i in (st.parameters, st.points, st.owned))
+        stages.append(StageRun(st.name, st.optimizer, steps, settings, budget, max(1, min(int(n), budget)), *indices,
+                               len(st.owned) == n_points))
+    return Layout(tuple(stages))
 
 
 def plan_of(optimizer, task: Task) -> list[StagePlan]:
@@ -267,30 +241,24 @@ def _planner(optimizer) -> bool:
     return steps_of(optimizer) is None and plan is not minimize and issubclass(plan, minimize)
 
 
-def _batched_layout(optimizer, task: Task) -> Layout | None:
-    """The layout of the optimiser's schedule of the task when every stage runs in lockstep
-    (batch steps: :attr:`Layout.lockstep`), else None."""
-    found = layout(plan_of(optimizer, task), len(task.problem.point_names))
-    return found if found.lockstep else None
-
-
 def batched_layout(model, objective, optimizer, problem: Problem | None, budget: int) -> Layout | None:
     """The layout of one frame's ``problem`` (None when no frame can be fitted) when the
     driver runs these plugins in lockstep over many frames (batch steps throughout and an
     objective that is a sum over points, without depth), else None."""
     if problem is None or getattr(objective, "observes_depth", False) or not getattr(objective, "additive", True):
         return None
-    return _batched_layout(optimizer, Task(problem, budget))
+    found = layout(plan_of(optimizer, Task(problem, budget)), len(problem.point_names))
+    return found if found.lockstep else None
 
 
 @dataclass
 class Chunk:
-    """Frames prepared for :meth:`Driver.run`: their indices, the errors of those that cannot
-    be fitted, and for the others (positions ``kept`` in ``frames``) layouts, proposals,
+    """Frames prepared for :meth:`Driver.run`: their indices, the errors {frame: message} of
+    those that cannot be fitted, and for the others (positions ``kept`` in ``frames``) layouts, proposals,
     weights, initial guesses, search boxes and depth observations (None: none)."""
 
     frames: list
-    errors: list
+    errors: dict
     layouts: list
     kept: list
     proposals: np.ndarray
@@ -304,8 +272,8 @@ class Chunk:
 @dataclass
 class Fitted:
     """A chunk's fits: of the frames ``fitted`` (n,) params (n, P), points (n, Q, 3) mm, joints
-    (n, J, 3) mm, loss (n,) and evaluations (n,); ``errors`` (frame, None, message) of the frames
-    whose input cannot be fitted; ``frames``: all of them, in order."""
+    (n, J, 3) mm, loss (n,) and evaluations (n,); ``errors`` {frame: message} of the frames
+    that could not be fitted; ``frames``: all of them, in order."""
 
     frames: list
     fitted: list
@@ -314,21 +282,10 @@ class Fitted:
     joints: np.ndarray
     loss: np.ndarray
     evaluations: np.ndarray
-    errors: list
+    errors: dict
 
     def __len__(self) -> int:
         return len(self.frames)
-
-    def items(self) -> list:
-        """:meth:`Driver.finish`'s list, in the frames' order."""
-        out = list(self.errors) + [
-            (f, (p, q, j, loss, used), None)
-            for f, p, q, j, loss, used in zip(self.fitted, self.params, self.points, self.joints, self.loss.tolist(),
-                                              self.evaluations.tolist())]
-        if self.errors:
-            order = {f: n for n, f in enumerate(self.frames)}
-            out.sort(key=lambda item: order[item[0]])
-        return out
 
 
 class Driver:
@@ -363,22 +320,13 @@ class Driver:
                          and point_loss_of(objective) else None)
         self._layouts: dict[bytes, Layout] = {}
 
-    def layout(self, observed: np.ndarray, proposals: np.ndarray, confidences: np.ndarray,
-               observation=None) -> Layout:
-        """The laid-out stages of a frame whose points ``observed`` (Q,) bool have proposals. A
-        schedule adapts to a frame only through which of its points have proposals, so it is
-        computed once per set of observed points."""
-        key = observed.tobytes()
+    def layout(self, problem: Problem) -> Layout:
+        """The laid-out stages of a frame's ``problem``. A schedule adapts to a frame only through
+        which of its points have proposals, so it is computed once per set of observed points."""
+        key = (problem.weights.sum(axis=-1) > 0).tobytes()
         if key not in self._layouts:
-            problem = Problem(self.model, self.objective, proposals, confidences, self.names, self.search_radius_mm,
-                              observation)
             self._layouts[key] = layout(plan_of(self.optimizer, Task(problem, self.budget)), len(self.names))
         return self._layouts[key]
-
-    def add_layout(self, problem: Problem, found: Layout) -> None:
-        """Take ``found``, the layout of one frame's ``problem``, as :meth:`layout`'s for every
-        frame with the same observed points, instead of planning it again."""
-        self._layouts[(problem.weights.sum(axis=-1) > 0).tobytes()] = found
 
     def prepare(self, frames, proposals: np.ndarray, confidences: np.ndarray, observations=None,
                 x0: np.ndarray | None = None) -> Chunk:
@@ -389,32 +337,32 @@ class Driver:
         frames = list(frames)
         weights, guess, lower, upper, failed = prepare_frames(self.model, self.objective, proposals, confidences,
                                                               self.names, self.search_radius_mm, x0)
-        errors, layouts, kept = [], [], []
+        errors, layouts, kept = {}, [], []
         observed = weights.sum(axis=-1) > 0
         for i, f in enumerate(frames):
-            if i in failed:
-                errors.append((f, None, failed[i]))
-                continue
             obs = None if observations is None else observations[i]
-            if self.observed and obs is None:
-                errors.append((f, None, f"objective {_name(self.objective)} compares hypotheses with the depth "
-                                        f"image, and this frame has none"))
-                continue
+            key = observed[i].tobytes()
             try:
-                layouts.append(self.layout(observed[i], proposals[i], confidences[i], obs))
+                if i in failed:
+                    raise HybridfitError(failed[i])
+                if self.observed and obs is None:
+                    raise HybridfitError(f"objective {_name(self.objective)} compares hypotheses with the depth image, "
+                                         f"and this frame has none")
+                layouts.append(self._layouts[key] if key in self._layouts else self.layout(
+                    Problem(self.model, self.objective, proposals[i], confidences[i], self.names,
+                            self.search_radius_mm, obs)))
             except HybridfitError as err:
-                errors.append((f, None, str(err)))
+                errors[f] = str(err)
                 continue
             kept.append(i)
         rows = slice(None) if len(kept) == len(frames) else kept  # all kept: the arrays themselves, not copies
         return Chunk(frames, errors, layouts, kept, proposals[rows], weights[rows], guess[rows], lower[rows],
                      upper[rows], None if observations is None else [observations[i] for i in kept])
 
-    def run(self, chunk: Chunk, threads: int = 1):
+    def run(self, chunk: Chunk):
         """(params (F, P), loss (F,), evaluations (F,), errors {position: message}) of the chunk's
-        fittable frames; frames of one lockstep layout run together, split over ``threads``
-        threads (the numba parts release the GIL); the others one by one, a frame whose
-        callback solver meets a user error recorded in ``errors``."""
+        fittable frames; frames of one lockstep layout run together, the others one by one, a
+        frame whose callback solver meets a user error recorded in ``errors``."""
         F, P = len(chunk.kept), self.model.n_params
         params, loss = np.full((F, P), np.nan), np.full(F, np.nan)
         evaluations = np.zeros(F, dtype=np.int64)
@@ -423,31 +371,17 @@ class Driver:
         for n, lay in enumerate(chunk.layouts):
             groups.setdefault(id(lay) if lay.lockstep else -1 - n, []).append(n)
         for members in groups.values():
-            lay = chunk.layouts[members[0]]
-            idx = np.asarray(members)
-            frames = [chunk.frames[chunk.kept[n]] for n in members]
-            keys = stage_keys(self.seed, frames, len(lay.stages))
-            parts = np.array_split(np.arange(len(idx)), max(1, min(threads, len(idx))))
-
-            def one(part, lay=lay, idx=idx, keys=keys):
-                sel = idx[part]
-                out = np.empty((len(sel), P)), np.empty(len(sel)), np.empty(len(sel), dtype=np.int64)
-                self._run_group(lay, chunk, sel, keys[part], *out)
-                return out
-
+            lay, sel = chunk.layouts[members[0]], np.asarray(members)
+            keys = stage_keys(self.seed, [chunk.frames[chunk.kept[n]] for n in members], len(lay.stages))
+            out = np.empty((len(sel), P)), np.empty(len(sel)), np.empty(len(sel), dtype=np.int64)
             try:
-                if len(parts) == 1:
-                    fitted = [one(parts[0])]
-                else:
-                    with ThreadPoolExecutor(max_workers=len(parts)) as pool:
-                        fitted = list(pool.map(one, parts))
+                self._run_group(lay, chunk, sel, keys, *out)
             except HybridfitError as err:
                 if lay.lockstep:
                     raise
-                failed[int(idx[0])] = str(err)  # a callback solver's group of one frame
+                failed[int(sel[0])] = str(err)  # a callback solver's group of one frame
                 continue
-            for part, (p_, l_, u_) in zip(parts, fitted):
-                params[idx[part]], loss[idx[part]], evaluations[idx[part]] = p_, l_, u_
+            params[sel], loss[sel], evaluations[sel] = out
         return params, loss, evaluations, failed
 
     def _scorer(self, chunk: Chunk, sel, proposals, weights):
@@ -497,16 +431,10 @@ class Driver:
             raise kind(f"{where}: {type(err).__name__} while fitting with model {_name(self.model)}, objective "
                        f"{_name(self.objective)}, optimizer {_name(self.optimizer)}: {err}") from err
 
-    def finish(self, chunk: Chunk, fitted) -> list:
-        """A list of (frame, (params (P,), points (Q, 3), joints (J, 3), loss, evaluations),
-        None), or (frame, None, message) for a frame that could not be fitted, in the chunk's
-        frame order."""
-        return self.fitted(chunk, fitted).items()
-
-    def fitted(self, chunk: Chunk, fitted) -> "Fitted":
+    def fitted(self, chunk: Chunk, fitted) -> Fitted:
         """The chunk's fits (``fitted``: :meth:`run`'s result) as arrays (:class:`Fitted`)."""
         params, loss, used, failed = fitted
-        errors = list(chunk.errors) + [(chunk.frames[chunk.kept[n]], None, message) for n, message in failed.items()]
+        errors = {**chunk.errors, **{chunk.frames[chunk.kept[n]]: message for n, message in failed.items()}}
         ok = [n for n in range(len(chunk.kept)) if n not in failed]
         if failed:
             params, loss, used = params[ok], loss[ok], used[ok]
@@ -515,11 +443,11 @@ class Driver:
         return Fitted(chunk.frames, [chunk.frames[chunk.kept[n]] for n in ok], params, points, joints, loss, used,
                       errors)
 
-    def fit_chunk(self, frames, proposals: np.ndarray, confidences: np.ndarray, threads: int = 1,
-                  observations=None, x0=None) -> list:
-        """Fit frames with proposals (F, Q, K, 3) mm and confidences (F, Q, K) (see :meth:`finish`)."""
+    def fit_chunk(self, frames, proposals: np.ndarray, confidences: np.ndarray, observations=None,
+                  x0=None) -> Fitted:
+        """Fit frames with proposals (F, Q, K, 3) mm and confidences (F, Q, K) (:meth:`prepare`, :meth:`run`)."""
         chunk = self.prepare(frames, proposals, confidences, observations, x0)
-        return self.finish(chunk, self.run(chunk, threads))
+        return self.fitted(chunk, self.run(chunk))
 
     def fit_chunks(self, chunks, proposals: np.ndarray, confidences: np.ndarray, jobs: int = 1, observations=None):
         """Yield each chunk's :class:`Fitted` (:meth:`fit_chunk`'s result as arrays), in order. With
@@ -571,9 +499,9 @@ def run_problem(optimizer, problem: Problem, budget: int, seed: int | np.random.
     fitter._problem_of = lambda chunk, sel: (lambda f: problem)  # a callback solver's Task holds this problem
     if record is not None:
         fitter._scorer = _recording(fitter._scorer, record)
-    lay = fitter.layout(problem.weights.sum(axis=-1) > 0, problem.proposals, problem.weights, problem.observation)
+    lay = fitter.layout(problem)
     observations = None if problem.observation is None else [problem.observation]
-    chunk = Chunk([frame], [], [lay], [0], problem.proposals[None], problem.weights[None], problem.x0[None],
+    chunk = Chunk([frame], {}, [lay], [0], problem.proposals[None], problem.weights[None], problem.x0[None],
                   problem.lower[None], problem.upper[None], observations)
     params, loss, used, failed = fitter.run(chunk)
     if failed:

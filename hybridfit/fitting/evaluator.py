@@ -90,12 +90,15 @@ def joints_are_points(tree, point_map) -> bool:
 
 
 class _Stages:
-    """A scorer's stage set-up on a kinematic tree: :func:`block_setup` in one working buffer
-    kept for all its stages (a fresh one each stage costs page faults)."""
+    """A scorer's kinematic ``tree`` (None: none) and ``point_map``, and its stage set-up:
+    :func:`block_setup` in one working buffer kept for all its stages (a fresh one each stage
+    costs page faults)."""
 
-    tree = point_map = _work = None
+    def __init__(self, tree, point_map) -> None:
+        self.tree, self.point_map, self._work = tree, point_map, None
+        self.identity = tree is not None and joints_are_points(tree, point_map)
 
-    def _setup(self, base, pidx, subset, owned, n):
+    def prepare(self, base, pidx, subset, owned, n):
         ints, floats = block_setup(*self.tree, *self.point_map, base, pidx, subset, owned, n, self._work)
         if self._work is None or floats.shape[0] > self._work.shape[0]:
             self._work = floats
@@ -109,12 +112,8 @@ class PointScorer(_Stages):
     objective's :class:`CompiledLoss`; proposals (F, Q, K, 3) mm, weights (F, Q, K)."""
 
     def __init__(self, tree, point_map, compiled: CompiledLoss, proposals, weights, objective=None) -> None:
-        self.tree, self.point_map, self.compiled = tree, point_map, compiled
-        self.proposals, self.weights, self.objective = proposals, weights, objective
-        self.identity = joints_are_points(tree, point_map)
-
-    def prepare(self, base, pidx, subset, owned, n):
-        return self._setup(base, pidx, subset, owned, n)
+        super().__init__(tree, point_map)
+        self.compiled, self.proposals, self.weights, self.objective = compiled, proposals, weights, objective
 
     def score(self, stage, X, subset, losses):
         self.compiled.score_blocks(self.compiled.constants, self.proposals, self.weights, *self.tree, *self.point_map,
@@ -149,16 +148,14 @@ class BoundScorer(_Stages):
     the kinematics compute them. ``objective`` is named in errors."""
 
     def __init__(self, model, tree, point_map, point_matrix, losses, observed: bool = False, objective=None) -> None:
+        super().__init__(None if observed else tree, point_map)
         self.model, self.point_matrix, self.losses = model, point_matrix, losses
         self.observed, self.objective = observed, objective
-        self.tree = None if observed else tree
-        self.point_map = point_map
-        self.identity = self.tree is not None and joints_are_points(tree, point_map)
 
     def prepare(self, base, pidx, subset, owned, n):
         if self.tree is None:
             return base.copy(), pidx
-        return (*self._setup(base, pidx, subset, owned, n),
+        return (*super().prepare(base, pidx, subset, owned, n),
                 np.zeros((len(base), len(self.point_map[0]) - 1, 3, max(n, 1))))
 
     def _points(self, stage, X, subset):

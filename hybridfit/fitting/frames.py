@@ -20,7 +20,6 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
-import numba as nb
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -169,8 +168,7 @@ def check_scale(model, proposals: np.ndarray, confidences: np.ndarray, names: Se
     """Warn when the proposals' spread (median distance of the top proposals from their
     centre, frames with proposals only) is more than 8x off the model's: proposals in
     metres or centimetres, say, not millimetres."""
-    spread = proposal_spread(np.ascontiguousarray(proposals, dtype=np.float64),
-                             np.ascontiguousarray(confidences, dtype=np.float64))
+    spread = proposal_spread(proposals, confidences)
     if np.isnan(spread):  # no frame has proposals
         return
     hand = structure_of(model, names).spread_mm
@@ -179,51 +177,17 @@ def check_scale(model, proposals: np.ndarray, confidences: np.ndarray, names: Se
                       f"{len(names)} points over {hand:.3g} mm: are the proposals in millimetres?", stacklevel=3)
 
 
-@nb.njit(cache=True, nogil=True)
-def proposal_spread(proposals, confidences):
+def proposal_spread(proposals: np.ndarray, confidences: np.ndarray) -> float:
     """The median over frames with proposals (a positive confidence) and their points of the
     distance of each point's most confident proposal from the frame's centre (the median of
     those proposals, per coordinate); proposals (F, Q, K, 3) mm, confidences (F, Q, K). NaN
     when no frame has proposals."""
-    F, Q, K = confidences.shape
-    dist = np.empty(F * Q)
-    top = np.empty((3, Q))
-    centre, work = np.empty(3), np.empty(Q)
-    n = 0
-    for f in range(F):
-        used = False
-        for q in range(Q):
-            best = 0
-            for k in range(K):  # the first most confident, as np.argmax
-                used = used or confidences[f, q, k] > 0
-                if confidences[f, q, k] > confidences[f, q, best]:
-                    best = k
-            for c in range(3):
-                top[c, q] = proposals[f, q, best, c]
-        if not used:
-            continue
-        for c in range(3):
-            work[:] = top[c]
-            centre[c] = small_median(work)
-        for q in range(Q):
-            dx, dy, dz = top[0, q] - centre[0], top[1, q] - centre[1], top[2, q] - centre[2]
-            dist[n] = np.sqrt(dx * dx + dy * dy + dz * dz)
-            n += 1
-    return np.median(dist[:n]) if n else np.nan
-
-
-@nb.njit(cache=True, nogil=True)
-def small_median(values):
-    """The median of a few values (n >= 1, sorted in place by insertion), as np.median
-    computes it (the mean of the two middle values for an even n)."""
-    n = values.shape[0]
-    for i in range(1, n):
-        v, j = values[i], i - 1
-        while j >= 0 and values[j] > v:
-            values[j + 1] = values[j]
-            j -= 1
-        values[j + 1] = v
-    return (values[(n - 1) // 2] + values[n // 2]) / 2.0
+    used = (confidences > 0).any(axis=(1, 2))
+    if not used.any():
+        return float("nan")
+    best = np.argmax(confidences[used], axis=-1)[..., None, None]
+    top = np.take_along_axis(proposals[used], best, axis=2)[:, :, 0]  # (F', Q, 3)
+    return float(np.median(np.linalg.norm(top - np.median(top, axis=1, keepdims=True), axis=-1)))
 
 
 def fit(
@@ -296,29 +260,18 @@ def fit(
     )
     done = np.zeros(F, dtype=bool)
 
-    def store(items):
-        if isinstance(items, driver.Fitted):  # the driver's fits, as arrays
-            rows = np.asarray(items.fitted, dtype=np.int64)
-            (result.params[rows], result.joints[rows], result.model_joints[rows], result.objective[rows],
-             result.evaluations[rows]) = items.params, items.points, items.joints, items.loss, items.evaluations
-            result.failed[rows] = False
-            done[rows] = True
-            items = items.errors
-        for f, values, error in items:
-            done[f] = True
-            if error is not None:
-                result.errors[f] = error
-                continue
-            (result.params[f], result.joints[f], result.model_joints[f], result.objective[f],
-             result.evaluations[f]) = values
-            result.failed[f] = False
+    def store(fitted: driver.Fitted):
+        rows = np.asarray(fitted.fitted, dtype=np.int64)
+        (result.params[rows], result.joints[rows], result.model_joints[rows], result.objective[rows],
+         result.evaluations[rows]) = fitted.params, fitted.points, fitted.joints, fitted.loss, fitted.evaluations
+        result.failed[rows] = False
+        result.errors.update(fitted.errors)
+        done[fitted.frames] = True
 
     # schedules of batch steps run chunks of frames in lockstep, on threads with jobs > 1; others
     # (callback solvers, depth objectives) frame by frame, in worker processes with jobs > 1
     found = None if observations is not None else driver.batched_layout(model, objective, optimizer, problem, budget)
     fitter = driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm, polish)
-    if found is not None:
-        fitter.add_layout(problem, found)  # the first frame's plan, made once
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
         with stops.deferred():  # a stop signal is raised between chunks or frames, never inside compiled code

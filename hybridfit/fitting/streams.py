@@ -1,16 +1,12 @@
 """Counter-based random numbers: number c of the stream with key k is a pure function of (k, c).
 
-The keys are :mod:`hybridfit.keys`' (stage s of frame f of a fit with seed ``seed`` draws from
-``stage_key(seed, f, s)``), so a frame's numbers depend on nothing but (seed, frame, stage):
-not on the frames fitted beside it, the chunking or ``--jobs``. Numbers come in pairs:
-numbers 2p and 2p + 1 of stream k are the two 32-bit halves of ``mix(k, p)`` (one hash
-serves two numbers); optimisers compute them inside their (compiled or numpy) steps, in any
-order and without a buffer.
-
-Uniform numbers are exact multiples of 2^-32 in [0, 1) computed with integer operations
-only, so they are identical wherever the function is inlined. Standard normal numbers 2p and
-2p + 1 are the Box-Muller pair (cosine, sine) of the two halves of pair p of a second
-stream of the same key.
+Keys are :mod:`hybridfit.keys`' (``stage_key(seed, f, s)`` for stage s of frame f), so a frame's
+numbers depend only on (seed, frame, stage), not on the frames fitted beside it, the chunking or
+``--jobs``. Numbers 2p and 2p + 1 of stream k are the two 32-bit halves of ``mix(k, p)`` (one hash
+serves two numbers): optimisers compute them inside their (compiled or numpy) steps, in any order
+and without a buffer. Uniform numbers are exact multiples of 2^-32 in [0, 1) (integer operations
+only: identical wherever inlined); normal numbers 2p and 2p + 1 are the Box-Muller pair (cosine,
+sine) of the two halves of pair p of a second stream of the same key.
 """
 
 from __future__ import annotations
@@ -25,8 +21,6 @@ from ..model.kinematics import sincos1
 
 _NORMAL_SALT = np.uint64(0xD1B54A32D192ED03)
 _TWO_PI = 6.283185307179586
-
-
 _S32 = np.uint64(32)
 _LOW = np.uint64(0xFFFFFFFF)
 _TWO_M32 = 2.3283064365386963e-10  # 2^-32
@@ -82,6 +76,19 @@ def _fill(pair, key, start, out):
         out[n - 1] = pair(key, (start + n - 1) >> 1)[0]
 
 
+@nb.njit(cache=True)
+def fill_uniform(key, start, out):
+    """out (n,) = uniform numbers start, start + 1, ... of stream ``key`` (one hash per pair)."""
+    _fill(uniform_pair, key, start, out)
+
+
+@nb.njit(cache=True)
+def fill_normal(key, start, out):
+    """out (n,) = standard normal numbers start, start + 1, ... of stream ``key`` (one
+    Box-Muller pair per two numbers)."""
+    _fill(normal_pair, key, start, out)
+
+
 @nb.njit(cache=True, inline="always")
 def _fill_frames_last(pair, keys, start, out):
     """out (n, F): column f = numbers start, start + 1, ... of stream ``keys[f]``, as
@@ -104,40 +111,19 @@ def _fill_frames_last(pair, keys, start, out):
 
 
 @nb.njit(cache=True)
-def fill_uniform(key, start, out):
-    """out (n,) = uniform numbers start, start + 1, ... of stream ``key`` (one hash per pair)."""
-    _fill(uniform_pair, key, start, out)
-
-
-@nb.njit(cache=True)
-def fill_normal(key, start, out):
-    """out (n,) = standard normal numbers start, start + 1, ... of stream ``key`` (one
-    Box-Muller pair per two numbers)."""
-    _fill(normal_pair, key, start, out)
-
-
-@nb.njit(cache=True)
-def _uniforms(keys, start, out):
-    F = keys.shape[0]
-    for f in range(F):
-        fill_uniform(keys[f], start, out[f])
-
-
-@nb.njit(cache=True)
-def _normals(keys, start, out):
-    F = keys.shape[0]
-    for f in range(F):
-        fill_normal(keys[f], start, out[f])
-
-
-@nb.njit(cache=True)
-def _uniforms_last(keys, start, out):
-    _fill_frames_last(uniform_pair, keys, start, out)
-
-
-@nb.njit(cache=True)
-def _normals_last(keys, start, out):
-    _fill_frames_last(normal_pair, keys, start, out)
+def _fill_frames(gaussian, frames_last, keys, start, out):
+    """out (F, n), or with ``frames_last`` (n, F): frame f's normal (``gaussian``) or uniform
+    numbers start, start + 1, ... of stream ``keys[f]``."""
+    if not frames_last:
+        for f in range(keys.shape[0]):
+            if gaussian:
+                fill_normal(keys[f], start, out[f])
+            else:
+                fill_uniform(keys[f], start, out[f])
+    elif gaussian:
+        _fill_frames_last(normal_pair, keys, start, out)
+    else:
+        _fill_frames_last(uniform_pair, keys, start, out)
 
 
 def uniforms(keys: np.ndarray, start: int, shape, frames_last: bool = False,
@@ -148,16 +134,16 @@ def uniforms(keys: np.ndarray, start: int, shape, frames_last: bool = False,
     C-contiguous float64 array of that shape to draw them into (and return), so that an optimiser
     that draws every generation reuses one buffer (a fresh large array per call costs page
     faults); ValueError for any other."""
-    return _draw(_uniforms_last if frames_last else _uniforms, keys, start, shape, frames_last, out)
+    return _draw(False, keys, start, shape, frames_last, out)
 
 
 def normals(keys: np.ndarray, start: int, shape, frames_last: bool = False,
             out: np.ndarray | None = None) -> np.ndarray:
     """(F, *shape) standard normal numbers, as :func:`uniforms`."""
-    return _draw(_normals_last if frames_last else _normals, keys, start, shape, frames_last, out)
+    return _draw(True, keys, start, shape, frames_last, out)
 
 
-def _draw(fill, keys, start, shape, frames_last, out):
+def _draw(gaussian, keys, start, shape, frames_last, out):
     keys = np.ascontiguousarray(keys, dtype=np.uint64)
     shape = tuple(int(s) for s in shape)
     size, F = math.prod(shape), len(keys)
@@ -167,5 +153,5 @@ def _draw(fill, keys, start, shape, frames_last, out):
     elif out.shape != full or out.dtype != np.float64 or not out.flags.c_contiguous or not out.flags.writeable:
         raise ValueError(f"out must be a writable C-contiguous float64 array of shape {full}, got "
                          f"{out.dtype} {out.shape}")
-    fill(keys, int(start), out.reshape((size, F) if frames_last else (F, size)))
+    _fill_frames(gaussian, frames_last, keys, int(start), out.reshape((size, F) if frames_last else (F, size)))
     return out

@@ -2,7 +2,7 @@
 
 Frame t's initial guess (the centre of the optimiser's search) is frame t-1's fitted
 parameters; frame 0 starts from ``first_params`` (the paper's FORTH set-up: the ground
-truth) or, without them, from its proposals (``hybridfit.problem.initial_guess``). Frame
+truth) or, without them, from its proposals (``hybridfit.alignment.initial_guess``). Frame
 t draws as frame t of ``hybridfit.fit`` does, through the same driver with its start given;
 frames depend on each other, so a sequence runs in one process.
 
@@ -122,14 +122,15 @@ def track(
     try:
         for t in tqdm(range(F), disable=not progress, unit="frame", desc="track"):
             result.started_from_proposals[t] = start is None
-            ((_, values, error),) = fitter.fit_chunk([t], proposals[t:t + 1], confidences[t:t + 1],
-                                                     observations=None if observations is None else [observations[t]],
-                                                     x0=None if start is None else start[None])
-            if error is not None:  # this frame cannot be fitted: recorded, tracking goes on
-                result.errors[t] = error
+            fitted = fitter.fit_chunk([t], proposals[t:t + 1], confidences[t:t + 1],
+                                      observations=None if observations is None else [observations[t]],
+                                      x0=None if start is None else start[None])
+            if fitted.errors:  # this frame cannot be fitted: recorded, tracking goes on
+                result.errors[t] = fitted.errors[t]
                 continue
-            params, result.joints[t], result.model_joints[t], result.objective[t], result.evaluations[t] = values
-            result.params[t] = params
+            params = fitted.params[0]
+            result.params[t], result.joints[t], result.model_joints[t] = params, fitted.points[0], fitted.joints[0]
+            result.objective[t], result.evaluations[t] = fitted.loss[0], fitted.evaluations[0]
             result.failed[t] = False
             result.lost[t] = nearest_proposal_distance(result.joints[t], proposals[t], confidences[t]) > \
                 settings.lost_distance_mm

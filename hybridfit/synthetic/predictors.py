@@ -38,7 +38,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..problem import point_depths
+from ..stages import point_depths
 
 #: log-normal scale mixture per frame and point: sd of the log scale (0: Gaussian errors)
 TAIL_SD = 0.75

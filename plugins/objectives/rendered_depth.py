@@ -20,9 +20,9 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field
 
+from hybridfit.model.render import HandSurface, build_primitives, depth_discrepancy_kernel, pixel_rays
 from hybridfit.objective import Objective, Observation
 from hybridfit.plugin import Settings
-from hybridfit.model.render import HandSurface, build_primitives, depth_discrepancy_kernel, pixel_rays
 
 
 class RenderedDepthSettings(Settings):
@@ -56,9 +56,8 @@ class DepthView:
 
 
 class RenderedDepth(Objective):
-    """FORTH's rendered-depth discrepancy: clamped depth difference + silhouette term (mm).
-
-    The loss lies in [0, d_max_mm + silhouette_weight_mm]."""
+    """FORTH's rendered-depth discrepancy: clamped depth difference + silhouette term (mm), in
+    [0, d_max_mm + silhouette_weight_mm]."""
 
     Settings = RenderedDepthSettings
     observes_depth = True

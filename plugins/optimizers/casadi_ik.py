@@ -1,42 +1,33 @@
 """``casadi-ik``: gradient-based inverse kinematics with CasADi and IPOPT.
 
-The model's forward kinematics are built symbolically from its own kinematic description
-(``model.kinematic_tree()``, see :mod:`hybridfit.model.casadi`), for the task's free
-parameters only (the others frozen at ``task.base``), scaled to the unit cube. IPOPT
-(limited-memory BFGS Hessian, the box as bounds) minimises the task's own objective when
-that objective offers CasADi symbols: a method ``casadi_loss(points, proposals, weights,
-subset)`` returning its loss as a CasADi scalar for ``points`` a (Q, 3) CasADi matrix of the
-problem's points, summed over the point indices ``subset``. Otherwise it minimises a
-surrogate, and says so (a warning naming the objective and the surrogate; see
-:func:`optimised_loss`): the negative log-likelihood of each of the task's points under a
-Gaussian mixture of its proposals (standard deviation ``sigma_mm``, the confidences as
-mixture weights; the ``gaussian-mixture`` objective up to a constant). Either way it adds
-``(|q|^2 - 1)^2`` when the quaternion is free (the model normalises it, so its length is
-otherwise undetermined), and every hypothesis is scored, and the best one kept, by the
-task's own objective.
+The forward kinematics of the task's free parameters (the others frozen at ``task.base``),
+scaled to the unit cube, are built symbolically from ``model.kinematic_tree()`` (see
+:mod:`hybridfit.model.casadi`). IPOPT (limited-memory BFGS Hessian, the box as bounds)
+minimises the task's own objective when it offers ``casadi_loss(points, proposals, weights,
+subset)``: its loss as a CasADi scalar for ``points`` a (Q, 3) CasADi matrix of the problem's
+points, summed over the point indices ``subset``. Otherwise it minimises a surrogate, with a
+warning (:func:`optimised_loss`): the negative log-likelihood of each point under a Gaussian
+mixture of its proposals (standard deviation ``sigma_mm``, confidences as weights; the
+``gaussian-mixture`` objective up to a constant). Either way it adds ``(|q|^2 - 1)^2`` when the
+quaternion is free (the model normalises it), and every hypothesis is scored, and the best
+kept, by the task's own objective.
 
-It starts from the best of ``candidates`` cheap hypotheses (the initial guess and
-perturbations of it, evaluated as one batch), and restarts from the best point so far
-plus noise while budget is left.
+It starts from the best of ``candidates`` hypotheses (the initial guess and perturbations of
+it, one batch) and restarts from the best point so far plus noise while budget is left.
 
-Evaluation accounting (every evaluation goes through ``task.evaluate``, the core's one
-counter): IPOPT's objective and gradient calls are computed once per distinct point
-(repeated requests at the same point are served from a cache). Each objective value at a
-new point costs 1 evaluation: the task's own objective is evaluated at that point, so the
-task's best hypothesis and loss are always real ones. Each gradient costs
-``gradient_cost`` more evaluations, charged as evaluations of the same point. The default,
-2, is meant to be conservative: reverse-mode differentiation costs a small multiple of the
-function (at most about 4, Griewank's cheap-gradient bound); what a gradient costs on
-hand26 is on the docs' results page, section "casadi-ik's gradient cost". An IPOPT
-iteration callback stops the solver while the evaluations left still cover an iteration;
-a request that would overrun the budget anyway is answered without computing (and
-without charge) and ends the run. So the reported evaluations are exact and never exceed
-the budget.
+Accounting (every evaluation goes through ``task.evaluate``): an objective value at a new
+point costs 1 evaluation (the task's objective at that point), a gradient ``gradient_cost``
+more, charged as evaluations of the same point; repeated requests at a point are cached. The
+default, 2, is conservative: reverse mode costs at most about 4 functions (Griewank's bound);
+the docs' results page, section "casadi-ik's gradient cost", measures it on hand26. An
+iteration callback stops IPOPT while the evaluations left still cover an iteration; a request
+that would overrun the budget anyway is answered without computing or charge and ends the
+run. So the evaluations reported are exact and never exceed the budget.
 
-Failures: an IPOPT run ending in a failure status (e.g. ``Invalid_Number_Detected``,
-``Restoration_Failed``) raises a HybridfitError naming the status with
-``on_failure="raise"``; with ``"restart"`` (the default) the next run restarts, and after
-3 failed runs in a row the optimiser stops (raising if no run of the task succeeded).
+Failures: an IPOPT failure status (e.g. ``Invalid_Number_Detected``, ``Restoration_Failed``)
+raises a HybridfitError naming it with ``on_failure="raise"``; with ``"restart"`` (the default)
+the next run restarts, and after 3 failed runs in a row the optimiser stops (raising if no run
+of the task succeeded).
 """
 
 from __future__ import annotations
@@ -48,8 +39,8 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from hybridfit.objective import capability
 from hybridfit.errors import HybridfitError
+from hybridfit.objective import capability
 from hybridfit.optimizer import Optimizer, Task
 from hybridfit.plugin import Settings
 
@@ -69,7 +60,8 @@ class CasadiIKSettings(Settings):
     candidate_sigma: float = Field(0.1, gt=0, description="spread of the candidates, fraction of each range")
     restart_sigma: float = Field(0.1, gt=0, description="spread of restarts around the best so far, fraction of range")
     max_iter: int = Field(500, ge=1, description="IPOPT iterations per run")
-    lbfgs_history: int = Field(30, ge=1, description="IPOPT's limited-memory BFGS history (its default 6 converges slowly)")
+    lbfgs_history: int = Field(30, ge=1,
+                               description="IPOPT's limited-memory BFGS history (its default 6 converges slowly)")
     tol: float = Field(1e-6, gt=0, description="IPOPT convergence tolerance")
     gradient_cost: int = Field(2, ge=0, description="evaluations charged per gradient (see the module doc)")
     on_failure: Literal["restart", "raise"] = Field("restart", description="after an IPOPT failure: restart or raise")
@@ -94,46 +86,36 @@ def surrogate(task: Task, sigma_mm: float, span: np.ndarray):
     from hybridfit.model.casadi import casadi_forward
 
     problem = task.problem
-    model = problem.model
-    if not hasattr(model, "kinematic_tree"):
-        raise HybridfitError(f"casadi-ik: model {model.name!r} has no kinematic_tree(), needed for symbolic kinematics")
+    if not hasattr(problem.model, "kinematic_tree"):
+        raise HybridfitError(f"casadi-ik: model {problem.model.name!r} has no kinematic_tree(), "
+                             f"needed for symbolic kinematics")
     z = ca.SX.sym("z", task.dim)
-    full: list = [float(v) for v in task.base]
+    full: list = task.base.tolist()
     for k, i in enumerate(task.parameters):
         full[int(i)] = task.lower[k] + z[k] * span[k]
-    joints = casadi_forward(model.kinematic_tree(), full)
-    points = joints if problem.point_matrix is None else ca.mtimes(ca.DM(problem.point_matrix), joints)
-    if optimised_loss(problem.objective, sigma_mm) is None:
-        f = capability(problem.objective, "casadi_loss")(points, problem.proposals, problem.weights, task.points)
-    else:
-        f = _mixture_nll(points, problem, task.points, sigma_mm)
-    if set(range(3, 7)) <= set(int(i) for i in task.parameters):
-        q = ca.vertcat(*(full[i] for i in range(3, 7)))
-        f += (ca.sumsqr(q) - 1.0) ** 2
+    points = casadi_forward(problem.model.kinematic_tree(), full)
+    if problem.point_matrix is not None:
+        points = ca.mtimes(ca.DM(problem.point_matrix), points)
+    own = capability(problem.objective, "casadi_loss")
+    if own is not None:
+        f = own(points, problem.proposals, problem.weights, task.points)
+    else:  # the mixture's negative log-likelihood, constants dropped
+        f, inv_two_var = ca.SX(0.0), 0.5 / sigma_mm**2
+        for q in task.points:
+            w = problem.weights[q]
+            use = np.flatnonzero(w > 0)
+            if len(use):
+                d2 = [ca.sumsqr(points[int(q), :] - ca.DM(problem.proposals[q, r]).T) for r in use]
+                smallest = functools.reduce(ca.fmin, d2)
+                mix = sum(float(w[r]) * ca.exp(-(d - smallest) * inv_two_var) for r, d in zip(use, d2))
+                f += smallest * inv_two_var - ca.log(mix)
+    if {3, 4, 5, 6} <= set(task.parameters.tolist()):
+        f += (ca.sumsqr(ca.vertcat(*full[3:7])) - 1.0) ** 2
     return z, f
 
 
-def _mixture_nll(points, problem, subset: np.ndarray, sigma_mm: float):
-    """CasADi SX: the Gaussian-mixture negative log-likelihood of ``points`` (Q, 3) over the
-    point indices ``subset`` (constants dropped)."""
-    import casadi as ca
-
-    inv_two_var = 0.5 / sigma_mm**2
-    f = ca.SX(0.0)
-    for q in subset:
-        w = problem.weights[q]
-        use = np.flatnonzero(w > 0)
-        if not len(use):
-            continue
-        d2 = [ca.sumsqr(points[int(q), :] - ca.DM(problem.proposals[q, r]).T) for r in use]
-        smallest = functools.reduce(ca.fmin, d2)
-        mix = sum(float(w[r]) * ca.exp(-(d - smallest) * inv_two_var) for r, d in zip(use, d2))
-        f += smallest * inv_two_var - ca.log(mix)
-    return f
-
-
 class _Oracle:
-    """IPOPT's objective and gradient at z, charged to the task (see the module doc)."""
+    """IPOPT's objective and gradient at z (a (dim, 1) CasADi DM), charged to the task (see the module doc)."""
 
     def __init__(self, task: Task, z, f, span: np.ndarray, gradient_cost: int) -> None:
         import casadi as ca
@@ -141,127 +123,72 @@ class _Oracle:
         self.task, self.span, self.gradient_cost = task, span, gradient_cost
         self.F = ca.Function("f", [z], [f])
         self.G = ca.Function("g", [z], [f, ca.gradient(f, z)])
-        self.f_at: tuple[bytes, float] | None = None
-        self.g_at: tuple[bytes, np.ndarray] | None = None
+        self.f_at = self.g_at = (None, None)  # (z.tobytes(), the value or gradient there)
         self.exhausted = False
 
     def _charge(self, z: np.ndarray, n: int) -> None:
         x = np.clip(self.task.lower + z * self.span, self.task.lower, self.task.upper)
         self.task.evaluate(np.repeat(x[None], n, axis=0))
 
-    def value(self, z: np.ndarray) -> float:
-        key = z.tobytes()
-        if self.f_at is None or self.f_at[0] != key:
+    def value(self, z) -> float:
+        z = np.asarray(z, dtype=float).ravel()
+        if self.f_at[0] != z.tobytes():
             if self.task.remaining < 1:
                 self.exhausted = True
                 return _EXHAUSTED
             self._charge(z, 1)
-            self.f_at = (key, float(self.F(z)))
+            self.f_at = (z.tobytes(), float(self.F(z)))
         return self.f_at[1]
 
-    def gradient(self, z: np.ndarray) -> np.ndarray:
+    def gradient(self, z, f) -> np.ndarray:
+        """The (1, dim) gradient (``f``, the value there, is CasADi's argument, unused)."""
+        z = np.asarray(z, dtype=float).ravel()
         key = z.tobytes()
-        if self.g_at is None or self.g_at[0] != key:
-            new_value = self.f_at is None or self.f_at[0] != key
-            cost = self.gradient_cost + int(new_value)
+        if self.g_at[0] != key:
+            cost = self.gradient_cost + int(self.f_at[0] != key)
             if self.task.remaining < cost:
                 self.exhausted = True
-                return np.zeros(len(z))
+                return np.zeros((1, len(z)))
             if cost:
                 self._charge(z, cost)
             f, g = self.G(z)
-            self.f_at = (key, float(f))
-            self.g_at = (key, np.asarray(g, dtype=float).ravel())
-        return self.g_at[1]
+            self.f_at, self.g_at = (key, float(f)), (key, np.asarray(g, dtype=float).ravel())
+        return self.g_at[1][None]
 
 
 @functools.cache
-def _callback_classes():
-    """CasADi Callback classes (defined on first use: casadi is imported lazily)."""
+def _callback_class():
+    """The CasADi Callback class (defined on first use: casadi is imported lazily)."""
     import casadi as ca
 
-    class Gradient(ca.Callback):
-        def __init__(self, oracle, n):
+    class Call(ca.Callback):
+        """CasADi function ``name``: inputs of sparsities ``ins``, the output (of sparsity ``out``)
+        ``fun(*inputs)``; ``jacobian``, a Call, its Jacobian (held here: CasADi holds no Python reference)."""
+
+        def __init__(self, name, fun, ins, out, jacobian=None):
             ca.Callback.__init__(self)
-            self.oracle, self.n = oracle, n
-            self.construct("ik_gradient", {})
+            self.fun, self.ins, self.out, self.jacobian = fun, ins, out, jacobian
+            self.construct(name, {})
 
         def get_n_in(self):
-            return 2
-
-        def get_n_out(self):
-            return 1
+            return len(self.ins)
 
         def get_sparsity_in(self, i):
-            return ca.Sparsity.dense(self.n, 1) if i == 0 else ca.Sparsity.dense(1, 1)
+            return self.ins[i]
 
         def get_sparsity_out(self, i):
-            return ca.Sparsity.dense(1, self.n)
+            return self.out
 
         def eval(self, arg):
-            return [ca.DM(self.oracle.gradient(np.asarray(arg[0], dtype=float).ravel())).T]
-
-    class Objective(ca.Callback):
-        def __init__(self, oracle, n):
-            ca.Callback.__init__(self)
-            self.oracle, self.n, self.keep = oracle, n, []
-            self.construct("ik_objective", {})
-
-        def get_n_in(self):
-            return 1
-
-        def get_n_out(self):
-            return 1
-
-        def get_sparsity_in(self, i):
-            return ca.Sparsity.dense(self.n, 1)
-
-        def get_sparsity_out(self, i):
-            return ca.Sparsity.dense(1, 1)
-
-        def eval(self, arg):
-            return [self.oracle.value(np.asarray(arg[0], dtype=float).ravel())]
+            return [self.fun(*arg)]
 
         def has_jacobian(self):
-            return True
+            return self.jacobian is not None
 
         def get_jacobian(self, name, inames, onames, opts):
-            g = Gradient(self.oracle, self.n)
-            self.keep.append(g)  # CasADi holds no Python reference
-            return g
+            return self.jacobian
 
-    class Stop(ca.Callback):
-        """IPOPT's iteration callback: stop while the budget still covers an iteration."""
-
-        def __init__(self, oracle, n, reserve):
-            ca.Callback.__init__(self)
-            self.oracle, self.n, self.reserve = oracle, n, reserve
-            self.construct("ik_stop", {})
-
-        def get_n_in(self):
-            return ca.nlpsol_n_out()
-
-        def get_n_out(self):
-            return 1
-
-        def get_name_in(self, i):
-            return ca.nlpsol_out(i)
-
-        def get_name_out(self, i):
-            return "ret"
-
-        def get_sparsity_in(self, i):
-            name = ca.nlpsol_out(i)
-            if name == "f":
-                return ca.Sparsity.dense(1, 1)
-            if name in ("x", "lam_x"):
-                return ca.Sparsity.dense(self.n, 1)
-            return ca.Sparsity(0, 0)
-
-        def eval(self, arg):
-            return [int(self.oracle.exhausted or self.oracle.task.remaining < self.reserve)]
-
-    return Objective, Stop
+    return Call
 
 
 class CasadiIK(Optimizer):
@@ -285,13 +212,15 @@ class CasadiIK(Optimizer):
         if not (np.isfinite(lower).all() and np.isfinite(upper).all()):
             raise HybridfitError(f"{self.name}: needs finite bounds on every parameter of task {task.name}")
         span = np.where(upper > lower, upper - lower, 1.0)
-        note = optimised_loss(task.problem.objective, s.sigma_mm)
-        if note is not None:
+        if note := optimised_loss(task.problem.objective, s.sigma_mm):
             warnings.warn(note, stacklevel=2)
-        z, f = surrogate(task, s.sigma_mm, span)
-        oracle = _Oracle(task, z, f, span, s.gradient_cost)
-        Objective, Stop = _callback_classes()
-        objective, stop = Objective(oracle, task.dim), Stop(oracle, task.dim, self._reserve())
+        oracle = _Oracle(task, *surrogate(task, s.sigma_mm, span), span, s.gradient_cost)
+        reserve, Call, dense, one = self._reserve(), _callback_class(), ca.Sparsity.dense, ca.Sparsity.dense(1, 1)
+        gradient = Call("ik_gradient", oracle.gradient, [dense(task.dim, 1), one], dense(1, task.dim))
+        objective = Call("ik_objective", oracle.value, [dense(task.dim, 1)], one, gradient)
+        stop = Call("ik_stop", lambda *_: int(oracle.exhausted or task.remaining < reserve),  # IPOPT's outputs in
+                    [one if o == "f" else dense(task.dim, 1) if o in ("x", "lam_x") else ca.Sparsity(0, 0)
+                     for o in ca.nlpsol_out()], one)
         zs = ca.MX.sym("z", task.dim)
         solver = ca.nlpsol("ik", "ipopt", {"x": zs, "f": objective(zs)}, {
             "ipopt.hessian_approximation": "limited-memory", "ipopt.print_level": 0, "ipopt.sb": "yes",
@@ -304,26 +233,24 @@ class CasadiIK(Optimizer):
         X = np.clip(task.x0 + rng.normal(0.0, s.candidate_sigma, (n, task.dim)) * span, lower, upper)
         X[0] = task.x0
         start = X[int(np.argmin(task.evaluate(X)))]
-        failed, succeeded, statuses = 0, False, []
-        while task.remaining >= self._reserve():
+        succeeded, failures = False, []  # failures: the statuses of the failed runs in a row
+        while task.remaining >= reserve:
             oracle.exhausted = False
             used = task.used
             solver(x0=(start - lower) / span, lbx=0.0, ubx=1.0)
             stats = solver.stats()
-            status = stats["return_status"]
-            if status in OK_STATUSES or oracle.exhausted:
-                failed, succeeded = 0, True
+            if stats["return_status"] in OK_STATUSES or oracle.exhausted:
+                succeeded, failures = True, []
             else:
-                failed += 1
-                statuses.append(status)
-                message = (f"{self.name}: IPOPT failed on task {task.name}: {status} after "
+                failures.append(stats["return_status"])
+                message = (f"{self.name}: IPOPT failed on task {task.name}: {failures[-1]} after "
                            f"{stats['iter_count']} iterations")
                 if s.on_failure == "raise":
                     raise HybridfitError(message)
-                if failed >= FAILURES_IN_A_ROW:
+                if len(failures) >= FAILURES_IN_A_ROW:
                     if succeeded:
                         return
-                    raise HybridfitError(f"{message} ({failed} runs in a row failed: {', '.join(statuses[-failed:])})")
+                    raise HybridfitError(f"{message} ({len(failures)} runs in a row failed: {', '.join(failures)})")
             if task.used == used:
                 return  # IPOPT made no evaluation: no progress possible
             start = np.clip(task.best_x + rng.normal(0.0, s.restart_sigma, task.dim) * span, lower, upper)

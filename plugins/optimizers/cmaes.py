@@ -1,16 +1,12 @@
 """``cmaes``: CMA-ES (Hansen & Ostermeier 2001) through the ``cma`` package, with restarts.
 
 The search runs in the task's box scaled to the unit cube (so millimetres, radians and
-quaternion components get comparable steps), with ``cma``'s bound transform keeping every
-candidate inside. Each generation is asked as one batch and evaluated in one
-``task.evaluate`` call; the generation that would overrun the budget is cut to the
-remaining evaluations (and not told), so the budget is used exactly.
-
-When a run stops (cma's own termination criteria: step size or fitness range too small)
-and budget is left, CMA-ES restarts around the best hypothesis found so far with the
-population multiplied by ``popsize_factor`` (IPOP-CMA-ES, Auger & Hansen 2005).
-All randomness comes from the task's generator (cma's ``randn`` option); numpy's global
-random state is neither used nor touched.
+quaternion components get comparable steps), ``cma``'s bound transform keeping every candidate
+inside. Each generation is one ``task.evaluate`` call; the one that would overrun the budget is
+cut to the evaluations left (and not told), so the budget is used exactly. When a run stops
+(cma's own termination criteria) with budget left, CMA-ES restarts around the best hypothesis
+so far with the population multiplied by ``popsize_factor`` (IPOP-CMA-ES, Auger & Hansen 2005).
+All randomness comes from the task's generator (cma's ``randn`` option), never numpy's global state.
 """
 
 from __future__ import annotations
@@ -69,4 +65,4 @@ class CMAES(Optimizer):
             if task.used == used:
                 return  # cma stopped before asking anything: nothing more to do
             start = (task.best_x - lower) / span
-            lam = int(round(lam * self.settings.popsize_factor))
+            lam = round(lam * self.settings.popsize_factor)

@@ -22,7 +22,6 @@ before every run (``nlopt.srand``), so a seed gives identical results.
 
 from __future__ import annotations
 
-import math
 from typing import Literal
 
 import numpy as np
@@ -33,15 +32,8 @@ from hybridfit.optimizer import Optimizer, Task
 from hybridfit.plugin import Settings
 
 #: our names -> NLopt's algorithm constants
-ALGORITHMS = {
-    "bobyqa": "LN_BOBYQA",
-    "sbplx": "LN_SBPLX",
-    "neldermead": "LN_NELDERMEAD",
-    "cobyla": "LN_COBYLA",
-    "crs2": "GN_CRS2_LM",
-    "esch": "GN_ESCH",
-    "isres": "GN_ISRES",
-}
+ALGORITHMS = {"bobyqa": "LN_BOBYQA", "sbplx": "LN_SBPLX", "neldermead": "LN_NELDERMEAD", "cobyla": "LN_COBYLA",
+              "crs2": "GN_CRS2_LM", "esch": "GN_ESCH", "isres": "GN_ISRES"}
 GLOBAL = ("crs2", "esch", "isres")
 
 
@@ -51,9 +43,8 @@ def _stopped(nlopt, *names: str) -> tuple[type, ...]:
 
 
 class NLoptSettings(Settings):
-    algorithm: Literal["bobyqa", "sbplx", "neldermead", "cobyla", "crs2", "esch", "isres"] = Field(
-        "bobyqa", description="NLopt algorithm: local bobyqa, sbplx, neldermead, cobyla; global crs2, esch, isres"
-    )
+    algorithm: Literal[tuple(ALGORITHMS)] = Field(  # the names of ALGORITHMS
+        "bobyqa", description="NLopt algorithm: local bobyqa, sbplx, neldermead, cobyla; global crs2, esch, isres")
     initial_step: float = Field(0.1, gt=0, le=1, description="local methods' first step, fraction of the range")
     restart_sigma: float = Field(0.1, gt=0, description="restart spread around the best so far, fraction of the range")
     xtol_rel: float = Field(1e-4, ge=0, description="stop a run when a step changes x by less than this (relative)")
@@ -87,16 +78,15 @@ class NLopt(Optimizer):
         raised = []  # an exception from the task (the objective's, a budget overrun): not NLopt's
 
         def objective(x, grad):
-            if raised:  # stopped, but some algorithms (CRS2's first population) call on
-                return math.inf
-            if task.remaining < 1:  # some algorithms (CRS2's first population) overrun maxeval
-                raise nlopt.ForcedStop
-            try:
-                return float(task.evaluate(np.clip(x, lower, upper)[None])[0])
-            except BaseException as err:  # the objective's error, a budget overrun: re-raised below
-                raised.append(err)
-                opt.force_stop()  # the run now in progress
-                return math.inf
+            if not raised:  # once stopped, some algorithms (CRS2's first population) call on
+                if task.remaining < 1:  # some algorithms (CRS2's first population) overrun maxeval
+                    raise nlopt.ForcedStop
+                try:
+                    return float(task.evaluate(np.clip(x, lower, upper)[None])[0])
+                except BaseException as err:  # the objective's error, a budget overrun: re-raised below
+                    raised.append(err)
+                    opt.force_stop()  # the run now in progress
+            return np.inf
 
         start = task.x0.copy()
         while task.remaining > 0:  # the last run may be cut short by maxeval: still valid samples
@@ -107,27 +97,24 @@ class NLopt(Optimizer):
             opt.set_maxeval(task.remaining)
             opt.set_xtol_rel(s.xtol_rel)
             opt.set_ftol_abs(s.ftol_abs)
-            if s.algorithm in GLOBAL:
-                if s.population:
-                    opt.set_population(s.population)
-            else:
+            if s.algorithm not in GLOBAL:
                 opt.set_initial_step(np.where(span > 0, s.initial_step * span, 1e-6))
+            elif s.population:
+                opt.set_population(s.population)
             nlopt.srand(int(rng.integers(2**31)))
             used = task.used
             try:
                 opt.optimize(start)
             except _stopped(nlopt, "ForcedStop", "forced_stop"):
-                if raised:
-                    raise raised[0] from None  # the task's error as it was raised, with its traceback
-                return  # the budget is spent
+                if not raised:
+                    return  # the budget is spent
             except _stopped(nlopt, "RoundoffLimited", "roundoff_limited"):
                 pass  # converged as far as floating point allows; the task kept the best point
             except (RuntimeError, ValueError, getattr(nlopt, "exception", RuntimeError)) as err:
-                if raised:
-                    raise raised[0] from None
-                raise HybridfitError(f"{self.name}: NLopt {s.algorithm} failed on task {task.name} "
-                                     f"({task.dim} parameters): {type(err).__name__}: {err}") from err
-            if raised:  # a forced stop that NLopt reported as a normal return
+                if not raised:
+                    raise HybridfitError(f"{self.name}: NLopt {s.algorithm} failed on task {task.name} "
+                                         f"({task.dim} parameters): {type(err).__name__}: {err}") from err
+            if raised:  # the task's error as it was raised, with its traceback (NLopt may report a normal return)
                 raise raised[0] from None
             if task.used == used:
                 return  # NLopt stopped without evaluating: no progress possible

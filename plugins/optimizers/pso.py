@@ -1,9 +1,8 @@
 """``pso``: Particle Swarm Optimisation as used in model-based hand tracking.
 
-Global-best PSO with Clerc-Kennedy constriction (Clerc & Kennedy, IEEE TEC 2002), the
-variant of the FORTH hand tracker (Oikonomidis, Kyriazis & Argyros, BMVC 2011, which uses
-cognitive c1 = 2.8 and social c2 = 1.3, so psi = c1 + c2 = 4.1 and the constriction factor
-chi = 2 / |2 - psi - sqrt(psi^2 - 4 psi)| = 0.7298).
+Global-best PSO with Clerc-Kennedy constriction (Clerc & Kennedy, IEEE TEC 2002) as in the FORTH
+hand tracker (Oikonomidis, Kyriazis & Argyros, BMVC 2011): cognitive c1 = 2.8, social c2 = 1.3,
+so psi = c1 + c2 = 4.1 and the constriction factor chi = 2 / |2 - psi - sqrt(psi^2 - 4 psi)| = 0.7298.
 
 Initialisation: a share of the particles is drawn around the start (Gaussian, ``init_sigma``
 times the search range), the rest uniformly in the bounds; particle 0 is the start itself.
@@ -11,14 +10,13 @@ Positions are clipped to the bounds (a particle that hits a bound stops in that 
 The whole swarm is one batch per generation; the last generation is cut short so the budget
 is used exactly.
 
-Written as :class:`~hybridfit.optimizer.BatchSteps` (numba-compiled, a frame axis first):
-the core's driver runs it for many frames in lockstep, compiled together with a compiled
-objective. Frame f's random numbers: particle i's coordinate k of the initial swarm is
-number c = i * d + k of its stage key (``keys[f]``, :mod:`hybridfit.fitting.streams`): of
-the key's normal stream for the particles near the start, of its uniform stream for the
-others; then each generation of m particles takes the next 2 m d uniform numbers: r1 of
-particle i's coordinate k is number k m + i of them, r2 number (d + k) m + i (coordinate by
-coordinate, as the update runs along the particles).
+Written as numba-compiled :class:`~hybridfit.optimizer.BatchSteps` (a frame axis first): the
+driver runs it for many frames in lockstep, compiled together with a compiled objective. Frame
+f's random numbers (stream ``keys[f]``, :mod:`hybridfit.fitting.streams`): coordinate k of
+initial particle i is number i d + k, of the normal stream near the start, else of the uniform
+one; each generation of m particles then takes the next 2 m d uniform numbers: r1 of particle
+i's coordinate k is number k m + i of them, r2 number (d + k) m + i (as the update runs along
+the particles).
 """
 
 from __future__ import annotations
@@ -34,9 +32,8 @@ from hybridfit.plugin import Settings
 
 
 class PSOSettings(Settings):
-    particles: int | None = Field(
-        None, ge=2, description="swarm size; None = a square swarm, sqrt(budget) particles (the paper's 64x64, 29x29)"
-    )
+    particles: int | None = Field(None, ge=2, description="swarm size; None = a square swarm, sqrt(budget) particles "
+                                  "(the paper's 64x64, 29x29)")
     cognitive: float = Field(2.8, gt=0, description="c1, attraction to a particle's own best")
     social: float = Field(1.3, gt=0, description="c2, attraction to the swarm's best")
     init_share: float = Field(0.5, ge=0, le=1, description="share of particles started around the initial guess")
@@ -50,21 +47,19 @@ def constriction(c1: float, c2: float) -> float:
     return 1.0 if psi <= 4 else 2.0 / abs(2.0 - psi - np.sqrt(psi * psi - 4.0 * psi))
 
 
-#: columns of the settings array handed to pso_init
-C1, C2, CHI, SIGMA, VMAX, NEAR = range(6)
+#: columns of the settings array handed to pso_init (:meth:`PSO.batch_settings`)
+C1, C2, CHI, SIGMA, VMAX, NEAR, N = range(7)
 
 
 @nb.njit(cache=True, nogil=True)
 def pso_init(start, lower, upper, keys, budget, settings):
     """The swarm state of F frames: start, lower, upper (F, d), keys (F,) uint64; settings
-    (c1, c2, chi, init_sigma, max_velocity, particles near the start); the swarm size is
-    min(particles, budget) with particles = settings' batch (row count of ``start``'s swarm,
-    see :meth:`PSO.batch_settings`) -> state. Positions, velocities and personal bests are
-    kept (F, d, n), the particle innermost: the update runs along the particles (it
-    vectorises), and so does the scorer's copy of the asked hypotheses."""
+    (c1, c2, chi, init_sigma, max_velocity, particles near the start, particles); the swarm
+    has min(particles, budget) particles. Positions, velocities and personal bests are kept
+    (F, d, n), the particle innermost: the update runs along the particles (it vectorises),
+    and so does the scorer's copy of the asked hypotheses."""
     F, d = start.shape
-    n = int(settings[6])
-    n = min(n, budget)
+    n = min(int(settings[N]), budget)
     near = min(int(settings[NEAR]), n)
     x = np.empty((F, d, n))
     span = upper - lower
@@ -96,10 +91,10 @@ def pso_init(start, lower, upper, keys, budget, settings):
 def pso_ask(state, m):
     """The first m particles of every frame after one constricted update (the first call: the
     initial swarm) -> (F, m, d), a view of the state (the particle innermost in memory)."""
-    x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters, draws = state
+    x, v, pbest_x, _, best, lower, upper, vmax, keys, settings, counters, draws = state
     if counters[1]:
         return x[:, :, :m].transpose(0, 2, 1)
-    F, d, n = x.shape
+    F, d, _ = x.shape
     c1, c2, chi = settings[C1], settings[C2], settings[CHI]
     at = counters[0]
     for f in range(F):
@@ -124,7 +119,7 @@ def pso_ask(state, m):
 @nb.njit(cache=True, nogil=True)
 def pso_tell(state, X, losses):
     """Personal and swarm bests of every frame after scoring the batch (losses (F, m))."""
-    x, v, pbest_x, pbest_f, best, lower, upper, vmax, keys, settings, counters, draws = state
+    x, _, pbest_x, pbest_f, best, _, _, _, _, _, counters, _ = state
     F, m = losses.shape
     d = x.shape[1]
     counters[1] = 0
@@ -145,24 +140,14 @@ class PSO(Optimizer):
 
     Settings = PSOSettings
 
-    def swarm_size(self, budget: int) -> int:
-        n = self.settings.particles
-        return max(2, int(round(np.sqrt(budget)))) if n is None else n
-
-    def swarm(self, budget: int, available: int | None = None) -> tuple[int, int]:
-        """(particles, particles started around the initial guess) for a task with this budget
-        and ``available`` evaluations left (default: the budget)."""
-        n = min(self.swarm_size(budget), budget if available is None else available)
-        return n, int(round(self.settings.init_share * n))
-
     def batch_steps(self) -> BatchSteps:
         return STEPS
 
     def batch_settings(self, budget: int) -> tuple[int, np.ndarray]:
         s = self.settings
-        n, near = self.swarm(budget)
+        n = min(max(2, round(np.sqrt(budget))) if s.particles is None else s.particles, budget)
         return n, np.array([s.cognitive, s.social, constriction(s.cognitive, s.social), s.init_sigma,
-                            s.max_velocity, near, n], dtype=np.float64)
+                            s.max_velocity, round(s.init_share * n), n], dtype=np.float64)
 
     def min_budget(self, task: Task) -> int:
         # one initial generation and at least one update

@@ -6,18 +6,20 @@ quaternion components get comparable steps). Each batch pymoo asks for is evalua
 evaluations and the run ends there, so the budget is used exactly (pymoo on its own
 finishes the batch and overshoots by up to one population).
 
-The algorithm starts from the task's start: a local search (``NelderMead``) from ``task.x0`` itself; a population algorithm with ``task.x0`` as its
-first individual, ``init_share`` of its first population around it and the others uniform
-in the box (as ``pso`` starts its swarm). An algorithm that has nothing more to
-ask (all its offspring duplicates, say) restarts from the best hypothesis so far with a
-new seed. pymoo's random numbers come from seeds drawn from the task's generator, so a
-seed reproduces a run bit for bit; numpy's global random state is not used.
+A local search (``NelderMead``) starts from ``task.x0``; a population algorithm has ``task.x0``
+as its first individual, ``init_share`` of its first population around it and the others
+uniform in the box (as ``pso`` starts its swarm). An algorithm that has nothing more to ask
+(all its offspring duplicates, say) restarts from the best hypothesis so far with a new seed.
+pymoo's random numbers come from seeds drawn from the task's generator, so a seed reproduces
+a run bit for bit; numpy's global random state is not used.
 """
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import inspect
+
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
@@ -26,16 +28,8 @@ from hybridfit.optimizer import Optimizer, Task
 from hybridfit.plugin import Settings
 
 #: single-objective pymoo algorithms by name: module and class under pymoo.algorithms.soo.nonconvex
-ALGORITHMS = {
-    "DE": "de:DE",
-    "GA": "ga:GA",
-    "PSO": "pso:PSO",
-    "NelderMead": "nelder:NelderMead",
-    "ES": "es:ES",
-    "SRES": "sres:SRES",
-    "ISRES": "isres:ISRES",
-    "G3PCX": "g3pcx:G3PCX",
-}
+ALGORITHMS = {"DE": "de:DE", "GA": "ga:GA", "PSO": "pso:PSO", "NelderMead": "nelder:NelderMead", "ES": "es:ES",
+              "SRES": "sres:SRES", "ISRES": "isres:ISRES", "G3PCX": "g3pcx:G3PCX"}
 #: pymoo algorithms refused, with the reason
 REFUSED = {
     "PatternSearch": "pymoo 0.6.2's PatternSearch draws its exploration order from an unseeded generator, "
@@ -51,23 +45,10 @@ def algorithm_class(name: str) -> type:
     return getattr(importlib.import_module(f"pymoo.algorithms.soo.nonconvex.{module}"), cls)
 
 
-def algorithm_options(cls: type) -> set[str]:
-    """The keyword settings a pymoo algorithm class names in its constructors (pymoo passes
-    unknown keywords on without complaint, so they are checked here)."""
-    names = set()
-    for klass in cls.__mro__:
-        init = klass.__dict__.get("__init__")
-        if init is not None:
-            names |= {p.name for p in inspect.signature(init).parameters.values()
-                      if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
-    return names - {"self", "output", "display", "callback", "termination", "sampling", "initial", "x0", "seed",
-                     "verbose", "save_history", "evaluator", "archive"}
-
-
 class PymooSettings(Settings):
     algorithm: str = Field("DE", description=f"the pymoo algorithm: one of {', '.join(ALGORITHMS)}")
-    options: dict[str, bool | int | float | str] = Field(
-        default_factory=dict, description="the algorithm's keyword settings, e.g. {pop_size = 40} (pymoo's defaults otherwise)")
+    options: dict[str, bool | int | float | str] = Field(default_factory=dict, description="the algorithm's keyword "
+                                                         "settings, e.g. {pop_size = 40} (pymoo's defaults otherwise)")
     init_share: float = Field(0.5, ge=0, le=1, description="share of a population algorithm's first population "
                               "drawn around the start (the rest uniform in the box; the start itself always)")
     init_sigma: float = Field(0.1, gt=0, description="spread around the start, as a fraction of each parameter's range")
@@ -78,8 +59,6 @@ class PymooSettings(Settings):
         if name in REFUSED:
             raise ValueError(f"pymoo algorithm {name!r} is not offered: {REFUSED[name]}")
         if name not in ALGORITHMS:
-            import difflib
-
             close = difflib.get_close_matches(name, list(ALGORITHMS), n=1)
             hint = f"; did you mean {close[0]!r}?" if close else ""
             raise ValueError(f"unknown pymoo algorithm {name!r}{hint} (choose from {', '.join(ALGORITHMS)})")
@@ -87,8 +66,13 @@ class PymooSettings(Settings):
 
     @model_validator(mode="after")
     def _options_accepted(self):
-        cls = algorithm_class(self.algorithm)
-        known = algorithm_options(cls)
+        # the keywords the class's constructors name (pymoo passes unknown keywords on without complaint)
+        cls, known = algorithm_class(self.algorithm), set()
+        for init in filter(None, (klass.__dict__.get("__init__") for klass in cls.__mro__)):
+            known |= {p.name for p in inspect.signature(init).parameters.values()
+                      if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+        known -= {"self", "output", "display", "callback", "termination", "sampling", "initial", "x0", "seed",
+                  "verbose", "save_history", "evaluator", "archive"}
         unknown = sorted(set(self.options) - known)
         if unknown:
             raise ValueError(f"pymoo {self.algorithm} has no option {', '.join(map(repr, unknown))} "
@@ -107,8 +91,7 @@ class Pymoo(Optimizer):
     requires = {"pymoo": "hybridfit[pymoo]"}
 
     def _algorithm(self, problem, start: np.ndarray, rng: np.random.Generator):
-        """A configured pymoo algorithm set up on ``problem`` (the unit cube), starting at
-        ``start`` (dim,)."""
+        """A configured pymoo algorithm set up on ``problem`` (the unit cube), starting at ``start`` (dim,)."""
         from pymoo.algorithms.base.local import LocalSearch
         from pymoo.core.initialization import Initialization
         from pymoo.core.termination import NoTermination
@@ -121,7 +104,7 @@ class Pymoo(Optimizer):
         else:
             n = int(get(getattr(algorithm, "pop_size", None)) or 1)
             first = rng.random((n, len(start)))
-            near = int(round(s.init_share * n))
+            near = round(s.init_share * n)
             first[:near] = np.clip(start + rng.normal(0.0, s.init_sigma, (near, len(start))), 0.0, 1.0)
             first[0] = start
         algorithm.initialization = Initialization(first)
@@ -139,14 +122,14 @@ class Pymoo(Optimizer):
             raise HybridfitError(f"{self.name or 'pymoo'}: needs finite bounds on every parameter of task {task.name}")
         span = np.where(upper > lower, upper - lower, 1.0)
 
-        def params(Z):
-            return np.clip(lower + np.clip(Z, 0.0, 1.0) * span, lower, upper)
+        def params(Z):  # unit cube -> the box
+            return np.clip(lower + np.clip(np.asarray(Z, dtype=np.float64), 0.0, 1.0) * span, lower, upper)
 
         class Scored(PymooProblem):
             """The task's loss on the unit cube (pymoo calls it with whole batches)."""
 
             def _evaluate(self, Z, out, *args, **kwargs):
-                out["F"] = task.evaluate(params(np.asarray(Z, dtype=np.float64)))[:, None]
+                out["F"] = task.evaluate(params(Z))[:, None]
 
         problem = Scored(n_var=task.dim, n_obj=1, xl=0.0, xu=1.0)
         algorithm = self._algorithm(problem, (task.x0 - lower) / span, rng)
@@ -162,7 +145,7 @@ class Pymoo(Optimizer):
                 continue
             empty = 0
             if len(pop) > task.remaining:  # the budget ends within this batch: cut it, tell nothing
-                task.evaluate(params(np.asarray(pop.get("X"), dtype=np.float64)[: task.remaining]))
+                task.evaluate(params(pop.get("X")[: task.remaining]))
                 return
             Evaluator().eval(problem, pop)
             algorithm.tell(infills=infills)

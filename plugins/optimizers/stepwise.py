@@ -39,18 +39,14 @@ class StepwiseSettings(Settings):
     schedule: Literal["stepwise", "joint"] = Field("stepwise", description="stage by stage, or all parameters at once")
     root_share: float = Field(0.3, gt=0, lt=1, description="share of the budget for the global-pose stage")
     stage_weights: list[float] | None = Field(None, description="relative budget per stage (overrides root_share)")
-    refine_share: float = Field(
-        0.0, ge=0, lt=1, description="share of the budget for a final joint refinement of all parameters (0 = the paper)"
-    )
-    refine_config: dict[str, Any] = Field(
-        default_factory=dict, description="the inner optimiser's settings overridden for the refinement stage"
-    )
-    min_root_points: int = Field(
-        MIN_ROOT_POINTS, ge=0, description="with fewer observed points of its own, the root stage is also scored on guide points"
-    )
-    min_root_lever_mm: float = Field(
-        MIN_ROOT_LEVER_MM, ge=0, description="likewise below this rotation lever (mm) of its own observed points (nearly collinear)"
-    )
+    refine_share: float = Field(0.0, ge=0, lt=1, description="share of the budget for a final joint refinement "
+                                "of all parameters (0 = the paper)")
+    refine_config: dict[str, Any] = Field(default_factory=dict, description="the inner optimiser's settings "
+                                          "overridden for the refinement stage")
+    min_root_points: int = Field(MIN_ROOT_POINTS, ge=0, description="with fewer observed points of its own, the root "
+                                 "stage is also scored on guide points")
+    min_root_lever_mm: float = Field(MIN_ROOT_LEVER_MM, ge=0, description="likewise below this rotation lever (mm) of "
+                                     "its own observed points (nearly collinear)")
 
     @field_validator("optimizer")
     @classmethod
@@ -74,8 +70,8 @@ def split_budget(budget: int, weights) -> list[int]:
 
 
 def members(indices: np.ndarray, n: int) -> np.ndarray:
-    """(n,) bool: which of 0 .. n - 1 are among the indices (sets of indices as masks: their
-    intersections and unions in index order, as ``np.intersect1d`` and ``np.union1d`` give them)."""
+    """(n,) bool: which of 0 .. n - 1 are among the indices (index sets as masks: intersections
+    and unions in index order, as ``np.intersect1d`` and ``np.union1d`` give them)."""
     mask = np.zeros(n, dtype=bool)
     mask[indices] = True
     return mask
@@ -103,25 +99,20 @@ class Stepwise(Optimizer):
         return registry.create("optimizer", s.optimizer, s.optimizer_config)
 
     def _stages(self, task: Task):
-        """The stages restricted to the task's parameters and observed points, with budget
-        weights: a list of (name, parameters, points, owned), and the weights."""
+        """The stages restricted to the task's parameters and observed points (those with
+        proposals), with budget weights: a list of (name, parameters, points, owned), and the weights."""
         if self.settings.schedule == "joint":
             return [("joint", task.parameters, task.points, task.points)], [1.0]
-        return self._stages_for(task, task.problem.weights.sum(axis=-1) > 0)
-
-    def _stages_for(self, task: Task, observed: np.ndarray):
-        """:meth:`_stages` computed, for a task whose points ``observed`` (Q,) bool have proposals."""
         problem = task.problem
+        observed = problem.weights.sum(axis=-1) > 0
         stages = problem.stage_points()
         w = self.settings.stage_weights
         if w is None:
             rest = (1.0 - self.settings.root_share) / (len(stages) - 1)
             w = [self.settings.root_share] + [rest] * (len(stages) - 1)
         elif len(w) != len(stages) or min(w) <= 0:
-            raise HybridfitError(
-                f"{self.name}: stage_weights needs {len(stages)} positive weights "
-                f"({', '.join(s[0] for s in stages)}), got {w}"
-            )
+            raise HybridfitError(f"{self.name}: stage_weights needs {len(stages)} positive weights "
+                                 f"({', '.join(s[0] for s in stages)}), got {w}")
         P, Q = problem.model.n_params, len(observed)
         free, scored = members(task.parameters, P), members(task.points, Q) & observed
         kept, weights = [], []
@@ -147,7 +138,7 @@ class Stepwise(Optimizer):
     def plan(self, task: Task) -> list[StagePlan]:
         """The frame's schedule: stages with exact budgets adding up to ``task.budget``."""
         stages, w = self._stages(task)
-        refine = int(round(self.settings.refine_share * task.budget)) if self.settings.schedule == "stepwise" else 0
+        refine = round(self.settings.refine_share * task.budget) if self.settings.schedule == "stepwise" else 0
         plan = [StagePlan(name, params, points, owned, budget, self.inner)
                 for (name, params, points, owned), budget in zip(stages, split_budget(task.budget - refine, w))]
         if refine:
