@@ -1,12 +1,18 @@
 """Hand models described as data: a kinematic tree, and its batched forward kinematics.
 
-A :class:`KinematicTree` is a model's one kinematic description; the numba kernels here, the
-CasADi kinematics and calibration all read it. :func:`block_setup` lays out a block computation
-(the joints and angles that move, the fixed joints at a base, the buffers);
-:func:`block_kinematics` runs it for several frames' hypotheses (:func:`block_frames`: the
-joints, the hypothesis innermost), :func:`block_points` gives the points. :func:`tree_points`
-is the same with all parameters moving (``model.forward``, the polish); the driver's scorers
-(:mod:`hybridfit.fitting.evaluator`) move a stage's parameters.
+A :class:`KinematicTree` is the model's one kinematic description. The numba kernel here
+evaluates it for N parameter vectors at once, and other consumers (the CasADi inverse
+kinematics, calibration) build on the same description, so there is never a second
+hand-written copy of a model's kinematics.
+
+One kernel, one walker, one block entry, shared by the model, the Problem and the driver:
+:func:`block_frames` computes the listed joints of a block of hypotheses (the hypothesis the
+innermost axis); :func:`mark_needed` finds the joints a set of points needs;
+:func:`block_setup` lays out a block computation (which joints and angles move, which are
+fixed at a base, the buffers) and :func:`block_kinematics` runs it for one or several frames'
+hypotheses. :func:`tree_points` is that entry with all parameters moving (``model.forward``,
+laid out once per thread and tree, and the polish); the driver's scorers
+(:mod:`hybridfit.fitting.evaluator`) use it with a stage's parameters moving.
 
 Frames: joint j's frame is ``R_j = R_parent @ rest_j @ Rot(axis_1, theta_1) @ ...``; its
 position ``p_j = p_parent + R_parent @ offset_j``; the root's parent is the hand frame.
@@ -52,7 +58,7 @@ class KinematicTree:
 
     @cached_property
     def rest_is_identity(self) -> np.ndarray:
-        """(J,) bool: rest[j] is the identity (to np.allclose's tolerance)."""
+        # (J,) bool, vectorised: np.allclose per joint cost 1.7 ms per model build
         return np.all(np.abs(np.asarray(self.rest) - np.eye(3)) <= 1e-8 + 1e-5 * np.eye(3), axis=(1, 2))
 
 
@@ -85,12 +91,17 @@ def sincos1(v):
 @nb.njit(cache=True, fastmath=True)
 def block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, rest, rest_identity, axes,
                   axis_params, mirror, WB, WpB, GB):
-    """Camera-frame positions WpB (J, 3, n) mm and rotations WB (J, 3, 3, n) (mirror included)
-    of the joints ``joints[:count]`` (parents first) for hypotheses 0..m-1, the hypothesis
-    innermost, from parameters pB (P, n) and their sines and cosines sinB, cosB (P, n).
-    Rotations only where ``oriented[j]`` (a listed child reads them); joints not listed are
-    read as they are. GB (3, 3, n): scratch for the global rotation (when the root is listed)."""
-    if count and parents[joints[0]] < 0:  # the root is listed: each hypothesis's global rotation
+    """Camera-frame rotations and positions of the joints ``joints[:count]`` (parents first)
+    for the first m hypotheses at once, the hypothesis the innermost axis (every loop
+    vectorises): parameters pB (P, n), their sines and cosines sinB, cosB (P, n) (needed for
+    the listed joints' angles), rotations WB (J, 3, 3, n) (mirror included; only where bit 1
+    of ``oriented[j]`` is set: the joints whose rotation a listed child reads) and positions
+    WpB (J, 3, n) mm. The entries of joints not listed are read as they are (fixed joints).
+    Bit 2 of ``oriented[j]`` marks a listed joint as *preset*: its position and its frame
+    before its own rotations are already in WpB, WB (a joint whose parent is fixed: they are
+    the same for every hypothesis of a frame), so only its rotations are applied. GB (3, 3, n)
+    is scratch space for the global rotation, computed when the root is listed."""
+    if count and parents[joints[0]] < 0:  # the root moves: the global pose of each hypothesis
         for i in range(m):
             w, x, y, z = pB[3, i], pB[4, i], pB[5, i], pB[6, i]
             nq = w * w + x * x + y * y + z * z
@@ -110,11 +121,14 @@ def block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, r
         j = joints[c]
         par = parents[j]
         o0, o1, o2 = offsets[j, 0], offsets[j, 1], offsets[j, 2]
-        if par < 0:
+        if oriented[j] & 2:
+            if not oriented[j] & 1:
+                continue
+        elif par < 0:
             for r in range(3):
                 for i in range(m):
                     WpB[j, r, i] = GB[r, 0, i] * o0 + GB[r, 1, i] * o1 + GB[r, 2, i] * o2 + pB[r, i]
-            if not oriented[j]:
+            if not oriented[j] & 1:
                 continue
             for r in range(3):
                 for k in range(3):
@@ -124,11 +138,10 @@ def block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, r
         else:
             for r in range(3):
                 for i in range(m):
-                    WpB[j, r, i] = (WpB[par, r, i] + WB[par, r, 0, i] * o0 + WB[par, r, 1, i] * o1
-                                    + WB[par, r, 2, i] * o2)
-            if not oriented[j]:
+                    WpB[j, r, i] = WpB[par, r, i] + WB[par, r, 0, i] * o0 + WB[par, r, 1, i] * o1 + WB[par, r, 2, i] * o2
+            if not oriented[j] & 1:
                 continue
-            if rest_identity[j]:  # a copy, not the product: fits 3% faster
+            if rest_identity[j]:
                 for r in range(3):
                     for k in range(3):
                         for i in range(m):
@@ -159,31 +172,31 @@ def block_frames(m, pB, sinB, cosB, joints, count, oriented, parents, offsets, r
 
 
 @nb.njit(cache=True, fastmath=True)
-def block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out, at=0):
-    """Points indices[lo:hi] of the m hypotheses in WpB (J, 3, n):
-    out[q, :, at + i] = sum_j point_map[q, j] WpB[j, :, i] (out (Q, 3, >= at + m) mm)."""
+def block_points(m, WpB, pm_ptr, pm_joint, pm_weight, indices, lo, hi, out, first=0, at=0):
+    """Points indices[lo:hi] of the m hypotheses in columns first, first + 1, ... of WpB:
+    out[q, :, at + i] = sum_j point_map[q, j] WpB[j, :, first + i] (out (Q, 3, n) mm)."""
     for t in range(lo, hi):
         q = indices[t]
         e0 = pm_ptr[q]
         j0 = pm_joint[e0]
         w0 = pm_weight[e0]
         for i in range(m):  # one loop per point and joint, not per coordinate: a swarm is short
-            out[q, 0, at + i] = w0 * WpB[j0, 0, i]
-            out[q, 1, at + i] = w0 * WpB[j0, 1, i]
-            out[q, 2, at + i] = w0 * WpB[j0, 2, i]
+            out[q, 0, at + i] = w0 * WpB[j0, 0, first + i]
+            out[q, 1, at + i] = w0 * WpB[j0, 1, first + i]
+            out[q, 2, at + i] = w0 * WpB[j0, 2, first + i]
         for e in range(e0 + 1, pm_ptr[q + 1]):
             j = pm_joint[e]
             w = pm_weight[e]
             for i in range(m):
-                out[q, 0, at + i] += w * WpB[j, 0, i]
-                out[q, 1, at + i] += w * WpB[j, 1, i]
-                out[q, 2, at + i] += w * WpB[j, 2, i]
+                out[q, 0, at + i] += w * WpB[j, 0, first + i]
+                out[q, 1, at + i] += w * WpB[j, 1, first + i]
+                out[q, 2, at + i] += w * WpB[j, 2, first + i]
 
 
 @nb.njit(cache=True, inline="always")
 def mark_with_ancestors(parents, j, needed):
-    """Sets ``needed`` (J,) bool for joint j (none if j < 0) and its ancestors, stopping at a
-    joint already set (every joint set has its ancestors set)."""
+    """The one walk up the tree: sets ``needed`` (J,) bool for joint j (none if j < 0) and its
+    ancestors, stopping at a joint already set (so every joint set has its ancestors set)."""
     while j >= 0 and not needed[j]:
         needed[j] = True
         j = parents[j]
@@ -191,8 +204,9 @@ def mark_with_ancestors(parents, j, needed):
 
 @nb.njit(cache=True)
 def mark_needed(parents, pm_ptr, pm_joint, points, needed):
-    """Sets ``needed`` (J,) bool for the joints that the points ``points`` (m,) read (the point
-    map (Q, J) in CSR form: pm_ptr (Q + 1,), pm_joint) and their ancestors."""
+    """The one "which joints are needed" walker: sets ``needed[j]`` (J,) bool for every joint
+    that the points ``points`` (m,) read (the point map (Q, J) in CSR form: pm_ptr (Q + 1,),
+    pm_joint) and for all their ancestors."""
     for t in range(points.shape[0]):
         q = points[t]
         for e in range(pm_ptr[q], pm_ptr[q + 1]):
@@ -203,20 +217,23 @@ def mark_needed(parents, pm_ptr, pm_joint, points, needed):
 GLOBAL_PARAMS = 7
 
 
-#: header of a block computation's ints: counts of listed joints, fixed joints, stage angle rows,
-#: fixed parameter rows read; batch n, frames F, parameters P, joints J, points Q, frames per block G
+#: header of a stage's integer array: counts of listed joints, joints copied from base, stage angle
+#: rows, fixed parameter rows read; batch n, frames F, parameters P, joints J, points Q, frames
+#: per block G
 _HEADER = 10
 
-#: hypotheses (of several frames) per block: loops long enough to vectorise, buffers in cache
+#: hypotheses (of several frames) per block of the kinematics: the loops over a block are long
+#: enough to vectorise well and its buffers stay in cache
 COLUMNS = 256
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def block_lists(ints, J, P):
-    """The lists in a block computation's ints after the header: the listed joints (recomputed
-    per hypothesis, in order), ``oriented`` (1: the joint's rotation is read) and the fixed
-    joints read (copied from base per frame) (J each); the stage's angle rows, the fixed
-    parameter rows read and each parameter's position in the stage or -1 (P each)."""
+    """The index lists of a block computation's ints (after its header): the joints to
+    recompute in order, the joints whose rotation is read (bit 1) and the preset ones (bit 2,
+    see :func:`block_frames`), the joints copied from base per frame (the fixed joints a point
+    reads and the preset joints) (J, each); the stage's angle rows, the fixed parameter rows
+    read and each parameter's position in the stage or -1 (P, each)."""
     return (ints[_HEADER:_HEADER + J], ints[_HEADER + J:_HEADER + 2 * J], ints[_HEADER + 2 * J:_HEADER + 3 * J],
             ints[_HEADER + 3 * J:_HEADER + 3 * J + P], ints[_HEADER + 3 * J + P:_HEADER + 3 * J + 2 * P],
             ints[_HEADER + 3 * J + 2 * P:])
@@ -225,13 +242,17 @@ def block_lists(ints, J, P):
 @nb.njit(cache=True, nogil=True)
 def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
                 base, pidx, subset, owned, n, work=None):
-    """A block computation (ints, floats) of F frames whose parameters ``pidx`` (d,) move from
-    ``base`` (F, P), for the points ``subset`` and ``owned`` (the point map (Q, J) in CSR form:
-    pm_ptr, pm_joint, pm_weight): the listed joints (those the points need and the parameters
-    move, parents first), the fixed joints and parameters they read, every frame's fixed joints
-    at ``base`` (W0, Wp0; other rows unset) and buffers for G = max(1, COLUMNS // n) frames'
-    batches of up to n hypotheses (:func:`block_views`). ``work``: a float64 buffer whose start
-    becomes ``floats`` when large enough (a fresh one each stage costs page faults)."""
+    """A block computation of F frames whose parameters ``pidx`` (d,) move from ``base`` (F, P),
+    for the points ``subset`` and ``owned`` (the point map (Q, J) in CSR form: pm_ptr,
+    pm_joint, pm_weight), as (ints, floats): the joints to recompute per hypothesis (those the
+    points need, :func:`mark_needed`, and the parameters move, parents first), the joints and
+    parameters read but fixed, the angles to take sines of, every frame's fixed joints at
+    ``base`` and, for a recomputed joint whose parent is fixed (preset), its position and
+    frame below its own rotations (the other joints' rows of W0, Wp0 are left unset), and
+    block buffers for G frames' batches of up to n hypotheses side by side (G = COLUMNS // n,
+    at least 1; see :func:`block_views`). ``work``: a float64 buffer whose start becomes
+    ``floats`` where it is large enough (one buffer for a run's stages: a fresh one each stage
+    costs page faults), else a new one."""
     F, P = base.shape
     J = parents.shape[0]
     Q = pm_ptr.shape[0] - 1
@@ -256,6 +277,7 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
     for j in range(J):
         if needed[j] and parents[j] >= 0:
             oriented[parents[j]] = 1
+    listed = np.zeros(J, dtype=np.bool_)
     variable = np.zeros(J, dtype=np.bool_)
     count = 0
     for j in range(J):
@@ -266,11 +288,17 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
         variable[j] = v
         if v and needed[j]:
             order[count] = j
+            listed[j] = True
             count += 1
-    read = np.zeros(J, dtype=np.bool_)  # needed joints read: a listed joint's parent, a point's joints
+    # a listed joint whose parent is fixed is preset: its position and frame before its own
+    # rotations are the same for all of a frame's hypotheses, copied per frame like a fixed
+    # joint's; its parent is then read only at base (unless a point reads it)
+    preset = np.zeros(J, dtype=np.bool_)
     for c in range(count):
-        if parents[order[c]] >= 0:
-            read[parents[order[c]]] = True
+        preset[order[c]] = parents[order[c]] >= 0 and not listed[parents[order[c]]]
+    read = np.zeros(J, dtype=np.bool_)  # fixed joints that a point reads, and the preset joints
+    for c in range(count):
+        read[order[c]] = preset[order[c]]
     for t in range(subset.shape[0]):
         for e in range(pm_ptr[subset[t]], pm_ptr[subset[t] + 1]):
             read[pm_joint[e]] = True
@@ -279,7 +307,7 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
             read[pm_joint[e]] = True
     n_fixed = 0
     for j in range(J):
-        if read[j] and not variable[j]:
+        if read[j] and (preset[j] or not listed[j]):
             fixed[n_fixed] = j
             n_fixed += 1
     # parameters the listed joints read: a joint's angles turn only its own frame, so those of a
@@ -289,7 +317,7 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
         for k in range(GLOBAL_PARAMS):
             reads_param[k] = True
     for c in range(count):
-        if not oriented[order[c]]:
+        if not oriented[order[c]] & 1:
             continue
         for a in range(A):
             if axes[order[c], a] >= 0:
@@ -303,20 +331,28 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
         elif stage_pos[k] < 0 and reads_param[k]:
             frows[n_frows] = k
             n_frows += 1
+    for j in range(J):
+        if preset[j]:
+            oriented[j] |= 2
     ints[0], ints[1], ints[2], ints[3] = count, n_fixed, n_rows, n_frows
     G = max(1, min(F, COLUMNS // n))
     ints[4], ints[5], ints[6], ints[7], ints[8], ints[9] = n, F, P, J, Q, G
     C = G * n
     size = 3 * F * P + 12 * F * J + 3 * P * C + 12 * J * C + 9 * C + 3 * Q * C
     floats = work[:size] if work is not None and work.shape[0] >= size else np.empty(size)
-    (b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, _) = block_views(ints, floats)
+    (b, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = block_views(ints, floats)
     b[:] = base
-    at_base = np.zeros(J, dtype=np.bool_)  # the fixed joints and their ancestors
+    # the frames' joints at base: the fixed joints copied, the preset joints' parents and
+    # their ancestors; then the preset joints with their own angles at 0
+    at_base = np.zeros(J, dtype=np.bool_)
     for t in range(n_fixed):
-        mark_with_ancestors(parents, fixed[t], at_base)
+        j = fixed[t]
+        mark_with_ancestors(parents, parents[j] if preset[j] else j, at_base)
     base_joints = np.flatnonzero(at_base)
+    preset_joints = np.flatnonzero(preset)
+    copied = np.flatnonzero(at_base | preset)
     all_oriented = np.ones(J, dtype=np.int64)
-    for f0 in range(0, F, C):  # C frames at a time, by the hypotheses' code
+    for f0 in range(0, F, C):  # the fixed joints at base, C frames at once, by the same code as the hypotheses'
         B = min(C, F - f0)
         for k in range(P):
             for i in range(B):
@@ -328,9 +364,15 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
                 bsin[f0 + i, k], bcos[f0 + i, k] = sv, cv
         block_frames(B, pB, sinB, cosB, base_joints, base_joints.shape[0], all_oriented, parents, offsets, rest,
                      rest_identity, axes, axis_params, mirror, WB, WpB, GB)
+        for j in preset_joints:  # turned by 0: their frames before their own rotations
+            for a in range(A):
+                if axes[j, a] >= 0:
+                    for i in range(B):
+                        sinB[axis_params[j, a], i], cosB[axis_params[j, a], i] = 0.0, 1.0
+        block_frames(B, pB, sinB, cosB, preset_joints, preset_joints.shape[0], all_oriented, parents, offsets, rest,
+                     rest_identity, axes, axis_params, mirror, WB, WpB, GB)
         for i in range(B):
-            for t in range(n_fixed):
-                j = fixed[t]
+            for j in copied:
                 for r in range(3):
                     Wp0[f0 + i, j, r] = WpB[j, r, i]
                     for c in range(3):
@@ -340,9 +382,9 @@ def block_setup(parents, offsets, rest, rest_identity, axes, axis_params, mirror
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def block_views(ints, floats):
-    """The arrays in a block computation's floats: base, bsin, bcos (F, P); the frames' fixed
-    joints at base W0 (F, J, 3, 3), Wp0 (F, J, 3) mm; block buffers pB, sinB, cosB (P, C), WB
-    (J, 3, 3, C), WpB (J, 3, C), GB (3, 3, C), points pts (Q, 3, C), C = G n columns (frame g's
+    """The arrays of a stage's floats: base, bsin, bcos (F, P); W0 (F, J, 3, 3), Wp0 (F, J, 3)
+    the frames' joints at base (see :func:`block_setup`); block buffers pB, sinB, cosB (P, C), WB (J, 3, 3, C), WpB
+    (J, 3, C), GB (3, 3, C) and points pts (Q, 3, C) with C = G n columns (frame g's
     hypothesis i in column g n + i)."""
     n, F, P, J, Q = ints[4], ints[5], ints[6], ints[7], ints[8]
     C = ints[9] * n
@@ -376,10 +418,11 @@ def block_views(ints, floats):
 @nb.njit(cache=True, nogil=True, fastmath=True)
 def block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, f0, f1, X,
                      first=0, m=-1, particles_last=False):
-    """The joints (WpB, WB) of frames f0 <= f < f1 (at most G) for hypotheses X[f, first:first +
-    m] (X (F, >= first + m, d); m < 0: the rest of X), frame f's hypothesis first + i in column
-    (f - f0) m + i. With ``particles_last`` X is (F, d, >= first + m)."""
-    (base, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, _) = block_views(ints, floats)
+    """The joints of frames f0 <= f < f1 (at most G) with hypotheses X[f, first:first + m]
+    (X (F, >= first + m, d); m < 0: the rest of X) into the block buffers WpB, WB: frame f's
+    hypothesis first + i in column (f - f0) m + i. With ``particles_last`` X is (F, d, >=
+    first + m), the hypotheses innermost (copied into the block along its rows)."""
+    (base, bsin, bcos, W0, Wp0, pB, sinB, cosB, WB, WpB, GB, pts) = block_views(ints, floats)
     J, P = ints[7], ints[6]
     order, oriented, fixed, rows, frows, stage_pos = block_lists(ints, J, P)
     if m < 0:
@@ -403,16 +446,17 @@ def block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, m
                 pB[k, i] = v
                 sinB[k, i] = s
                 cosB[k, i] = c
-        for t in range(n_fixed):
+        for t in range(n_fixed):  # one loop per fixed joint, not per entry: a swarm is short
             j = fixed[t]
-            for r in range(3):
-                v = Wp0[f, j, r]
-                for i in range(at, at + m):
-                    WpB[j, r, i] = v
-                for c in range(3):
-                    v = W0[f, j, r, c]
-                    for i in range(at, at + m):
-                        WB[j, r, c, i] = v
+            p0, p1, p2 = Wp0[f, j, 0], Wp0[f, j, 1], Wp0[f, j, 2]
+            a00, a01, a02 = W0[f, j, 0, 0], W0[f, j, 0, 1], W0[f, j, 0, 2]
+            a10, a11, a12 = W0[f, j, 1, 0], W0[f, j, 1, 1], W0[f, j, 1, 2]
+            a20, a21, a22 = W0[f, j, 2, 0], W0[f, j, 2, 1], W0[f, j, 2, 2]
+            for i in range(at, at + m):
+                WpB[j, 0, i], WpB[j, 1, i], WpB[j, 2, i] = p0, p1, p2
+                WB[j, 0, 0, i], WB[j, 0, 1, i], WB[j, 0, 2, i] = a00, a01, a02
+                WB[j, 1, 0, i], WB[j, 1, 1, i], WB[j, 1, 2, i] = a10, a11, a12
+                WB[j, 2, 0, i], WB[j, 2, 1, i], WB[j, 2, 2, i] = a20, a21, a22
     columns = (f1 - f0) * m
     for r in range(n_rows):
         k = rows[r]
@@ -425,8 +469,9 @@ def block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, m
 @nb.njit(cache=True, nogil=True)
 def tree_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
                 ints, floats, params, subset, out):
-    """out (Q, 3, N) mm = the points ``subset`` of params (N, P), n hypotheses at a time, by a
-    :func:`block_setup` (``ints``, ``floats``) with all parameters moving."""
+    """out (Q, 3, N) mm = the points ``subset`` of params (N, P), the hypothesis innermost (a
+    layout of the scoring loops), by the block kinematics of a :func:`block_setup` of all
+    parameters moving, for ``subset``, over up to n columns (``ints``, ``floats``)."""
     N, P = params.shape
     n = ints[4]
     WpB = block_views(ints, floats)[9]
@@ -434,18 +479,12 @@ def tree_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror
     for n0 in range(0, N, n):
         B = min(n, N - n0)
         block_kinematics(parents, offsets, rest, rest_identity, axes, axis_params, mirror, ints, floats, 0, 1, X, n0, B)
-        block_points(B, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out, n0)
+        block_points(B, WpB, pm_ptr, pm_joint, pm_weight, subset, 0, subset.shape[0], out, 0, n0)
 
 
-class _ForwardSetups(threading.local):
-    """Per thread (a setup holds buffers), per tree: ``model.forward``'s arrays and
-    :func:`block_setup` (pays: Problem.evaluate of 64 hypotheses 1.3x, of one 1.8x as fast)."""
-
-    def __init__(self) -> None:
-        self.trees = weakref.WeakKeyDictionary()
-
-
-_FORWARD_SETUPS = _ForwardSetups()
+#: per thread (a setup holds working buffers), per kinematic tree: ``model.forward``'s
+#: :func:`block_setup` (all parameters moving, every joint, :data:`COLUMNS` hypotheses a block)
+_FORWARD_SETUPS = threading.local()
 
 
 class TreeHandModel(HandModel):
@@ -465,13 +504,14 @@ class TreeHandModel(HandModel):
     def _forward(self, params: np.ndarray) -> np.ndarray:
         """:func:`tree_points` of every joint (the identity point map), as (N, J, 3)."""
         t = self._tree
-        trees = _FORWARD_SETUPS.trees
+        trees = getattr(_FORWARD_SETUPS, "trees", None)
+        if trees is None:
+            trees = _FORWARD_SETUPS.trees = weakref.WeakKeyDictionary()
         entry = trees.get(t)
         if entry is None:
             J, P = len(t.parents), self.n_params
             every = np.arange(J + 1, dtype=np.int64)
-            arrays = (np.ascontiguousarray(t.parents, dtype=np.int64),
-                      np.ascontiguousarray(t.offsets, dtype=np.float64),
+            arrays = (np.ascontiguousarray(t.parents, dtype=np.int64), np.ascontiguousarray(t.offsets, dtype=np.float64),
                       np.ascontiguousarray(t.rest, dtype=np.float64), np.ascontiguousarray(t.rest_is_identity),
                       np.ascontiguousarray(t.axes, dtype=np.int64), np.ascontiguousarray(t.axis_params, dtype=np.int64),
                       float(t.mirror), every, every[:J], np.ones(J))

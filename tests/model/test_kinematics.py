@@ -48,7 +48,7 @@ def test_blocks_do_not_change_a_hypothesis(hand26):
 
 def test_a_stages_blocks_are_the_models_forward(hand26):
     """A stage's block kinematics (the joints it moves recomputed per hypothesis, the fixed
-    ones copied from the frame's base) give
+    ones and a moved joint's frame below its own rotations copied from the frame's base) give
     the joints of ``forward`` with the stage's parameters put into the base, for every
     stage-like set of parameters: one finger, the thumb, the global pose, all of them."""
     from hybridfit.model.kinematics import block_kinematics, block_setup, block_views
