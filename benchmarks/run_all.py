@@ -12,6 +12,11 @@ records, a failed job's earlier record (if any) still in place.
 ``--quick`` runs each job at tiny settings, a smoke test: its records and page go to a
 temporary folder (or ``--out``), never to the committed ones. ``--only`` runs the jobs
 named; ``--list`` prints every job's name and command.
+
+A full run first deletes numba's cache files in the checkout (``hybridfit/`` and ``plugins/``):
+numba re-compiles a cached function when its own file changes, not when a function it
+inlines from another module does (the scorers inline the kinematics), so a cache older than
+the source could be what the figures measure. The first job compiles again.
 """
 
 from __future__ import annotations
@@ -141,6 +146,14 @@ def run_job(job: Job, record: Path, work: Path, quick: bool) -> int:
     return 0
 
 
+def clear_numba_caches() -> int:
+    """Delete numba's cache files (.nbi, .nbc) under the checkout's packages; how many."""
+    found = [f for d in ("hybridfit", "plugins") for ext in ("*.nbi", "*.nbc") for f in (REPO / d).rglob(ext)]
+    for f in found:
+        f.unlink(missing_ok=True)
+    return len(found)
+
+
 def main(argv: list[str] | None = None, jobs: list[Job] | None = None) -> int:
     jobs = JOBS if jobs is None else jobs
     names = [j.name for j in jobs]
@@ -164,6 +177,7 @@ def main(argv: list[str] | None = None, jobs: list[Job] | None = None) -> int:
         benchmarks, studies, work, page = root / "benchmarks", root / "studies", root / "work", root / "results.md"
     else:
         benchmarks, studies, work, page = RESULTS, STUDY_RESULTS, REPO / "bench_out", None
+        print(f"deleted {clear_numba_caches()} numba cache files: the first job compiles the current source")
     work.mkdir(parents=True, exist_ok=True)
     failed = []
     for i, job in enumerate(chosen, 1):

@@ -90,3 +90,17 @@ def test_a_study_job_keeps_the_studys_results_json(tmp_path, monkeypatch):
     assert run_all.run_job(job, record, tmp_path / "work", quick=True) == 0
     assert calls[0][:4] == [sys.executable, "-m", "hybridfit", "study"] and "--quick" in calls[0]
     assert record.read_text() == '{"version": "0"}'
+
+
+def test_a_full_run_starts_from_numba_caches_of_the_current_source(tmp_path, monkeypatch):
+    """numba's cache files in the checkout's packages are deleted (a kernel inlining another
+    module's function is not re-compiled when only that module changed); sources stay."""
+    kept = [tmp_path / "hybridfit" / "kernels.py", tmp_path / "plugins" / "notes.txt"]
+    gone = [tmp_path / "hybridfit" / "__pycache__" / "kernels.f-1.py311.nbi",
+            tmp_path / "plugins" / "optimizers" / "__pycache__" / "pso.f-2.py311.1.nbc"]
+    for f in kept + gone:
+        f.parent.mkdir(parents=True, exist_ok=True)
+        f.write_text("x")
+    monkeypatch.setattr(run_all, "REPO", tmp_path)
+    assert run_all.clear_numba_caches() == 2
+    assert all(f.exists() for f in kept) and not any(f.exists() for f in gone)
