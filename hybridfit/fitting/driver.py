@@ -52,7 +52,7 @@ from .polish import polish
 CALLBACK_BATCH = 256
 
 
-# ---------------------------------------------------------------- helpers of the loop (numba, callable from Python)
+# ---------------------------------------------------------------- helpers of the loop
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def first_lowest(values, m):

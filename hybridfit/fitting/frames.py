@@ -270,18 +270,20 @@ def fit(
 
     # schedules of batch steps run chunks of frames in lockstep, on threads with jobs > 1; others
     # (callback solvers, depth objectives) frame by frame, in worker processes with jobs > 1
-    found = None if observations is not None else driver.batched_layout(model, objective, optimizer, problem, budget)
     fitter = driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm, polish)
+    # the first frame's plan, made once: the driver keeps it for the frames with its observed points
+    lockstep = (problem is not None and observations is None and not fitter.observed and fitter.additive
+                and fitter.layout(problem).lockstep)
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
         with stops.deferred():  # a stop signal is raised between chunks or frames, never inside compiled code
-            if found is not None or jobs <= 1 or F <= 1:
-                size = min(CHUNK if found is not None else 1, max(1, -(-F // jobs)))  # jobs > 1: >= jobs chunks
+            if lockstep or jobs <= 1 or F <= 1:
+                size = min(CHUNK if lockstep else 1, max(1, -(-F // jobs)))  # jobs > 1: >= jobs chunks
                 chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // size)))]
-                for items in fitter.fit_chunks(chunks, proposals, confidences, jobs if found is not None else 1,
+                for fitted in fitter.fit_chunks(chunks, proposals, confidences, jobs if lockstep else 1,
                                                observations):
-                    store(items)
-                    bar.update(len(items))
+                    store(fitted)
+                    bar.update(len(fitted))
                     stops.check()
             else:
                 chunks = np.array_split(np.arange(F), min(F, jobs * 8))
@@ -296,9 +298,9 @@ def fit(
                         while pending:  # wakes every STOP_POLL_S: a stop signal is acted on at once
                             finished, pending = wait(pending, timeout=STOP_POLL_S, return_when=FIRST_COMPLETED)
                             for fut in finished:
-                                items = fut.result()
-                                store(items)
-                                bar.update(len(items))
+                                fitted = fut.result()
+                                store(fitted)
+                                bar.update(len(fitted))
                             stops.check()
                     except KeyboardInterrupt:  # the chunks still running are lost: stop their workers now
                         for worker in list((getattr(pool, "_processes", None) or {}).values()):
