@@ -16,6 +16,7 @@ from typing import Literal
 #: the built-in hand models (entry-point group ``hybridfit.models``)
 ModelName = Literal["hand26", "hand27", "hand29"]
 #: the built-in objectives (``hybridfit.objectives``)
-ObjectiveName = Literal["clamped-confidence", "gaussian-mixture", "least-squares", "rendered-depth", "hybrid"]
+ObjectiveName = Literal["clamped-then-soft-l1", "clamped-confidence", "gaussian-mixture", "least-squares",
+                        "rendered-depth", "hybrid", "soft-l1"]
 #: the built-in optimisers (``hybridfit.optimizers``)
-OptimizerName = Literal["stepwise-pso", "pso", "stepwise", "cmaes", "nlopt", "casadi-ik", "pymoo"]
+OptimizerName = Literal["stepwise-pso", "pso", "stepwise", "cmaes", "nlopt", "casadi-ik", "pymoo", "levenberg-marquardt"]

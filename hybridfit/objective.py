@@ -28,7 +28,7 @@ import numpy as np
 
 from .datasets.camera import Intrinsics
 from .errors import HybridfitError, PluginError
-from .plugin import Plugin, defining_class
+from .plugin import Plugin, declare_offers
 from .point_loss import bound_point_loss
 
 #: an objective's fast form, its per-point loss: point_loss(x (n,), y (n,), z (n,) mm, the
@@ -101,7 +101,19 @@ class Objective(Plugin, abc.ABC):
     (plain numpy, any loss over a frame's points). With a ``point_loss``, ``bind`` comes
     built from it. Objectives that see the depth image offer ``bind_observed``; ``casadi_loss``
     is an optional symbolic form for gradient solvers (``casadi-ik``).
+
+    ``offers`` (data the core reads) names the forms the class offers (:data:`FORMS`). It is
+    set when the class is created, from the methods the class defines itself: a subclass that
+    defines its own ``bind`` (or ``bind_observed``) offers no ``point_loss`` or ``casadi_loss``
+    of its parent, which would score otherwise than its ``bind``
+    (:func:`~hybridfit.plugin.declare_offers`); a class may declare ``offers`` outright.
     """
+
+    offers: ClassVar[frozenset[str]] = frozenset()
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        declare_offers(cls, FORMS, SUPERSEDES)
 
     #: capability: bind_observed needs the frame's depth Observation and the model
     observes_depth: ClassVar[bool] = False
@@ -136,30 +148,35 @@ class Objective(Plugin, abc.ABC):
         """A lower bound of the loss for these weights (-inf when unknown)."""
         return -np.inf
 
+    def local_objective(self) -> Objective | None:
+        """Form ``local_objective``: the objective a schedule's local stage minimises when the
+        schedule names none for it (a pair, as ``clamped-then-soft-l1``); None (the default):
+        this objective itself."""
+        return None
+
     def casadi_loss(self, points: Any, proposals: np.ndarray, weights: np.ndarray, subset: np.ndarray) -> Any:
         """Capability: the loss as CasADi symbols of points (Q, 3) SX for gradient-based
         solvers (``casadi-ik``); None (the default): not offered."""
         return None
 
 
-#: the forms of :class:`Objective` that stand in for its ``bind`` (each overrides a base method returning None)
-CAPABILITIES = ("point_loss", "casadi_loss")
+#: the forms an objective may offer (``Objective.offers``): ``point_loss`` and ``casadi_loss``
+#: stand in for its ``bind`` (:data:`CAPABILITIES`)
+FORMS = ("point_loss", "bind", "bind_observed", "casadi_loss", "local_objective")
+CAPABILITIES = ("point_loss", "casadi_loss", "local_objective")
+#: a form a class defines replaces these forms of its parent (a class with a loss of its own
+#: offers no local objective of its parent's)
+SUPERSEDES = {"bind": ("point_loss", "casadi_loss", "local_objective"),
+              "bind_observed": ("point_loss", "casadi_loss", "local_objective"),
+              "point_loss": ("local_objective",)}
 
 
 def capability(objective: Any, name: str) -> Callable | None:
-    """The objective's bound method ``name`` (one of :data:`CAPABILITIES`) when it may stand in
-    for its ``bind``, else None.
-
-    A form is valid only when the class that defines it is the class that defines the
-    ``bind`` in effect, or a subclass of it: a subclass that overrides ``bind`` never runs its
-    parent's ``point_loss``. Objects that are not :class:`Objective` subclasses offer nothing."""
+    """The objective's bound method ``name`` (one of :data:`CAPABILITIES`) when its class offers
+    it (``offers``), else None. Objects that are not :class:`Objective` subclasses offer nothing."""
     if name not in CAPABILITIES:
         raise ValueError(f"unknown objective capability {name!r}; choose from {CAPABILITIES}")
-    if not isinstance(objective, Objective):
-        return None
-    provider = defining_class(type(objective), name)
-    binder = defining_class(type(objective), "bind_observed" if objective.observes_depth else "bind")
-    if provider is Objective or (binder is not Objective and not issubclass(provider, binder)):
+    if not isinstance(objective, Objective) or name not in type(objective).offers:
         return None
     return getattr(objective, name)
 

@@ -1,13 +1,18 @@
 """The abstract optimiser.
 
 An optimiser minimises (see :mod:`hybridfit.objective`). It never calls the objective
-directly. Two ways to write one:
+directly. Three ways to write one, each a form the class declares in ``offers``:
 
 - **Batch steps** (preferred): ``batch_steps()`` returns :class:`~hybridfit.task.BatchSteps`,
   three pure functions over arrays with a leading frame axis (ask/tell). The driver
   (:mod:`hybridfit.fitting.driver`) runs them for many frames in lockstep, one call per
   generation for a whole chunk of frames, scoring the batches itself (numba-compiled steps
   and an objective's per-point loss make every generation compiled code).
+- **Derivative steps** (a local, gradient-based step): ``derivative_steps()`` returns
+  :class:`~hybridfit.task.DerivativeSteps`, batch steps whose ``tell`` also gets each
+  hypothesis's loss gradient and curvature, computed by the driver through the kinematic
+  tree's Jacobian and the objective's per-point loss (each such row costs ``d + 1``
+  evaluations, as a forward-difference gradient would).
 - **A callback solver** (NLopt, IPOPT, ...) overrides ``minimize(task, rng)`` and calls
   ``task.evaluate``; the driver runs it on each frame's stage in turn.
 
@@ -21,19 +26,45 @@ every stage of it, whichever way each stage's optimiser is written
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from .errors import HybridfitError
-from .plugin import Plugin
-from .task import BatchSteps, OptimizeResult, StagePlan, Task, steps_of  # noqa: F401
+from .plugin import Plugin, declare_offers
+from .task import BatchSteps, DerivativeSteps, OptimizeResult, StagePlan, Task  # noqa: F401
+
+#: the forms an optimiser may offer the driver (``Optimizer.offers``)
+FORMS = ("batch_steps", "derivative_steps", "minimize", "plan")
+#: a form a class defines replaces these forms of its parent (a subclass that overrides
+#: ``minimize`` is run by its ``minimize``, never through its parent's steps or plan)
+SUPERSEDES = {"minimize": ("batch_steps", "derivative_steps", "plan"),
+              "batch_steps": ("minimize", "derivative_steps"),
+              "derivative_steps": ("minimize", "batch_steps")}
 
 
 class Optimizer(Plugin):
-    """Minimises a task's loss within its evaluation budget (see the module doc)."""
+    """Minimises a task's loss within its evaluation budget (see the module doc).
+
+    ``offers`` (data the driver reads) names the forms the class offers: ``batch_steps``,
+    ``derivative_steps``, ``minimize`` (a callback solver) and ``plan`` (its own schedule).
+    It is set when the class is created, from the methods the class defines itself
+    (:func:`~hybridfit.plugin.declare_offers`), or declared outright in the class body."""
+
+    offers: ClassVar[frozenset[str]] = frozenset()
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        declare_offers(cls, FORMS, SUPERSEDES)
 
     def batch_steps(self) -> BatchSteps | None:
-        """Capability: this optimiser's :class:`BatchSteps` (the same functions for every
-        configuration of the class); None (the default): it only has ``minimize``."""
+        """Form ``batch_steps``: this optimiser's :class:`BatchSteps` (the same functions for
+        every configuration of the class)."""
+        return None
+
+    def derivative_steps(self) -> DerivativeSteps | None:
+        """Form ``derivative_steps``: this optimiser's :class:`DerivativeSteps`, batch steps told
+        each hypothesis's loss gradient and curvature too (a local, gradient-based step)."""
         return None
 
     def batch_settings(self, budget: int) -> tuple[int, np.ndarray]:
@@ -42,8 +73,8 @@ class Optimizer(Plugin):
         raise NotImplementedError(f"optimizer {self.name or type(self).__name__} has batch_steps but no batch_settings")
 
     def plan(self, task: Task) -> list[StagePlan]:
-        """The stage schedule this optimiser runs on a task: by default one stage of all the
-        task's parameters and points, run by itself (``stepwise`` splits it)."""
+        """Form ``plan``: the stage schedule this optimiser runs on a task. Without the form
+        (the default) one stage of all the task's parameters and points, run by itself."""
         return [StagePlan("all", task.parameters, task.points, task.points, task.budget, self)]
 
     def min_budget(self, task: Task) -> int:
@@ -51,9 +82,9 @@ class Optimizer(Plugin):
         return 1
 
     def minimize(self, task: Task, rng: np.random.Generator) -> None:
-        """A callback solver's whole work on one stage of one frame: spend at most
-        ``task.budget`` evaluations through ``task.evaluate`` (the task keeps the best), all
-        randomness from ``rng``. Optimisers with ``batch_steps`` do not override it."""
+        """Form ``minimize``, a callback solver's whole work on one stage of one frame: spend at
+        most ``task.budget`` evaluations through ``task.evaluate`` (the task keeps the best),
+        all randomness from ``rng``."""
         raise NotImplementedError(f"optimizer {self.name or type(self).__name__} has neither batch_steps nor "
                                   f"minimize")
 

@@ -70,13 +70,24 @@ class Plugin:
         return f"{type(self).__name__}({args})"
 
 
-def defining_class(cls: type, name: str) -> type:
-    """The class in ``cls``'s method resolution order that defines attribute ``name``: how the
-    core tells whether an optional capability belongs to the method it stands in for."""
-    for klass in cls.__mro__:
-        if name in vars(klass):
-            return klass
-    raise AttributeError(f"{cls.__name__} has no attribute {name!r}")
+def declare_offers(cls: type, forms: tuple[str, ...], supersedes: Mapping[str, tuple[str, ...]]) -> None:
+    """Set ``cls.offers``, what a plugin class offers the core (a frozenset of the ``forms``),
+    from the methods the class defines itself, at the class's creation (``__init_subclass__``):
+    its parent's offers, less those that a method it defines supersedes (``supersedes``: form ->
+    the forms it replaces), plus the forms it defines. A class that sets ``offers`` in its own
+    body declares it outright. The core reads only ``offers``: a subclass's override is honoured
+    by construction, never found by searching the class hierarchy."""
+    if "offers" in vars(cls):
+        cls.offers = frozenset(cls.offers)
+        unknown = sorted(cls.offers - set(forms))
+        if unknown:
+            raise TypeError(f"{cls.__name__}.offers: unknown {unknown}; the forms are {forms}")
+        return
+    own = {form for form in forms if form in vars(cls)}
+    inherited = set(getattr(cls, "offers", frozenset()))
+    for form in own:
+        inherited -= set(supersedes.get(form, ()))
+    cls.offers = frozenset(inherited | own)
 
 
 def _has_defaults(settings: type[Settings]) -> bool:

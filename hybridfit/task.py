@@ -12,7 +12,6 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from .errors import BudgetExceeded
-from .plugin import defining_class
 from .problem import Problem
 
 
@@ -31,8 +30,9 @@ class StagePlan:
     (the point indices minimised over) with ``budget`` evaluations; ``owned`` (a subset of
     ``points``) are the points whose loss the stage contributes to the frame's loss. The
     owned sets of a plan partition the task's points, except a final refinement, which owns
-    them all. Each stage starts from the parameters the stages before it left, and is run by
-    ``optimizer`` (None: whoever runs the plan)."""
+    them all. Each stage starts from the parameters the stages before it left, is run by
+    ``optimizer`` (None: whoever runs the plan) and minimises ``objective`` (None: the
+    objective in force, the fit's)."""
 
     name: str
     parameters: np.ndarray
@@ -40,6 +40,7 @@ class StagePlan:
     owned: np.ndarray
     budget: int
     optimizer: object = None
+    objective: object = None
 
 
 class Task:
@@ -125,13 +126,16 @@ class BatchSteps(NamedTuple):
     tell: Callable
 
 
-def steps_of(optimizer) -> BatchSteps | None:
-    """The optimiser's valid :class:`BatchSteps`, or None: valid when the class that defines
-    ``batch_steps`` is the one that defines the ``minimize`` in effect, or a subclass of it (a
-    subclass that overrides ``minimize`` is never run through its parent's steps)."""
-    cls = type(optimizer)
-    try:
-        provider, minimize = defining_class(cls, "batch_steps"), defining_class(cls, "minimize")
-    except AttributeError:
-        return None
-    return optimizer.batch_steps() if issubclass(provider, minimize) else None
+class DerivativeSteps(NamedTuple):
+    """A local optimiser's batch interface: :class:`BatchSteps` whose ``tell(state, X (F, m, d),
+    losses (F, m), gradients (F, m, d), curvatures (F, m, d, d))`` also gets each hypothesis's
+    loss gradient (per unit of each parameter) and a positive semi-definite curvature (the
+    Gauss-Newton matrix sum_q J_q^T H_q J_q of the points' Jacobians J_q through the kinematic
+    tree and the per-point loss's Hessians H_q projected onto positive semi-definite ones).
+    The driver computes them by forward differences and counts each row as ``d + 1``
+    evaluations; it asks ``m = min(batch, left // (d + 1))`` rows, and ends the stage when
+    no row is left (a remainder below ``d + 1`` is not spent)."""
+
+    init: Callable
+    ask: Callable
+    tell: Callable

@@ -41,7 +41,7 @@ from .objective import (
     point_loss_of,
 )
 from .optimizer import Optimizer
-from .plugin import Settings, defining_class
+from .plugin import Settings
 from .point_loss import bound_point_loss
 from .problem import Problem
 from .synthetic.proposals import synthetic_proposals
@@ -335,12 +335,12 @@ def _frame(seed: int, objective: Objective | None = None, K: int = 3):
 def check_objective_forms(objective: Objective) -> None:
     """It offers its loss in a form the core runs: a ``point_loss`` (the fast form) or its own
     ``bind`` (numpy); ``bind_observed`` when it ``observes_depth``."""
-    cls = type(objective)
+    offers = type(objective).offers
     if objective.observes_depth:
-        _require(defining_class(cls, "bind_observed") is not Objective, f"{_label(objective)}: it observes depth "
+        _require("bind_observed" in offers, f"{_label(objective)}: it observes depth "
                  f"(observes_depth = True) but defines no bind_observed, the form the core scores it by")
     else:
-        _require(defining_class(cls, "bind") is not Objective or point_loss_of(objective) is not None,
+        _require("bind" in offers or point_loss_of(objective) is not None,
                  f"{_label(objective)}: it offers its loss in no form: define point_loss (the fast form, a numba "
                  f"function of one point) or bind (numpy, a loss over a frame's points)")
 
@@ -401,10 +401,10 @@ def _unused(objective: Objective, name: str) -> str:
     """Why the core runs no ``name`` (``point_loss`` or ``casadi_loss``) of the objective."""
     if objective.observes_depth:
         return "it observes depth: the core scores it on the whole hand (bind_observed) only"
-    if defining_class(type(objective), name) is Objective:
-        return f"it offers no {name}"
     if capability(objective, name) is None:
-        return f"its {name} is defined above its own bind, which the core runs instead"
+        defined = getattr(type(objective), name, None) is not getattr(Objective, name, None)
+        return (f"its {name} is its parent's, and it defines its own bind, which the core runs instead" if defined
+                else f"it offers no {name}")
     return f"its {name} returns None"
 
 
@@ -457,7 +457,7 @@ def check_objective_point_loss_agrees(objective: Objective) -> None:
     """Its ``point_loss`` (what the driver scores by) gives its own ``bind``'s losses (what a
     Task and a model without a kinematic tree score by), when it defines both."""
     _point_loss(objective)
-    if defining_class(type(objective), "bind") is Objective:
+    if "bind" not in type(objective).offers:
         not_applicable(objective, "its bind is the one built from its point_loss: nothing to compare")
     _agrees_with_bind(objective, "point_loss", lambda points, subset, proposals, weights:
                       bound_point_loss(point_loss_of(objective), proposals, weights)(points, subset))

@@ -51,7 +51,7 @@ def load_toml(path: str | None) -> dict[str, Any]:
 
 
 #: the plugins a command uses when none is named
-DEFAULT_PLUGINS = {"model": "hand26", "objective": "clamped-confidence", "optimizer": "stepwise-pso"}
+DEFAULT_PLUGINS = {"model": "hand26", "objective": "clamped-then-soft-l1", "optimizer": "stepwise-pso"}
 #: the key of a model settings file that names the model it is for (``hybridfit calibrate`` writes it)
 MODEL_KEY = "model"
 

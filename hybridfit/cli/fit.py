@@ -50,9 +50,6 @@ def register(sub) -> None:
                    help="the hand of the data: right or left (the model's mirror image), or auto (default): the "
                    "model as configured, or its mirror image where that fits a check on a few frames clearly "
                    "better (said on stderr)")
-    p.add_argument("--no-polish", action="store_true", help="skip the polish of every fitted frame (a robust "
-                   "least-squares on the model's rigid hand, hybridfit.fitting.polish): the optimiser's result at "
-                   "exactly --budget evaluations, as studies comparing optimisers use it")
     p.add_argument("--calibrate", choices=("auto", "self", "none"), default="auto",
                    help="the subject's skeleton: auto (default): self-calibrated from the proposals themselves (as "
                    "`hybridfit calibrate --proposals` does, no ground truth) when they come from a real data set "
@@ -95,8 +92,7 @@ def run(args) -> int:
             print("interrupted during the self-calibration: nothing fitted", file=sys.stderr)
             return EXIT_INTERRUPTED
     common = dict(joint_names=names, budget=args.budget, seed=args.seed, search_radius_mm=args.search_radius,
-                  progress=sys.stderr.isatty(), observations=depth.get("observations"), polish=not args.no_polish,
-                  **plugins)
+                  progress=sys.stderr.isatty(), observations=depth.get("observations"), **plugins)
     if args.track:
         result = track(data["proposals"], data["confidences"], first_params=depth.get("first_params"),
                        settings={"on_lost": args.on_lost}, **common)

@@ -27,8 +27,7 @@ the model's joints and derived points. From ground-truth points (F, Q, 3) mm:
    the size free) and ``(g - mean) / std`` for weights.
 5. **Refit** the poses with :func:`hybridfit.fit` on the new model and repeat (``rounds``).
 
-Reported errors are those of :func:`hybridfit.fit` with its default polish (a robust
-least-squares on the model's own rigid hand, :mod:`hybridfit.fitting.polish`), what a user
+Reported errors are those of :func:`hybridfit.fit` with its default schedule, what a user
 gets: on the calibration frames before and after, and on the held-out frames after (the
 floor), with the cost of refining a strong predictor there (:func:`refining_cost`).
 
@@ -183,7 +182,7 @@ def _configured(model: HandModel, values: np.ndarray) -> HandModel:
 
 def _fit_error(truth, names, model, budget, seed, jobs, progress, given=None):
     """hybridfit.fit of ``given`` (default: the truth) as k = 1 proposals, with its default
-    polish (what a user gets); (mean error, the FitResult, (F, Q) errors) against the truth."""
+    schedule (what a user gets); (mean error, the FitResult, (F, Q) errors) against the truth."""
     given = truth if given is None else given
     proposals, confidences = given[:, :, None, :], np.ones(given.shape[:2] + (1,))
     r = fit(proposals, confidences, model=model, joint_names=names, budget=budget, seed=seed, jobs=jobs,
@@ -196,7 +195,7 @@ def refining_cost(truth, names, model, *, error_mm: float = PREDICTOR_MM, seed: 
                   jobs: int = 1) -> tuple[float, float]:
     """(input, refined) mean error (mm) of a strong predictor on truth (F, Q, 3) mm: the
     truth plus errors of mean ``error_mm`` as a real predictor's (``synthetic.predictors``),
-    fitted and polished with ``model`` (a configured instance) as k = 1 proposals."""
+    fitted with ``model`` (a configured instance) as k = 1 proposals."""
     from ..synthetic.predictors import predictor_errors
 
     given = truth + predictor_errors(model, names, len(truth), np.random.default_rng(seed), predictors=1,
@@ -386,7 +385,7 @@ class SelfCalibration:
     calibrated model's settings; frames: the calibration frames (indices into the given
     frames); eligible: how many frames had proposals for enough points to be screened;
     residual_before / residual_after: the median distance (mm) of :func:`hybridfit.fit`'s
-    points (with its polish) from each point's most confident proposal, over the points with
+    points from each point's most confident proposal, over the points with
     one in the calibration frames, with the start (the scaled prior) and the calibrated
     model; mean_before / mean_after: their confidence-weighted mean; per_point_after (Q,)
     the median per point; noise_mm: the proposals' noise that median suggests (per
@@ -506,7 +505,7 @@ def self_calibrate(
 
     1. **Screen**: up to ``candidates`` frames, spread evenly over those with a proposal with
        a confidence for at least ``CONFIDENT_POINTS`` of their points, are fitted with
-       :func:`hybridfit.fit` (all the proposals, its default polish, ``fit_options``:
+       :func:`hybridfit.fit` (all the proposals, its default schedule, ``fit_options``:
        objective, optimizer, their configs, search_radius_mm) and the model's prior geometry
        scaled to the proposals' size, for both hands unless ``mirror`` is given; the hand
        whose fits lie closer to the most confident proposals (median) is kept.

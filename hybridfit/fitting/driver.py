@@ -1,14 +1,18 @@
 """The one execution path: a stage schedule run for many frames in lockstep.
 
-An optimiser's schedule (``optimizer.plan(task)``: stages of parameters, points, owned
-points and budgets, :class:`~hybridfit.task.StagePlan`) is laid out as data (:class:`Layout`),
-and :func:`run_schedule` runs it with a scorer (:mod:`.evaluator`):
+A fit's schedule is data: ``optimizer.plan(task)`` (for an optimiser that offers a plan,
+else one stage of everything) gives stages of parameters, points, owned points, budgets,
+the optimiser that runs each and the objective each minimises (None: the objective in
+force), :class:`~hybridfit.task.StagePlan`. It is laid out (:class:`Layout`, by what each
+stage's optimiser ``offers``) and :func:`run_schedule` runs it with scorers (:mod:`.evaluator`):
 
 - frames whose layouts are equal run together, the frame the leading array axis: a stage
   whose optimiser has batch steps makes one call of ``ask``, ``score`` and ``tell`` per
-  generation for the whole group; a callback solver's stage (``minimize(task, rng)``) runs
-  on each frame's :class:`~hybridfit.task.Task` in turn, its ``evaluate`` scored by the same
-  scorer (frames of such schedules form groups of one);
+  generation for the whole group; a stage of derivative steps (a local, gradient-based step)
+  is told each row's gradient and curvature too (:mod:`.derivatives`, ``d + 1`` evaluations a
+  row); a callback solver's stage (``minimize(task, rng)``) runs on each frame's
+  :class:`~hybridfit.task.Task` in turn, its ``evaluate`` scored by the same scorer (frames
+  of such schedules form groups of one);
 - each stage starts from the parameters the stages before it left (the first from the
   frame's initial guess, or the start given), spends its budget (batch steps: exactly;
   ``m = min(batch, left)`` rows per ask) and commits its best evaluated hypothesis; the
@@ -18,20 +22,21 @@ and :func:`run_schedule` runs it with a scorer (:mod:`.evaluator`):
 - stage s of frame f draws its random numbers from ``stage_key(seed, f, s)``
   (:mod:`hybridfit.keys`; a callback solver's ``rng`` is seeded with it): a frame's result
   does not depend on the frames beside it, the chunking or ``--jobs``;
-- then the fit is polished (:mod:`.polish`) when asked, and re-scored over every point when
-  polished or when the objective is not a sum over points (an image term).
+- when a stage minimises an objective of its own, or the objective in force is not a sum
+  over points (an image term), the final pose is scored once more by the objective in force
+  over every point (the frame's loss; not counted as an evaluation).
 
 The loop is written once (:func:`run_schedule`), in Python: it makes a few calls per
 generation for a whole group of frames, and the work is in the optimiser's steps (numba for
-the built-in PSO, numpy for others) and the scorer (:mod:`.evaluator`: numba kinematics and the
-objective's per-point loss compiled into one loop, or ``bind`` per frame).
+the built-in PSO and Levenberg-Marquardt, numpy for others) and the scorer (:mod:`.evaluator`:
+numba kinematics and the objective's per-point loss compiled into one loop, or ``bind`` per frame).
 """
 
 from __future__ import annotations
 
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numba as nb
@@ -39,14 +44,12 @@ import numpy as np
 
 from ..errors import BudgetExceeded, HybridfitError, PluginError
 from ..keys import stage_keys
-from ..objective import point_loss_of, require_finite
-from ..plugin import defining_class
+from ..objective import objective_label, point_loss_of, require_finite
 from ..problem import Problem, prepare_frames
 from ..stages import structure_of
-from ..task import BatchSteps, OptimizeResult, StagePlan, Task, steps_of
+from ..task import BatchSteps, DerivativeSteps, OptimizeResult, StagePlan, Task
 from . import stops
 from .evaluator import BoundScorer, CompiledLoss, PointScorer
-from .polish import polish
 
 #: hypotheses a callback solver's evaluation is scored in at a time (the scorer's block)
 CALLBACK_BATCH = 256
@@ -89,64 +92,116 @@ def commit(base, pidx, best_x, owned_loss, owns_all: bool, frame_loss, committed
     frame_loss[take] = committed[take]
 
 
-def run_schedule(lay: "Layout", scorer, x0, lower, upper, keys, out_params, out_loss, out_used,
+def run_schedule(lay: "Layout", scorer_of, x0, lower, upper, keys, out_params, out_loss, out_used,
                  problem_of=None) -> None:
     """Fit F frames of one layout (see the module doc): x0, lower, upper (F, P), keys (F, S)
-    uint64 -> out_params (F, P), out_loss (F,), out_used (F,) evaluations. ``problem_of(f)``:
+    uint64 -> out_params (F, P), out_loss (F,), out_used (F,) evaluations. ``scorer_of(objective)``:
+    the frames' scorer of an objective (None: the objective in force). ``problem_of(f)``:
     frame f's Problem, for a callback solver's Task (its stages need F == 1)."""
     F = x0.shape[0]
     base = x0.copy()
     frame_loss = np.full(F, np.inf)
     committed = np.zeros(F)
     out_used[:] = 0
-    objective = getattr(scorer, "objective", None)
-    for s, (name, optimizer, steps, settings, budget, n, pidx, subset, owned, owns_all) in enumerate(lay.stages):
+    for s, st in enumerate(lay.stages):
+        pidx, subset, owned, n, budget = st.parameters, st.points, st.owned, st.batch, st.budget
+        scorer = scorer_of(st.objective)
+        objective = scorer.objective
         lo, hi = lower[:, pidx], upper[:, pidx]
         start = np.minimum(np.maximum(base[:, pidx], lo), hi)
-        stage = scorer.prepare(base, pidx, subset, owned, n)
         best_loss = np.full(F, np.inf)
         best_x = start.copy()
-        if steps is not None:
-            state = steps.init(start, lo, hi, keys[:, s].copy(), budget, settings)
+        if st.kind == "derivative":
+            _derivative_stage(st, scorer, base, start, lo, hi, keys[:, s].copy(), best_x, best_loss, out_used)
+        elif st.kind == "batch":
+            stage = scorer.prepare(base, pidx, subset, owned, n)
+            state = st.steps.init(start, lo, hi, keys[:, s].copy(), budget, st.settings)
             losses = np.empty((F, n))
             left = budget
             while left > 0:
                 m = min(n, left)
-                X = steps.ask(state, m)
-                if not (isinstance(X, np.ndarray) and X.shape == (F, m, len(pidx)) and X.dtype == np.float64):
-                    raise PluginError(f"optimizer {_name(optimizer)}: ask(state, {m}) returned "
-                                      f"{getattr(X, 'shape', type(X))} {getattr(X, 'dtype', '')}, expected float64 "
-                                      f"{(F, m, len(pidx))}")
+                X = _asked(st, st.steps.ask(state, m), (F, m, len(pidx)))
                 scorer.score(stage, X, subset, losses)
                 require_finite(losses[:, :m], objective)  # a NaN or -inf loss: a plugin's bug
-                steps.tell(state, X, losses[:, :m])
+                st.steps.tell(state, X, losses[:, :m])
                 keep_best(X, losses, best_x, best_loss)
                 left -= m
                 stops.check()  # a stop signal lands here, between generations (hybridfit.fitting.stops)
             out_used += budget
         else:  # a callback solver: its frame's Task (groups of one frame)
             if F != 1:
-                raise PluginError(f"optimizer {_name(optimizer)}: a callback solver's stage runs in groups of one "
+                raise PluginError(f"optimizer {_name(st.optimizer)}: a callback solver's stage runs in groups of one "
                                   f"frame, not {F}")
-            task = Task(problem_of(0), budget, pidx, subset, base[0], name, owned,
+            stage = scorer.prepare(base, pidx, subset, owned, n)
+            task = Task(problem_of(0), budget, pidx, subset, base[0], st.name, owned,
                         _frame_scorer(scorer, stage, subset, n, objective), lo[0], hi[0])
             try:
-                optimizer.minimize(task, np.random.default_rng(int(keys[0, s])))
+                st.optimizer.minimize(task, np.random.default_rng(int(keys[0, s])))
             except BudgetExceeded as err:
-                raise BudgetExceeded(f"optimizer {_name(optimizer)}: {err}") from err
+                raise BudgetExceeded(f"optimizer {_name(st.optimizer)}: {err}") from err
             if task.used == 0:
-                raise PluginError(f"optimizer {_name(optimizer)} evaluated nothing")
+                raise PluginError(f"optimizer {_name(st.optimizer)} evaluated nothing")
             best_x[0], best_loss[0] = task.best_x, task.best_loss
             out_used[0] += task.used
         owned_loss = best_loss
         if not np.array_equal(subset, owned):  # a guided stage: its best over the points it owns
             again = np.empty((F, 1))
+            stage = scorer.prepare(base, pidx, subset, owned, 1)
             scorer.score(stage, best_x.reshape((F, 1, len(pidx))), owned, again)
             require_finite(again, objective)
             owned_loss = again[:, 0].copy()
-        commit(base, pidx, best_x, owned_loss, owns_all, frame_loss, committed)
+        if st.owns_all and st.objective is not None:  # better on its own objective than where it started
+            again = np.empty((F, 1))
+            stage = scorer.prepare(base, pidx, owned, owned, 1)
+            scorer.score(stage, start.reshape((F, 1, len(pidx))), owned, again)
+            take = best_loss < again[:, 0]
+            base[np.ix_(take, pidx)] = best_x[take]
+            continue
+        commit(base, pidx, best_x, owned_loss, st.owns_all, frame_loss, committed)
     out_params[:] = base
+    scorer = scorer_of(None)
+    if lay.rescored or not getattr(scorer.objective, "additive", True):  # the objective in force, every point
+        P, every = base.shape[1], np.arange(lay.n_points, dtype=np.int64)
+        stage = scorer.prepare(base, np.arange(P, dtype=np.int64), every, every, 1)
+        again = np.empty((F, 1))
+        scorer.score(stage, _require(base.reshape(F, 1, P), np.float64), every, again)
+        require_finite(again, scorer.objective)
+        frame_loss = again[:, 0]
     out_loss[:] = frame_loss
+
+
+def _asked(st, X, shape):
+    """An optimiser's asked hypotheses X, checked to be float64 of ``shape``."""
+    if not (isinstance(X, np.ndarray) and X.shape == shape and X.dtype == np.float64):
+        raise PluginError(f"optimizer {_name(st.optimizer)}: ask(state, {shape[1]}) returned "
+                          f"{getattr(X, 'shape', type(X))} {getattr(X, 'dtype', '')}, expected float64 {shape}")
+    return X
+
+
+def _derivative_stage(st, scorer, base, start, lo, hi, keys, best_x, best_loss, out_used) -> None:
+    """A stage of derivative steps: rows of d + 1 evaluations each while the budget allows one."""
+    if not hasattr(scorer, "derivatives"):
+        raise HybridfitError(f"optimizer {_name(st.optimizer)} takes derivative steps, and {objective_label(scorer.objective)}"
+                             f" offers no point_loss on a kinematic tree to take them by: schedule a gradient-free "
+                             f"optimizer for stage {st.name!r}")
+    F, d = start.shape
+    cost = d + 1
+    stage = scorer.prepare_derivatives(base, st.parameters, st.points, st.batch)
+    state = st.steps.init(start, lo, hi, keys, st.budget, st.settings)
+    losses, gradients, curvatures = np.empty((F, st.batch)), np.empty((F, st.batch, d)), np.empty((F, st.batch, d, d))
+    left = st.budget
+    while left >= cost:
+        m = min(st.batch, left // cost)
+        X = _asked(st, st.steps.ask(state, m), (F, m, d))
+        scorer.derivatives(stage, X, st.points, losses, gradients, curvatures)
+        require_finite(losses[:, :m], scorer.objective)
+        if not (np.isfinite(gradients[:, :m]).all() and np.isfinite(curvatures[:, :m]).all()):
+            raise PluginError(f"{objective_label(scorer.objective)}: its point_loss has non-finite derivatives")
+        st.steps.tell(state, X, losses[:, :m], gradients[:, :m], curvatures[:, :m])
+        keep_best(X, losses, best_x, best_loss)
+        left -= m * cost
+        stops.check()
+    out_used += st.budget - left
 
 
 def _frame_scorer(scorer, stage, subset, n, objective):
@@ -174,13 +229,17 @@ def _require(a, dtype) -> np.ndarray:
 
 
 class StageRun(NamedTuple):
-    """One stage as the driver runs it: who runs it (its batch steps, or None for a callback
-    solver, and their settings (c,) float64), its budget, rows per ask, and its parameter,
-    point and owned point indices (int64); ``owns_all``: it owns every point (a refinement)."""
+    """One stage as the driver runs it: its ``kind`` (``batch``, ``derivative`` or ``callback``),
+    who runs it (its steps, None for a callback solver, and their settings (c,) float64), the
+    objective it minimises (None: the objective in force), its budget, rows per ask, and its
+    parameter, point and owned point indices (int64); ``owns_all``: it owns every point (a
+    refinement)."""
 
     name: str
+    kind: str
     optimizer: object
-    steps: BatchSteps | None
+    objective: object
+    steps: BatchSteps | DerivativeSteps | None
     settings: np.ndarray
     budget: int
     batch: int
@@ -189,62 +248,87 @@ class StageRun(NamedTuple):
     owned: np.ndarray
     owns_all: bool
 
+    def describe(self, parameter_names, point_names, objective) -> dict:
+        """The stage as data (JSON): its name, optimiser and settings, objective, budget, parameters and points."""
+        def label(plugin):
+            return {"name": _name(plugin), "settings": plugin.get_params() if hasattr(plugin, "get_params") else {}}
+        return {"name": self.name, "kind": self.kind, "optimizer": label(self.optimizer),
+                "objective": label(self.objective if self.objective is not None else objective),
+                "budget": self.budget, "parameters": [parameter_names[i] for i in self.parameters],
+                "points": [point_names[i] for i in self.points], "owned": [point_names[i] for i in self.owned]}
+
 
 @dataclass(frozen=True)
 class Layout:
-    """A frame's schedule as the driver runs it: its :class:`StageRun` s."""
+    """A frame's schedule as the driver runs it: its :class:`StageRun` s over Q = ``n_points`` points."""
 
     stages: tuple[StageRun, ...]
+    n_points: int
 
     @property
     def lockstep(self) -> bool:
-        """Whether every stage has batch steps (frames of this layout run together)."""
-        return all(st.steps is not None for st in self.stages)
+        """Whether every stage has batch or derivative steps (frames of this layout run together)."""
+        return all(st.kind != "callback" for st in self.stages)
+
+    @property
+    def rescored(self) -> bool:
+        """Whether a stage minimises an objective of its own (the frame's loss is then the
+        objective in force at the final pose, scored once more over every point)."""
+        return any(st.objective is not None for st in self.stages)
+
+
+def stage_kind(optimizer) -> tuple[str, BatchSteps | DerivativeSteps | None]:
+    """How the driver runs a stage of ``optimizer``, read from what it ``offers``: (kind, steps)."""
+    offers = getattr(type(optimizer), "offers", frozenset())
+    if "batch_steps" in offers and (steps := optimizer.batch_steps()) is not None:
+        return "batch", steps
+    if "derivative_steps" in offers and (steps := optimizer.derivative_steps()) is not None:
+        return "derivative", steps
+    if "minimize" in offers:
+        return "callback", None
+    raise PluginError(f"optimizer {_name(optimizer)} offers no form the driver runs (its offers: {sorted(offers)}): "
+                      f"define batch_steps, derivative_steps, minimize or plan")
 
 
 def layout(plan: list[StagePlan], n_points: int) -> Layout:
     """Lay out a frame's stages (see :class:`Layout`)."""
     stages = []
     for st in plan:
-        steps, budget = steps_of(st.optimizer), int(st.budget)
+        kind, steps = stage_kind(st.optimizer)
+        budget = int(st.budget)
         n, values = st.optimizer.batch_settings(budget) if steps is not None else (CALLBACK_BATCH, ())
         settings = _require(np.asarray(values, dtype=np.float64), np.float64)
         indices = (_require(np.asarray(i, dtype=np.int64), np.int64) for i in (st.parameters, st.points, st.owned))
-        stages.append(StageRun(st.name, st.optimizer, steps, settings, budget, max(1, min(int(n), budget)), *indices,
-                               len(st.owned) == n_points))
-    return Layout(tuple(stages))
+        stages.append(StageRun(st.name, kind, st.optimizer, st.objective, steps, settings, budget,
+                               max(1, min(int(n), budget)), *indices, len(st.owned) == n_points))
+    return Layout(tuple(stages), int(n_points))
 
 
 def plan_of(optimizer, task: Task) -> list[StagePlan]:
-    """The schedule the driver runs for ``optimizer`` on a task: its ``plan``, unless a subclass
-    overrides ``minimize`` below the class that defines ``plan`` (then its ``minimize`` is the
-    whole fit: one stage of everything, run by itself). A stage run by another planner (an
-    optimiser whose ``plan`` is its whole work, as ``stepwise``) is that planner's schedule of
-    the stage."""
-    cls = type(optimizer)
-    if not issubclass(defining_class(cls, "plan"), defining_class(cls, "minimize")):
+    """The schedule the driver runs for ``optimizer`` on a task: its ``plan`` when it offers one,
+    else one stage of everything run by itself. A stage whose optimiser offers a plan is that
+    optimiser's schedule of the stage (its stages keep the stage's objective unless they name
+    one); a stage naming no optimiser is run by ``optimizer``."""
+    if "plan" not in getattr(type(optimizer), "offers", frozenset()):
         return [StagePlan("all", task.parameters, task.points, task.points, task.budget, optimizer)]
     out = []
     for st in optimizer.plan(task):
-        if st.optimizer is not optimizer and _planner(st.optimizer):
-            out += plan_of(st.optimizer, Task(task.problem, st.budget, st.parameters, st.points, task.base, st.name,
-                                              st.owned))
+        inner = optimizer if st.optimizer is None else st.optimizer
+        if "plan" in getattr(type(inner), "offers", frozenset()):
+            if inner is optimizer:
+                raise PluginError(f"optimizer {_name(optimizer)}: its plan's stage {st.name!r} is run by the plan "
+                                  f"itself, which runs nothing: name the stage's optimizer")
+            sub = plan_of(inner, Task(task.problem, st.budget, st.parameters, st.points, task.base, st.name, st.owned))
+            out += [s if s.objective is not None else replace(s, objective=st.objective) for s in sub]
         else:
-            out.append(st)
+            out.append(replace(st, optimizer=inner))
     return out
-
-
-def _planner(optimizer) -> bool:
-    """Whether an optimiser's ``plan`` is its whole work (no batch steps, no ``minimize`` of its own)."""
-    cls = type(optimizer)
-    plan, minimize = defining_class(cls, "plan"), defining_class(cls, "minimize")
-    return steps_of(optimizer) is None and plan is not minimize and issubclass(plan, minimize)
 
 
 def batched_layout(model, objective, optimizer, problem: Problem | None, budget: int) -> Layout | None:
     """The layout of one frame's ``problem`` (None when no frame can be fitted) when the
-    driver runs these plugins in lockstep over many frames (batch steps throughout and an
-    objective that is a sum over points, without depth), else None."""
+    driver runs these plugins in lockstep over many frames (batch or derivative steps throughout
+    and an objective that is a sum over points, without depth), else None."""
     if problem is None or getattr(objective, "observes_depth", False) or not getattr(objective, "additive", True):
         return None
     found = layout(plan_of(optimizer, Task(problem, budget)), len(problem.point_names))
@@ -292,13 +376,11 @@ class Driver:
     """Fits chunks of frames of one model, objective and optimiser through the driver loop.
 
     point_names: the proposals' Q points; budget: evaluations per frame; seed: stage s of
-    frame i draws from ``stage_key(seed, i, s)``; polish: then polish each fit (:mod:`.polish`)
-    and score the polished pose over every point (the frame's loss)."""
+    frame i draws from ``stage_key(seed, i, s)``."""
 
     def __init__(self, model, objective, optimizer, point_names, budget: int, seed: int,
-                 search_radius_mm: float = 60.0, polish: bool = False) -> None:
+                 search_radius_mm: float = 60.0) -> None:
         self.model, self.objective, self.optimizer = model, objective, optimizer
-        self.polish = polish
         self.names = tuple(point_names)
         self.budget, self.seed, self.search_radius_mm = int(budget), int(seed), float(search_radius_mm)
         self.observed = bool(getattr(objective, "observes_depth", False))
@@ -316,8 +398,7 @@ class Driver:
             except NotImplementedError:
                 tree = None
             self.tree = None if tree is None else tree.arrays
-        self.compiled = (CompiledLoss(objective) if self.tree is not None and not self.observed
-                         and point_loss_of(objective) else None)
+        self._compiled: dict[int, tuple] = {}  # id(objective) -> (objective, its CompiledLoss or None)
         self._layouts: dict[bytes, Layout] = {}
 
     def layout(self, problem: Problem) -> Layout:
@@ -384,17 +465,33 @@ class Driver:
             params[sel], loss[sel], evaluations[sel] = out
         return params, loss, evaluations, failed
 
-    def _scorer(self, chunk: Chunk, sel, proposals, weights):
-        """The scorer of the chunk's frames at positions ``sel`` (:mod:`.evaluator`)."""
-        if self.compiled is not None:
-            return PointScorer(self.tree, self.point_map, self.compiled, proposals, weights, self.objective)
-        if self.observed:
-            losses = [self.objective.bind_observed(p, w, chunk.observations[n], self.model)
+    def compiled(self, objective) -> CompiledLoss | None:
+        """The objective's per-point loss compiled into the scoring loops (None: it has none, or
+        the model no kinematic tree, or it observes depth), made once per objective."""
+        found = self._compiled.get(id(objective))
+        if found is None or found[0] is not objective:
+            compiled = (CompiledLoss(objective) if self.tree is not None and not getattr(objective, "observes_depth", False)
+                        and point_loss_of(objective) else None)
+            found = self._compiled[id(objective)] = (objective, compiled)
+        return found[1]
+
+    def _scorer(self, chunk: Chunk, sel, proposals, weights, objective=None):
+        """The scorer of ``objective`` (None: the fit's) of the chunk's frames at positions
+        ``sel`` (:mod:`.evaluator`)."""
+        objective = self.objective if objective is None else objective
+        compiled = self.compiled(objective)
+        if compiled is not None:
+            return PointScorer(self.tree, self.point_map, compiled, proposals, weights, objective)
+        observed = bool(getattr(objective, "observes_depth", False))
+        if observed:
+            if chunk.observations is None:
+                raise HybridfitError(f"{objective_label(objective)} compares hypotheses with the depth image: give "
+                                     f"the frames' depth (observations)")
+            losses = [objective.bind_observed(p, w, chunk.observations[n], self.model)
                       for p, w, n in zip(proposals, weights, sel)]
         else:
-            losses = [self.objective.bind(p, w) for p, w in zip(proposals, weights)]
-        return BoundScorer(self.model, self.tree, self.point_map, self.point_matrix, losses, self.observed,
-                           self.objective)
+            losses = [objective.bind(p, w) for p, w in zip(proposals, weights)]
+        return BoundScorer(self.model, self.tree, self.point_map, self.point_matrix, losses, observed, objective)
 
     def _problem_of(self, chunk: Chunk, sel):
         """problem_of(f) for :func:`run_schedule`: the Problem of frame f of the group ``sel``."""
@@ -407,21 +504,17 @@ class Driver:
 
     def _run_group(self, lay: Layout, chunk: Chunk, sel, keys, out_params, out_loss, out_used) -> None:
         proposals, weights = _require(chunk.proposals[sel], np.float64), _require(chunk.weights[sel], np.float64)
+        scorers: dict[int, object] = {}
+
+        def scorer_of(objective):
+            if id(objective) not in scorers:
+                scorers[id(objective)] = self._scorer(chunk, sel, proposals, weights, objective)
+            return scorers[id(objective)]
+
         try:
-            scorer = self._scorer(chunk, sel, proposals, weights)
-            run_schedule(lay, scorer, _require(chunk.x0[sel], np.float64), _require(chunk.lower[sel], np.float64),
+            run_schedule(lay, scorer_of, _require(chunk.x0[sel], np.float64), _require(chunk.lower[sel], np.float64),
                          _require(chunk.upper[sel], np.float64), _require(keys, np.uint64), out_params, out_loss,
                          out_used, self._problem_of(chunk, sel))
-            polished = self.polish and self.tree is not None and not self.observed
-            if polished:
-                out_params[:] = polish(self.model, out_params, proposals, weights, self.names)
-            if polished or not self.additive:  # the loss the objective gives the final pose, over every point
-                P, every = out_params.shape[1], np.arange(len(self.names), dtype=np.int64)
-                stage = scorer.prepare(out_params, np.arange(P, dtype=np.int64), every, every, 1)
-                again = np.empty((len(out_params), 1))
-                scorer.score(stage, _require(out_params.reshape(len(out_params), 1, P), np.float64), every, again)
-                require_finite(again, self.objective)
-                out_loss[:] = again[:, 0]
         except (HybridfitError, KeyboardInterrupt):
             raise
         except Exception as err:  # a plugin's bug: it propagates, naming the frames and the plugins
@@ -486,7 +579,7 @@ def run_problem(optimizer, problem: Problem, budget: int, seed: int | np.random.
                 frame: int | None = None, record: list | None = None) -> OptimizeResult:
     """One frame's ``problem`` fitted by the driver as frame ``frame`` (None: 0) of a fit with
     ``seed`` (a Generator: one draw of it), from the problem's initial guess and search box,
-    without the polish: the result ``hybridfit.fit`` gives that frame with ``polish=False``. With
+    the result ``hybridfit.fit`` gives that frame. With
     ``record`` every evaluated hypothesis's full parameters are appended to it, one (m, P)
     array per scored batch, re-scores left out (the conformance suite's view of what an
     optimiser asked for)."""
@@ -521,12 +614,30 @@ def _recording(make_scorer, record: list):
         def score(self, stage, X, subset, losses):
             inner, base, pidx, evaluated = stage
             if subset is evaluated:  # not a guided stage's re-score on its owned points
-                full = np.repeat(base[:, None], X.shape[1], axis=1)
-                full[:, :, pidx] = X
-                record.extend(full)
+                record.extend(_full(base, pidx, X))
             self.scorer.score(inner, X, subset, losses)
 
+        def __getattr__(self, name):  # derivatives, where the scorer offers them
+            if name not in ("prepare_derivatives", "derivatives"):
+                raise AttributeError(name)
+            method = getattr(self.scorer, name)
+            if name == "prepare_derivatives":
+                return lambda base, pidx, subset, n: (method(base, pidx, subset, n), base.copy(), pidx)
+
+            def derivatives(stage, X, subset, *out):
+                inner, base, pidx = stage
+                record.extend(_full(base, pidx, X))
+                method(inner, X, subset, *out)
+            return derivatives
+
     return lambda *args: Recording(make_scorer(*args))
+
+
+def _full(base, pidx, X) -> np.ndarray:
+    """Hypotheses X (F, m, d) of the parameters ``pidx`` as full parameter vectors (F, m, P) from ``base``."""
+    full = np.repeat(base[:, None], X.shape[1], axis=1)
+    full[:, :, pidx] = X
+    return full
 
 
 def _name(plugin) -> str:

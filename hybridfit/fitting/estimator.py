@@ -45,26 +45,23 @@ class HybridEstimator:
     mean-shift (paper: 200); stride: pixel grid step of the dense sampling; bandwidth_mm:
     test-time mean-shift bandwidth. model / objective / optimizer (registered names, the
     built-in ones listed by :mod:`hybridfit.names`, or instances) with their ``*_config`` settings, budget, seed, search_radius_mm and jobs are
-    passed to ``hybridfit.fit``, and so is ``polish`` (the polish of every fit, as
-    ``hybridfit fit`` does by default: :mod:`hybridfit.fitting.polish`).
+    passed to ``hybridfit.fit``.
     """
 
     def __init__(self, forest: Forest | str | os.PathLike, *, k: int = 3, proposal_set: int = 200, stride: int = 2,
                  bandwidth_mm: float = 10.0,
                  model: ModelName | str | HandModel = "hand26", model_config: Mapping[str, Any] | None = None,
-                 objective: ObjectiveName | str | Objective = "clamped-confidence",
+                 objective: ObjectiveName | str | Objective = "clamped-then-soft-l1",
                  objective_config: Mapping[str, Any] | None = None,
                  optimizer: OptimizerName | str | Optimizer = "stepwise-pso",
                  optimizer_config: Mapping[str, Any] | None = None,
-                 budget: int = 3400, seed: int = 0, search_radius_mm: float = 60.0, jobs: int = 1,
-                 polish: bool = True):
+                 budget: int = 3400, seed: int = 0, search_radius_mm: float = 60.0, jobs: int = 1):
         self.forest = forest
         self.k, self.proposal_set, self.stride, self.bandwidth_mm = k, proposal_set, stride, bandwidth_mm
         self.model, self.model_config = model, model_config
         self.objective, self.objective_config = objective, objective_config
         self.optimizer, self.optimizer_config = optimizer, optimizer_config
         self.budget, self.seed, self.search_radius_mm, self.jobs = budget, seed, search_radius_mm, jobs
-        self.polish = polish
 
     def get_forest(self) -> Forest:
         """The Forest (read from its file once)."""
@@ -90,8 +87,7 @@ class HybridEstimator:
         options = dict(model=self.model, objective=self.objective, optimizer=self.optimizer, budget=self.budget,
                        seed=self.seed, joint_names=proposals.joint_names, model_config=self.model_config,
                        objective_config=self.objective_config, optimizer_config=self.optimizer_config,
-                       search_radius_mm=self.search_radius_mm, jobs=self.jobs, progress=progress,
-                       polish=self.polish)
+                       search_radius_mm=self.search_radius_mm, jobs=self.jobs, progress=progress)
         res = fit(proposals.proposals, proposals.confidences, **options)
         for f in np.flatnonzero(proposals.empty):
             res.errors[int(f)] = EMPTY_FRAME

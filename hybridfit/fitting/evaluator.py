@@ -17,6 +17,7 @@ import numpy as np
 from ..model.kinematics import block_kinematics, block_points, block_setup, block_views
 from ..objective import checked_losses, point_loss_of
 from ..point_loss import has_proposals, specialise
+from .derivatives import compiled_derivatives, derivative_setup
 
 #: the objective's per-point loss in the loop below: each specialised copy binds it (:func:`specialise`)
 point_loss = None
@@ -72,6 +73,12 @@ class CompiledLoss:
             raise ValueError(f"objective {getattr(objective, 'name', '')!r} has no valid point_loss")
         self.score_blocks = specialise(score_blocks, found[0])
         self.constants = found[1]
+        self._function = found[0]
+
+    @property
+    def derivative_blocks(self):
+        """:func:`~.derivatives.derivative_blocks` with this per-point loss (compiled when first asked)."""
+        return compiled_derivatives(self._function)
 
 
 def along_rows(X: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -118,6 +125,18 @@ class PointScorer(_Stages):
     def score(self, stage, X, subset, losses):
         self.compiled.score_blocks(self.compiled.constants, self.proposals, self.weights, *self.tree, *self.point_map,
                                    self.identity, *stage, *along_rows(X), subset, losses)
+
+    def prepare_derivatives(self, base, pidx, subset, n):
+        """A stage's set-up for :meth:`derivatives` (``n`` unused: one hypothesis's d + 1 poses a block)."""
+        return derivative_setup(self.tree, self.point_map, base.shape[1], subset, len(pidx)), base, pidx
+
+    def derivatives(self, stage, X, subset, losses, gradients, curvatures):
+        """losses[:, :m], gradients[:, :m] (d,) and curvatures[:, :m] (d, d) of hypotheses X (F,
+        m, d) over ``subset`` (:mod:`.derivatives`)."""
+        (ints, floats), base, pidx = stage
+        self.compiled.derivative_blocks(self.compiled.constants, self.proposals, self.weights, *self.tree,
+                                        *self.point_map, ints, floats, base, pidx, subset, np.ascontiguousarray(X),
+                                        losses, gradients, curvatures)
 
 
 @nb.njit(cache=True, nogil=True)

@@ -76,6 +76,9 @@ class FitResult:
     parameter_names: tuple[str, ...] = ()  # (P,) the model's names of the params' columns
     model: str = ""  # the model plugin's name
     model_settings: str = "{}"  # its settings, JSON
+    #: the schedules that ran, JSON: [{"frames": n, "stages": [{name, kind, optimizer, objective,
+    #: budget, parameters, points, owned}, ...]}, ...], one per set of observed points
+    schedule: str = "[]"
 
     def hand(self):
         """The model that fitted these frames, rebuilt from ``model`` and ``model_settings``."""
@@ -105,6 +108,7 @@ class FitResult:
             "parameter_names": np.asarray(self.parameter_names, dtype=str),
             "model": np.asarray(self.model),
             "model_settings": np.asarray(self.model_settings),
+            "schedule": np.asarray(self.schedule),
             "failed": self.failed,
             "error_frames": np.asarray(frames, dtype=np.int64),
             "error_messages": np.asarray([self.errors[f] for f in frames], dtype=str),
@@ -124,13 +128,12 @@ class _Spec:
     seed: int
     point_names: tuple[str, ...]
     search_radius_mm: float
-    polish: bool = False
 
 
 def _fit_chunk(spec: _Spec, frames: Sequence[int], proposals, confidences, observations=None):
     """A worker's chunk: the same driver, in another process (:meth:`driver.Driver.fit_chunk`)."""
     fitter = driver.Driver(spec.model, spec.objective, spec.optimizer, spec.point_names, spec.budget, spec.seed,
-                           spec.search_radius_mm, spec.polish)
+                           spec.search_radius_mm)
     return fitter.fit_chunk(list(frames), proposals, confidences, observations=observations)
 
 
@@ -195,7 +198,7 @@ def fit(
     confidences: np.ndarray,
     *,
     model: ModelName | str | HandModel = "hand26",
-    objective: ObjectiveName | str | Objective = "clamped-confidence",
+    objective: ObjectiveName | str | Objective = "clamped-then-soft-l1",
     optimizer: OptimizerName | str | Optimizer = "stepwise-pso",
     budget: int = 3400,
     seed: int = 0,
@@ -207,7 +210,6 @@ def fit(
     jobs: int = 1,
     progress: bool = False,
     observations: Sequence[Any] | None = None,
-    polish: bool = True,
 ) -> FitResult:
     """Fit the model to each frame's proposals.
 
@@ -219,11 +221,10 @@ def fit(
     plugins`` lists every installed one). budget: objective evaluations per frame, honoured exactly.
     observations: per frame a ``hybridfit.objective.Observation`` (the depth), needed by
     objectives that ``observes_depth`` (``rendered-depth``, ``hybrid``).
-    polish: finish every fit with the polish (:mod:`hybridfit.fitting.polish`: a robust
-    least-squares on the model's own rigid hand, not counted in the budget; the loss stored is
-    the objective's at the polished pose). Not applied for objectives that observe depth (the
-    polish cannot see it) or models without a kinematic tree (a warning says so). False: the
-    optimiser's result as it is, at exactly ``budget`` evaluations (optimiser comparisons).
+
+    The fit is its schedule: the optimiser's stages (``stepwise-pso``: palm, fingers, then a
+    local gradient step), each minimising the objective in force unless the schedule names
+    another, every evaluation counted in ``budget``. ``result.schedule`` holds the stages that ran.
     """
     check_fit_options(budget, seed, search_radius_mm, jobs)
     model = registry.create("model", model, model_config)
@@ -239,8 +240,7 @@ def fit(
                              f"depth image: give the frames' depth (observations)")
     if observations is not None and len(observations) != F:
         raise HybridfitError(f"{len(observations)} observations for {F} frames of proposals")
-    polish = polish and not getattr(objective, "observes_depth", False) and _polishable(model, names)
-    spec = _Spec(model, objective, optimizer, int(budget), int(seed), names, float(search_radius_mm), polish)
+    spec = _Spec(model, objective, optimizer, int(budget), int(seed), names, float(search_radius_mm))
     problem = _first_problem(model, objective, proposals, confidences, names, search_radius_mm, observations)
     if problem is not None:  # a budget too small fails every frame: raised at once
         optimizer.check_budget(Task(problem, budget))
@@ -270,7 +270,7 @@ def fit(
 
     # schedules of batch steps run chunks of frames in lockstep, on threads with jobs > 1; others
     # (callback solvers, depth objectives) frame by frame, in worker processes with jobs > 1
-    fitter = driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm, polish)
+    fitter = driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm)
     # the first frame's plan, made once: the driver keeps it for the frames with its observed points
     lockstep = (problem is not None and observations is None and not fitter.observed and fitter.additive
                 and fitter.layout(problem).lockstep)
@@ -318,23 +318,31 @@ def fit(
         raise
     finally:
         bar.close()
+    result.schedule = json.dumps(schedules(fitter, model, objective, proposals, confidences, names,
+                                           search_radius_mm, ~result.failed, observations))
     return _with_inliers(result, objective, proposals, confidences)
+
+
+def schedules(fitter, model, objective, proposals, confidences, names, search_radius_mm, fitted,
+              observations=None) -> list[dict]:
+    """The schedules the fitted frames (``fitted`` (F,) bool) ran, one per set of observed points:
+    [{"frames": n, "stages": [...]}] (:meth:`driver.StageRun.describe`)."""
+    observed = confidences.sum(axis=-1) > 0
+    out: dict[bytes, list] = {}
+    for f in np.flatnonzero(fitted):
+        key = observed[f].tobytes()
+        if key not in out:
+            lay = fitter._layouts.get(key) or fitter.layout(Problem(
+                model, objective, proposals[f], confidences[f], names, search_radius_mm,
+                None if observations is None else observations[f]))
+            out[key] = [0, [st.describe(model.parameter_names, names, objective) for st in lay.stages]]
+        out[key][0] += 1
+    return [{"frames": n, "stages": stages} for n, stages in out.values()]
 
 
 def model_label(model) -> dict[str, str]:
     """``model`` and ``model_settings`` of a FitResult fitted with ``model`` (a plugin instance)."""
     return {"model": _name(model), "model_settings": json.dumps(model.get_params(), sort_keys=True)}
-
-
-def _polishable(model, names) -> bool:
-    """Whether the polish can run on ``model`` (it needs a kinematic tree); warns when not."""
-    try:
-        tree = structure_of(model, names).tree() if callable(getattr(model, "kinematic_tree", None)) else None
-    except NotImplementedError:
-        tree = None
-    if tree is None:
-        warnings.warn(f"model {_name(model)} has no kinematic tree: its fits are not polished", stacklevel=3)
-    return tree is not None
 
 
 def _with_inliers(result: FitResult, objective, proposals, confidences) -> FitResult:

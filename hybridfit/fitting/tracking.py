@@ -25,7 +25,7 @@ from tqdm.auto import tqdm
 from .. import registry
 from ..errors import HybridfitError
 from .driver import Driver
-from .frames import INLIER_DISTANCE_MM, FitResult, _first_problem, _polishable, check_fit_options, model_label
+from .frames import INLIER_DISTANCE_MM, FitResult, _first_problem, check_fit_options, model_label
 from ..io import validate_proposals
 from ..metrics import inliers
 from ..task import Task
@@ -72,7 +72,7 @@ def track(
     confidences: np.ndarray,
     *,
     model: ModelName | str | HandModel = "hand26",
-    objective: ObjectiveName | str | Objective = "clamped-confidence",
+    objective: ObjectiveName | str | Objective = "clamped-then-soft-l1",
     optimizer: OptimizerName | str | Optimizer = "stepwise-pso",
     budget: int = 3400,
     seed: int = 0,
@@ -85,10 +85,9 @@ def track(
     first_params: np.ndarray | None = None,
     settings: TrackingSettings | Mapping[str, Any] | None = None,
     progress: bool = False,
-    polish: bool = True,
 ) -> TrackResult:
     """Track a sequence: arguments as ``hybridfit.fit`` (proposals (F, Q, K, 3) mm in frame
-    order; ``polish``: each frame's fit polished before the next starts from it), plus
+    order), plus
     first_params (P,) frame 0's initial guess and the tracking ``settings``."""
     check_fit_options(budget, seed, search_radius_mm, 1)
     settings = settings if isinstance(settings, TrackingSettings) else TrackingSettings(**(settings or {}))
@@ -115,8 +114,7 @@ def track(
     problem = _first_problem(model, objective, proposals, confidences, names, search_radius_mm, observations)
     if problem is not None:  # a budget too small would fail every frame: raised at once
         optimizer.check_budget(Task(problem, budget))
-    polish = polish and not objective.observes_depth and _polishable(model, names)
-    fitter = Driver(model, objective, optimizer, names, budget, seed, search_radius_mm, polish)
+    fitter = Driver(model, objective, optimizer, names, budget, seed, search_radius_mm)
     start = first_params
     t = 0
     try:

@@ -11,7 +11,7 @@ innermost axis); :func:`mark_needed` finds the joints a set of points needs;
 :func:`block_setup` lays out a block computation (which joints and angles move, which are
 fixed at a base, the buffers) and :func:`block_kinematics` runs it for one or several frames'
 hypotheses. :func:`tree_points` is that entry with all parameters moving (``model.forward``,
-laid out once per thread and tree, and the polish); the driver's scorers
+laid out once per thread and tree, and the derivatives); the driver's scorers
 (:mod:`hybridfit.fitting.evaluator`) use it with a stage's parameters moving.
 
 Frames: joint j's frame is ``R_j = R_parent @ rest_j @ Rot(axis_1, theta_1) @ ...``; its

@@ -187,7 +187,6 @@ def run_trial(settings: dict, model_config: dict, seed: int, data: dict) -> dict
                       objective_config=settings["objective_config"], optimizer=settings["optimizer"],
                       optimizer_config=settings["optimizer_config"], budget=settings["budget"], seed=seed,
                       joint_names=[str(n) for n in data["joint_names"]], search_radius_mm=settings["search_radius_mm"],
-                      polish=settings.get("polish", True),
                       observations=[data["observations"][f] for f in frames] if "observations" in data else None)
         if tracking:  # one sequence: frame t starts from frame t-1's fit
             first = data["params"][frames[0]] if tracking["first_frame"] == "ground-truth" else None

@@ -53,7 +53,7 @@ class TrialSettings(_Strict):
 
     model: str = "hand26"
     model_settings: dict[str, Any] = Field(default_factory=dict, alias="model_config")
-    objective: str = "clamped-confidence"
+    objective: str = "clamped-then-soft-l1"
     objective_settings: dict[str, Any] = Field(default_factory=dict, alias="objective_config")
     optimizer: str = "stepwise-pso"
     optimizer_settings: dict[str, Any] = Field(default_factory=dict, alias="optimizer_config")
@@ -61,8 +61,6 @@ class TrialSettings(_Strict):
     proposal_set: int = Field(200, ge=1, description="|P~|: votes per joint into mean-shift (forest data only)")
     budget: int = Field(3400, ge=1, le=MAX_BUDGET, description="objective evaluations per frame")
     search_radius_mm: float = Field(60.0, gt=0)
-    polish: bool = Field(True, description="polish every fit (hybridfit.fit's default, what users get); false: the "
-                         "optimiser's result at exactly the budget, for comparisons of optimisers at equal budgets")
     skeleton: str | None = Field(None, description="the dataset skeleton of synthetic-stress data (a sweep "
                                  "dimension; icvl by default)")
     tracking: StudyTracking | None = Field(None, description="track the sequence (each frame starts from the "

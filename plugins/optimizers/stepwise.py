@@ -12,10 +12,15 @@ relative weight per stage (the paper's ablation: [4096, 841, 841, 841, 841, 841]
 Stage budgets are rounded by largest remainder, so they add up to the budget exactly.
 The paper leaves the split of its default 3400 open; the default root share, 0.3, was chosen
 on synthetic frames with ``studies/stepwise_vs_joint_synthetic.toml`` (figures: the docs' results page).
-``refine_share`` (an extension; 0 for ``stepwise``, 0.25 for ``stepwise-pso``, chosen on
-tuning data: the docs' robust-fitting page) keeps a share of the budget for a final
+``refine_share`` (an extension; 0 for both by default) keeps a share of the budget for a
 joint refinement of all parameters starting from the stepwise result, run with the inner
-optimiser's settings overridden by ``refine_config``.
+optimiser's settings overridden by ``refine_config``. ``local_share`` (an extension; 0 for
+``stepwise``, the paper's schedule) keeps a share for a last, local stage of all parameters:
+``local_optimizer`` (``levenberg-marquardt``, gradient-based, through the kinematic tree and
+the objective's per-point loss) on ``local_objective`` (None: the objective in force). An
+objective without a per-point loss (one that only binds) gets a gradient-free local stage
+instead: the inner optimiser with ``refine_config`` (a swarm started near the fit). Every
+stage's evaluations count in the budget.
 """
 
 from __future__ import annotations
@@ -28,9 +33,10 @@ from pydantic import Field, field_validator
 
 from hybridfit import registry
 from hybridfit.errors import HybridfitError, UnknownPluginError
+from hybridfit.objective import point_loss_of
 from hybridfit.optimizer import Optimizer, StagePlan, Task
 from hybridfit.plugin import Settings
-from hybridfit.stages import MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, guide_points
+from hybridfit.stages import MIN_ROOT_LEVER_MM, MIN_ROOT_POINTS, guide_points, structure_of
 
 
 class StepwiseSettings(Settings):
@@ -41,22 +47,41 @@ class StepwiseSettings(Settings):
     stage_weights: list[float] | None = Field(None, description="relative budget per stage (overrides root_share)")
     refine_share: float = Field(0.0, ge=0, lt=1, description="share of the budget for a final joint refinement "
                                 "of all parameters (0 = the paper)")
-    refine_config: dict[str, Any] = Field(default_factory=dict, description="the inner optimiser's settings "
-                                          "overridden for the refinement stage")
+    refine_config: dict[str, Any] = Field(default_factory=lambda: {"init_share": 1.0, "init_sigma": 0.02},
+                                          description="the inner optimiser's settings overridden for the refinement "
+                                          "stage and a gradient-free local stage (PSO: the whole swarm starts near "
+                                          "the fit)")
+    local_share: float = Field(0.0, ge=0, lt=1, description="share of the budget for a last, local stage of all "
+                               "parameters (0 = the paper)")
+    local_optimizer: str = Field("levenberg-marquardt", description="the local stage's optimiser (a registered name), "
+                                 "for objectives with a per-point loss; the others get a gradient-free local stage")
+    local_config: dict[str, Any] = Field(default_factory=dict, description="its settings")
+    local_objective: str | None = Field(None, description="the objective the local stage minimises (a registered "
+                                        "name); None: the objective in force")
+    local_objective_config: dict[str, Any] = Field(default_factory=dict, description="its settings")
     min_root_points: int = Field(MIN_ROOT_POINTS, ge=0, description="with fewer observed points of its own, the root "
                                  "stage is also scored on guide points")
     min_root_lever_mm: float = Field(MIN_ROOT_LEVER_MM, ge=0, description="likewise below this rotation lever (mm) of "
                                      "its own observed points (nearly collinear)")
 
-    @field_validator("optimizer")
+    @field_validator("optimizer", "local_optimizer")
     @classmethod
     def _registered(cls, name: str) -> str:
-        if name not in registry.names("optimizer"):
-            try:
-                registry.get("optimizer", name)
-            except UnknownPluginError as err:  # names the registered ones and the closest match
-                raise ValueError(str(err)) from None
-        return name
+        return _registered("optimizer", name)
+
+    @field_validator("local_objective")
+    @classmethod
+    def _registered_objective(cls, name: str | None) -> str | None:
+        return None if name is None else _registered("objective", name)
+
+
+def _registered(kind: str, name: str) -> str:
+    if name not in registry.names(kind):
+        try:
+            registry.get(kind, name)
+        except UnknownPluginError as err:  # names the registered ones and the closest match
+            raise ValueError(str(err)) from None
+    return name
 
 
 def split_budget(budget: int, weights) -> list[int]:
@@ -135,25 +160,51 @@ class Stepwise(Optimizer):
             first[2] = np.flatnonzero(members(first[3], Q) | members(guides, Q))
         return [tuple(k) for k in kept], weights
 
+    def _shares(self) -> tuple[float, float]:
+        """The budget shares of the refinement and the local stage (none for a joint schedule)."""
+        s = self.settings
+        return (s.refine_share, s.local_share) if s.schedule == "stepwise" else (0.0, 0.0)
+
     def plan(self, task: Task) -> list[StagePlan]:
         """The frame's schedule: stages with exact budgets adding up to ``task.budget``."""
         stages, w = self._stages(task)
-        refine = round(self.settings.refine_share * task.budget) if self.settings.schedule == "stepwise" else 0
+        refine_share, local_share = self._shares()
+        refine, local = round(refine_share * task.budget), round(local_share * task.budget)
         plan = [StagePlan(name, params, points, owned, budget, self.inner)
-                for (name, params, points, owned), budget in zip(stages, split_budget(task.budget - refine, w))]
+                for (name, params, points, owned), budget in zip(stages, split_budget(task.budget - refine - local, w))]
         if refine:
             plan.append(StagePlan("refine", task.parameters, task.points, task.points, refine, self.refiner))
+        if local:
+            optimizer, objective = self._local(task)
+            plan.append(StagePlan("local", task.parameters, task.points, task.points, local, optimizer, objective))
         return plan
+
+    def _local(self, task: Task):
+        """(optimizer, objective) of the local stage: ``local_optimizer`` where the stage's
+        objective has a per-point loss on a model with a kinematic tree, else the gradient-free
+        refiner; the objective ``local_objective``, else the objective in force's own
+        ``local_objective`` form (a pair), else None (the objective in force)."""
+        s = self.settings
+        objective = self.local_objective if s.local_objective is not None else self._local_form(task.problem.objective)
+        scored = task.problem.objective if objective is None else objective
+        problem = task.problem
+        tree = structure_of(problem.model, problem.point_names).tree() if callable(
+            getattr(problem.model, "kinematic_tree", None)) else None
+        gradient = point_loss_of(scored) is not None and tree is not None and not scored.observes_depth
+        return (self.local_optimizer if gradient else self.refiner), objective
 
     def min_budget(self, task: Task) -> int:
         inner = self.inner
         stages, w = self._stages(task)
         w = np.asarray(w) / np.sum(w)
-        share = 1.0 - (self.settings.refine_share if self.settings.schedule == "stepwise" else 0.0)
+        refine_share, local_share = self._shares()
+        share = 1.0 - refine_share - local_share
         need = [inner.min_budget(Task(task.problem, task.budget, p, q, task.base, n, o)) / (s * share)
                 for (n, p, q, o), s in zip(stages, w)]
-        if share < 1.0:
-            need.append(inner.min_budget(task) / (1.0 - share))
+        if refine_share:
+            need.append(inner.min_budget(task) / refine_share)
+        if local_share:
+            need.append(self._local(task)[0].min_budget(task) / local_share)
         return int(np.ceil(max(need)))
 
     @cached_property
@@ -161,17 +212,34 @@ class Stepwise(Optimizer):
         """The inner optimiser with ``refine_config`` applied, for the refinement stage."""
         return self.inner.with_params(**self.settings.refine_config) if self.settings.refine_config else self.inner
 
+    def _local_form(self, objective):
+        """The objective's ``local_objective`` form where it offers one (a pair), else None; one
+        instance per objective (the driver scores each objective instance with its own scorer)."""
+        if "local_objective" not in getattr(type(objective), "offers", frozenset()):
+            return None
+        forms = self.__dict__.setdefault("_local_forms", {})
+        if forms.get(id(objective), (None,))[0] is not objective:
+            forms[id(objective)] = (objective, objective.local_objective())
+        return forms[id(objective)][1]
+
+    @cached_property
+    def local_optimizer(self) -> Optimizer:
+        """The configured local optimiser."""
+        return registry.create("optimizer", self.settings.local_optimizer, self.settings.local_config)
+
+    @cached_property
+    def local_objective(self):
+        """The configured objective of the local stage (when ``local_objective`` names one)."""
+        return registry.create("objective", self.settings.local_objective, self.settings.local_objective_config)
+
 
 class StepwisePSOSettings(StepwiseSettings):
     optimizer: Literal["pso"] = Field("pso", description="always PSO")
-    refine_share: float = Field(0.25, ge=0, lt=1, description="share of the budget for a final joint refinement "
-                                "of all parameters (0 = the paper)")
-    refine_config: dict[str, Any] = Field(
-        default_factory=lambda: {"init_share": 1.0, "init_sigma": 0.02},
-        description="PSO settings of the refinement: the whole swarm starts near the stepwise result")
+    local_share: float = Field(0.1, ge=0, lt=1, description="share of the budget for a last, local stage of all "
+                               "parameters (0 = the paper)")
 
 
 class StepwisePSO(Stepwise):
-    """The paper's optimiser: PSO stage by stage, palm first, then each finger."""
+    """The paper's optimiser, PSO stage by stage, palm first, then each finger; then a local step."""
 
     Settings = StepwisePSOSettings
