@@ -48,7 +48,7 @@ from .synthetic.proposals import synthetic_proposals
 from .task import StagePlan, Task
 
 __all__ = [
-    "RecordingTask", "ToyClamped", "ToyHand", "ToyLeastSquares", "check_config_round_trip", "check_model",
+    "RecordingTask", "ToyClamped", "ToyHand", "ToyLeastSquares", "ToySquared", "check_config_round_trip", "check_model",
     "check_objective", "check_optimizer", "check_pickle", "check_plugin", "check_unknown_setting", "checks",
 ]
 
@@ -160,6 +160,26 @@ class ToyLeastSquares(Objective):
             return (d2 * active[subset]).sum(axis=-1)
 
         return loss
+
+    def lower_bound(self, weights):
+        return 0.0
+
+
+@nb.njit(cache=True)
+def toy_squared_point(x, y, z, proposals, weights, constants, out):
+    """ToySquared's per-point loss: out[i] = the squared distance (mm^2) of (x[i], y[i], z[i])
+    to the point's most confident proposal."""
+    top = np.argmax(weights)
+    for i in range(x.shape[0]):
+        out[i] = (proposals[top, 0] - x[i]) ** 2 + (proposals[top, 1] - y[i]) ** 2 + (proposals[top, 2] - z[i]) ** 2
+
+
+class ToySquared(Objective):
+    """ToyLeastSquares's loss as a ``point_loss``: the objective of :func:`check_optimizer_improves`,
+    which every kind of optimiser can minimise (derivative steps need a per-point loss)."""
+
+    def point_loss(self):
+        return toy_squared_point, np.zeros(0)
 
     def lower_bound(self, weights):
         return 0.0
@@ -567,6 +587,22 @@ def _budget(optimizer: Optimizer, task: Task) -> int:
     return max(CHECK_BUDGET, int(optimizer.min_budget(task)))
 
 
+def check_optimizer_forms(optimizer: Optimizer) -> None:
+    """It offers a form the driver runs (``offers``: batch steps, derivative steps, a callback
+    ``minimize`` or a plan), and each offered steps method gives its kind of steps."""
+    from .task import BatchSteps, DerivativeSteps
+
+    offers = type(optimizer).offers
+    _require(bool(offers & {"batch_steps", "derivative_steps", "minimize", "plan"}),
+             f"{_label(optimizer)}: it offers no form the driver runs: define batch_steps, derivative_steps, minimize "
+             f"or plan")
+    for form, kind in (("batch_steps", BatchSteps), ("derivative_steps", DerivativeSteps)):
+        if form in offers:
+            steps = getattr(optimizer, form)()
+            _require(isinstance(steps, kind) and all(callable(f) for f in steps),
+                     f"{_label(optimizer)}: {form}() gave {type(steps).__name__}, not {kind.__name__} of three functions")
+
+
 def check_optimizer_budget(optimizer: Optimizer) -> None:
     """min_budget is a positive int and a smaller budget is refused with a HybridfitError saying
     it; never more evaluations than the budget, and the reported number is the real one."""
@@ -634,12 +670,12 @@ IMPROVE_SHARE = 0.2
 def check_optimizer_improves(optimizer: Optimizer) -> None:
     """It closes at least ``IMPROVE_SHARE`` of the gap between its start and the optimum (loss 0)
     in the median of three seeds, on the whole problem and on one finger's stage alone (as stepwise
-    fitting runs it). The problem: ToyLeastSquares with one exact proposal per ToyHand joint at a
+    fitting runs it). The problem: ToySquared with one exact proposal per ToyHand joint at a
     random pose; the start has the true global pose and the default finger angles."""
     model = ToyHand()
     truth = synthetic_proposals(1, k=1, seed=6, model=model, p_missing=0.0)["params"][0]
     start = np.concatenate([truth[:7], model.default_params()[7:]])
-    problem = Problem(model, ToyLeastSquares(), model.forward(truth)[:, None], np.ones((model.n_joints, 1)), x0=start)
+    problem = Problem(model, ToySquared(), model.forward(truth)[:, None], np.ones((model.n_joints, 1)), x0=start)
     for stage in (None, problem.stage_points()[1]):
         points = problem.all_points if stage is None else stage[2]
         start = float(problem.evaluate(problem.x0[None], points)[0])
@@ -653,8 +689,9 @@ def check_optimizer_improves(optimizer: Optimizer) -> None:
 
 
 def check_optimizer_batch_steps(optimizer: Optimizer) -> None:
-    """An optimiser the driver runs (its plan's stages share batch steps, ``hybridfit.fitting.driver``),
-    fitting several frames in lockstep, spends each frame's budget exactly and fits each frame as
+    """An optimiser the driver runs (its plan's stages share batch or derivative steps,
+    ``hybridfit.fitting.driver``), fitting several frames in lockstep, spends each frame's budget
+    exactly (derivative steps: in whole rows of d + 1) and fits each frame as
     alone (its random numbers come from its own key). Skipped for callback-style solvers."""
     from .fitting.driver import Driver, batched_layout
 
@@ -669,8 +706,10 @@ def check_optimizer_batch_steps(optimizer: Optimizer) -> None:
     driver = Driver(model, objective, optimizer, model.joint_names, budget, seed=3)
     together = driver.fit_chunk([0, 1, 2], data["proposals"], data["confidences"])
     _require(together.fitted == [0, 1, 2], f"{_label(optimizer)}: frames {sorted(together.errors)} failed")
-    _require(bool((together.evaluations == budget).all()), f"{_label(optimizer)}: {together.evaluations} "
-             f"evaluations for a budget of {budget}")
+    spent = sum(st.budget - (st.budget % (len(st.parameters) + 1) if st.kind == "derivative" else 0)
+                for st in driver.layout(problem).stages)  # derivative steps spend whole rows of d + 1
+    _require(bool((together.evaluations == spent).all()), f"{_label(optimizer)}: {together.evaluations} "
+             f"evaluations for a budget of {budget} (its stages spend {spent})")
     for f in range(3):
         alone = driver.fit_chunk([f], data["proposals"][f:f + 1], data["confidences"][f:f + 1])
         _require(np.array_equal(together.params[f], alone.params[0]),
@@ -686,8 +725,9 @@ _CHECKS: dict[str, tuple[Callable, ...]] = {
                             check_objective_lower_bound, check_objective_deterministic, check_objective_point_loss,
                             check_objective_point_loss_agrees, check_objective_casadi_agrees,
                             check_objective_observed),
-    "optimizer": _COMMON + (check_optimizer_budget, check_optimizer_deterministic, check_optimizer_bounds,
-                            check_optimizer_subset, check_optimizer_improves, check_optimizer_batch_steps),
+    "optimizer": _COMMON + (check_optimizer_forms, check_optimizer_budget, check_optimizer_deterministic,
+                            check_optimizer_bounds, check_optimizer_subset, check_optimizer_improves,
+                            check_optimizer_batch_steps),
 }
 
 

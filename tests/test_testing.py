@@ -357,7 +357,7 @@ def test_the_checks_run_the_point_loss_the_core_runs_only():
     """Below a class's own bind its parent's point_loss is never run (capability rule): the
     point_loss checks skip it, saying why, and the objective passes on its bind."""
     assert capability(OwnBind(), "point_loss") is None
-    with pytest.raises(unittest.SkipTest, match="point_loss is defined above its own bind"):
+    with pytest.raises(unittest.SkipTest, match="point_loss is its parent.s, and it defines its own bind"):
         testing.check_objective_point_loss(OwnBind())
     testing.check_objective(OwnBind())
 

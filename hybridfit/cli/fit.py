@@ -28,8 +28,34 @@ from .calibrate import CALIBRATED_MODEL
 AUTO_MIN_FRAMES = 30
 
 
+#: what ``hybridfit fit --help`` says of the schedule
+SCHEDULE_HELP = (
+    "Fit the hand model to each frame's joint proposals. The fit is its schedule, every stage's evaluations counted "
+    "in --budget: by default (optimizer stepwise-pso, objective clamped-then-soft-l1) PSO on the palm's 7 "
+    "parameters (30%% of the search budget), then on each finger's 4 (the rest, equally), minimising the paper's "
+    "clamped-confidence objective; then a local Levenberg-Marquardt stage of all parameters (local_share 20%% of "
+    "the budget) on soft-L1 fusion of the proposals. --objective NAME makes every stage minimise NAME; "
+    "--optimizer-config '{\"local_share\": 0}' is the paper's schedule. The schedule that ran is printed and "
+    "stored in the fits file (key schedule, JSON).")
+
+
+def schedule_line(schedule: str) -> str:
+    """One line naming the stages of the schedule most frames ran (a fits file's ``schedule``)."""
+    import json
+
+    runs = json.loads(schedule)
+    if not runs:
+        return "schedule: none (no frame fitted)"
+    top = max(runs, key=lambda r: r["frames"])
+    stages = ", ".join(f"{s['name']} {s['optimizer']['name']}"
+                       + (f" on {s['objective']['name']}" if s["objective"]["name"] != top["stages"][0]["objective"]["name"]
+                          else "") + f" {s['budget']}" for s in top["stages"])
+    more = f"; {len(runs) - 1} other schedules for frames with points missing" if len(runs) > 1 else ""
+    return f"schedule: {stages} (objective {top['stages'][0]['objective']['name']}{more})"
+
+
 def register(sub) -> None:
-    p = sub.add_parser("fit", help="fit the hand model to joint proposals (.npz)")
+    p = sub.add_parser("fit", help="fit the hand model to joint proposals (.npz)", description=SCHEDULE_HELP)
     p.add_argument("proposals", help="npz with proposals (F,J,K,3) mm, confidences (F,J,K), optional joint_names, ground_truth")
     p.add_argument("--out", required=True, help="output npz: params, joints, objective (the loss), evaluations, "
                    "joint_names, failed, inliers (points within inlier_distance_mm of a proposal), ground_truth "
@@ -109,6 +135,7 @@ def run(args) -> int:
     save_npz(args.out, **result.to_npz(), **extra)
     F, done = len(result.failed), ~result.failed
     print(f"fitted {int(done.sum())}/{F} frames -> {args.out}")
+    print(schedule_line(result.schedule))
     report_failures(result.errors)
     if "ground_truth" in data and done.any():  # finished frames only (after Ctrl-C too)
         s = summary(result.joints[done], data["ground_truth"][done])

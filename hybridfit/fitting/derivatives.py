@@ -11,9 +11,11 @@ the stage's points, its gradient (d,) and a positive semi-definite curvature (d,
 - gradient sum_q J_q^T g_q, curvature sum_q J_q^T H_q+ J_q with H_q+ the Hessian's positive
   part (its negative eigenvalues set to 0): Gauss-Newton for any per-point loss.
 
-The loop (:func:`derivative_blocks`) is compiled with the objective's ``point_loss`` inlined
-(:func:`~hybridfit.point_loss.specialise`), as the driver's scoring loop is. A row costs what
-a forward-difference gradient would, ``d + 1`` evaluations (:class:`~hybridfit.task.DerivativeSteps`).
+Three compiled steps: :func:`pose_jacobians` (the points and their Jacobians, any model),
+:func:`point_derivatives` (compiled with the objective's ``point_loss`` inlined,
+:func:`~hybridfit.point_loss.specialise`: a small loop, quick to compile for a new objective)
+and :func:`assemble` (the gradient and curvature). A row costs what a forward-difference
+gradient would, ``d + 1`` evaluations (:class:`~hybridfit.task.DerivativeSteps`).
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ PARAMETER_STEP = 1e-6
 POINT_STEP_MM = 1e-3
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def positive_part(H, out):
     """out (3, 3) = the symmetric H (3, 3) with its negative eigenvalues set to 0."""
     values, vectors = np.linalg.eigh(H)
@@ -46,26 +48,19 @@ def positive_part(H, out):
             out[a, b] = s
 
 
-def derivative_blocks(constants, proposals, weights, parents, offsets, rest, rest_identity, axes, axis_params,
-                      mirror, pm_ptr, pm_joint, pm_weight, ints, floats, base, pidx, subset, X, losses, gradients,
-                      curvatures):
-    """losses[f, :m], gradients[f, :m] (d,), curvatures[f, :m] (d, d) of frame f's hypotheses
-    X[f] (m, d) over the points ``subset``, the parameters ``pidx`` (d,) moving from ``base``
-    (F, P); proposals (F, Q, K, 3) mm, weights (F, Q, K); ``ints``, ``floats``: a
-    :func:`block_setup` of all parameters for ``subset`` over d + 1 columns."""
+@nb.njit(cache=True, nogil=True)
+def pose_jacobians(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
+                   ints, floats, base, pidx, subset, X, points, jacobians):
+    """points[f, i] (Q, 3) mm and jacobians[f, i] (Q, 3, d) (mm per unit of each parameter) of
+    frame f's hypotheses X[f] (m, d) at the points ``subset``, the parameters ``pidx`` (d,)
+    moving from ``base`` (F, P), by forward differences: the d + 1 poses of a hypothesis in one
+    call of :func:`tree_points` (``ints``, ``floats``: its :func:`block_setup` over d + 1 columns)."""
     F, m, d = X.shape
     P = base.shape[1]
-    Q = weights.shape[1]
+    Q = points.shape[2]
     poses = np.empty((d + 1, P))
     pts = np.empty((Q, 3, d + 1))
     steps = np.empty(d)
-    jac = np.empty((3, d))
-    bent = np.empty((3, d))
-    H = np.empty((3, 3))
-    Hp = np.empty((3, 3))
-    g = np.empty(3)
-    xs, ys, zs, term = np.empty(10), np.empty(10), np.empty(10), np.empty(10)
-    h = POINT_STEP_MM
     for f in range(F):
         for i in range(m):
             poses[0] = base[f]
@@ -77,17 +72,35 @@ def derivative_blocks(constants, proposals, weights, parents, offsets, rest, res
                 poses[1 + k, pidx[k]] += steps[k]
             tree_points(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
                         ints, floats, poses, subset, pts)
-            total = 0.0
-            grad, curv = gradients[f, i], curvatures[f, i]
-            grad[:] = 0.0
-            curv[:, :] = 0.0
             for t in range(subset.shape[0]):
                 q = subset[t]
+                for a in range(3):
+                    points[f, i, q, a] = pts[q, a, 0]
+                    for k in range(d):
+                        jacobians[f, i, q, a, k] = (pts[q, a, 1 + k] - pts[q, a, 0]) / steps[k]
+
+
+def point_derivatives(constants, proposals, weights, subset, points, losses, gradients, hessians):
+    """losses[f, i] = the loss of points[f, i] (Q, 3) over ``subset``; gradients[f, i, q] (3,)
+    and hessians[f, i, q] (3, 3) (positive part) of each point's loss, by finite differences
+    of the per-point loss at ten positions around the point (one call); 0 for a point without
+    proposals. proposals (F, Q, K, 3) mm, weights (F, Q, K)."""
+    F, m = points.shape[0], points.shape[1]
+    xs, ys, zs, term = np.empty(10), np.empty(10), np.empty(10), np.empty(10)
+    H = np.empty((3, 3))
+    h = POINT_STEP_MM
+    for f in range(F):
+        for i in range(m):
+            total = 0.0
+            for t in range(subset.shape[0]):
+                q = subset[t]
+                gradients[f, i, q, :] = 0.0
+                hessians[f, i, q, :, :] = 0.0
                 if not has_proposals(weights[f, q]):
                     continue
-                # the point, +-h along each axis, +h along two axes (columns 0, 1-3, 4-6, 7-9)
+                # the point, +h along each axis, -h along each, +h along two (columns 0, 1-3, 4-6, 7-9)
                 for e in range(10):
-                    xs[e], ys[e], zs[e] = pts[q, 0, 0], pts[q, 1, 0], pts[q, 2, 0]
+                    xs[e], ys[e], zs[e] = points[f, i, q, 0], points[f, i, q, 1], points[f, i, q, 2]
                 xs[1] += h
                 ys[2] += h
                 zs[3] += h
@@ -103,34 +116,50 @@ def derivative_blocks(constants, proposals, weights, parents, offsets, rest, res
                 point_loss(xs, ys, zs, proposals[f, q], weights[f, q], constants, term)
                 total += term[0]
                 for a in range(3):
-                    g[a] = (term[1 + a] - term[4 + a]) / (2.0 * h)
+                    gradients[f, i, q, a] = (term[1 + a] - term[4 + a]) / (2.0 * h)
                     H[a, a] = (term[1 + a] - 2.0 * term[0] + term[4 + a]) / (h * h)
                 H[0, 1] = H[1, 0] = (term[7] - term[1] - term[2] + term[0]) / (h * h)
                 H[0, 2] = H[2, 0] = (term[8] - term[1] - term[3] + term[0]) / (h * h)
                 H[1, 2] = H[2, 1] = (term[9] - term[2] - term[3] + term[0]) / (h * h)
-                positive_part(H, Hp)
-                for k in range(d):
-                    for a in range(3):
-                        jac[a, k] = (pts[q, a, 1 + k] - pts[q, a, 0]) / steps[k]
-                    grad[k] += g[0] * jac[0, k] + g[1] * jac[1, k] + g[2] * jac[2, k]
-                    for a in range(3):
-                        bent[a, k] = Hp[a, 0] * jac[0, k] + Hp[a, 1] * jac[1, k] + Hp[a, 2] * jac[2, k]
-                for k in range(d):
-                    for l in range(k + 1):
-                        s = jac[0, k] * bent[0, l] + jac[1, k] * bent[1, l] + jac[2, k] * bent[2, l]
-                        curv[k, l] += s
-            for k in range(d):
-                for l in range(k):
-                    curv[l, k] = curv[k, l]
+                positive_part(H, hessians[f, i, q])
             losses[f, i] = total
 
 
+@nb.njit(cache=True, nogil=True)
+def assemble(subset, jacobians, point_gradients, hessians, gradients, curvatures):
+    """gradients[f, i] = sum_q J^T g_q (d,) and curvatures[f, i] = sum_q J^T H_q J (d, d) over ``subset``."""
+    F, m = jacobians.shape[0], jacobians.shape[1]
+    d = jacobians.shape[4]
+    bent = np.empty((3, d))
+    for f in range(F):
+        for i in range(m):
+            grad, curv = gradients[f, i], curvatures[f, i]
+            grad[:] = 0.0
+            curv[:, :] = 0.0
+            for t in range(subset.shape[0]):
+                q = subset[t]
+                J, g, Hq = jacobians[f, i, q], point_gradients[f, i, q], hessians[f, i, q]
+                if g[0] == 0.0 and g[1] == 0.0 and g[2] == 0.0 and Hq[0, 0] == 0.0 and Hq[1, 1] == 0.0 \
+                        and Hq[2, 2] == 0.0:
+                    continue  # no pull (no proposals, or a flat loss there)
+                for k in range(d):
+                    grad[k] += g[0] * J[0, k] + g[1] * J[1, k] + g[2] * J[2, k]
+                    for a in range(3):
+                        bent[a, k] = Hq[a, 0] * J[0, k] + Hq[a, 1] * J[1, k] + Hq[a, 2] * J[2, k]
+                for k in range(d):
+                    for l in range(k + 1):
+                        curv[k, l] += J[0, k] * bent[0, l] + J[1, k] * bent[1, l] + J[2, k] * bent[2, l]
+            for k in range(d):
+                for l in range(k):
+                    curv[l, k] = curv[k, l]
+
+
 def derivative_setup(tree, point_map, P: int, subset: np.ndarray, d: int):
-    """(ints, floats): the block set-up :func:`derivative_blocks` reads, all P parameters
-    moving, for the points ``subset`` over d + 1 columns."""
+    """(ints, floats): the block set-up :func:`pose_jacobians` reads, all P parameters moving,
+    for the points ``subset`` over d + 1 columns."""
     return block_setup(*tree, *point_map, np.zeros((0, P)), np.arange(P, dtype=np.int64), subset, subset, d + 1)
 
 
-def compiled_derivatives(function):
-    """:func:`derivative_blocks` compiled with the per-point loss ``function`` inlined."""
-    return specialise(derivative_blocks, function)
+def compiled_point_derivatives(function):
+    """:func:`point_derivatives` compiled with the per-point loss ``function`` inlined."""
+    return specialise(point_derivatives, function)

@@ -582,7 +582,7 @@ def run_problem(optimizer, problem: Problem, budget: int, seed: int | np.random.
     the result ``hybridfit.fit`` gives that frame. With
     ``record`` every evaluated hypothesis's full parameters are appended to it, one (m, P)
     array per scored batch, re-scores left out (the conformance suite's view of what an
-    optimiser asked for)."""
+    optimiser asked for; a row of derivative steps, d + 1 evaluations, is in it d + 1 times)."""
     if isinstance(seed, np.random.Generator):
         seed = int(seed.integers(0, 2**63))
     frame = int(frame or 0)
@@ -624,9 +624,9 @@ def _recording(make_scorer, record: list):
             if name == "prepare_derivatives":
                 return lambda base, pidx, subset, n: (method(base, pidx, subset, n), base.copy(), pidx)
 
-            def derivatives(stage, X, subset, *out):
+            def derivatives(stage, X, subset, *out):  # a row of d + 1 evaluations is recorded d + 1 times
                 inner, base, pidx = stage
-                record.extend(_full(base, pidx, X))
+                record.extend(np.repeat(_full(base, pidx, X), len(pidx) + 1, axis=1))
                 method(inner, X, subset, *out)
             return derivatives
 

@@ -17,7 +17,7 @@ import numpy as np
 from ..model.kinematics import block_kinematics, block_points, block_setup, block_views
 from ..objective import checked_losses, point_loss_of
 from ..point_loss import has_proposals, specialise
-from .derivatives import compiled_derivatives, derivative_setup
+from .derivatives import assemble, compiled_point_derivatives, derivative_setup, pose_jacobians
 
 #: the objective's per-point loss in the loop below: each specialised copy binds it (:func:`specialise`)
 point_loss = None
@@ -76,9 +76,9 @@ class CompiledLoss:
         self._function = found[0]
 
     @property
-    def derivative_blocks(self):
-        """:func:`~.derivatives.derivative_blocks` with this per-point loss (compiled when first asked)."""
-        return compiled_derivatives(self._function)
+    def point_derivatives(self):
+        """:func:`~.derivatives.point_derivatives` with this per-point loss (compiled when first asked)."""
+        return compiled_point_derivatives(self._function)
 
 
 def along_rows(X: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -127,16 +127,22 @@ class PointScorer(_Stages):
                                    self.identity, *stage, *along_rows(X), subset, losses)
 
     def prepare_derivatives(self, base, pidx, subset, n):
-        """A stage's set-up for :meth:`derivatives` (``n`` unused: one hypothesis's d + 1 poses a block)."""
-        return derivative_setup(self.tree, self.point_map, base.shape[1], subset, len(pidx)), base, pidx
+        """A stage's set-up for :meth:`derivatives`: the block set-up and buffers for n rows a frame."""
+        F, Q, d = base.shape[0], len(self.point_map[0]) - 1, len(pidx)
+        buffers = (np.zeros((F, n, Q, 3)), np.zeros((F, n, Q, 3, d)), np.zeros((F, n, Q, 3)), np.zeros((F, n, Q, 3, 3)))
+        return derivative_setup(self.tree, self.point_map, base.shape[1], subset, d), base, pidx, buffers
 
     def derivatives(self, stage, X, subset, losses, gradients, curvatures):
         """losses[:, :m], gradients[:, :m] (d,) and curvatures[:, :m] (d, d) of hypotheses X (F,
         m, d) over ``subset`` (:mod:`.derivatives`)."""
-        (ints, floats), base, pidx = stage
-        self.compiled.derivative_blocks(self.compiled.constants, self.proposals, self.weights, *self.tree,
-                                        *self.point_map, ints, floats, base, pidx, subset, np.ascontiguousarray(X),
-                                        losses, gradients, curvatures)
+        (ints, floats), base, pidx, (points, jacobians, point_gradients, hessians) = stage
+        m = X.shape[1]
+        points, jacobians, point_gradients, hessians = (a[:, :m] for a in (points, jacobians, point_gradients, hessians))
+        pose_jacobians(*self.tree, *self.point_map, ints, floats, base, pidx, subset, np.ascontiguousarray(X), points,
+                       jacobians)
+        self.compiled.point_derivatives(self.compiled.constants, self.proposals, self.weights, subset, points,
+                                        losses[:, :m], point_gradients, hessians)
+        assemble(subset, jacobians, point_gradients, hessians, gradients[:, :m], curvatures[:, :m])
 
 
 @nb.njit(cache=True, nogil=True)

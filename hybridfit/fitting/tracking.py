@@ -15,6 +15,8 @@ proposals instead of the lost fit; ``"continue"`` (FORTH) keeps tracking from it
 
 from __future__ import annotations
 
+import json
+
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal, Mapping, Sequence
 
@@ -25,7 +27,7 @@ from tqdm.auto import tqdm
 from .. import registry
 from ..errors import HybridfitError
 from .driver import Driver
-from .frames import INLIER_DISTANCE_MM, FitResult, _first_problem, check_fit_options, model_label
+from .frames import INLIER_DISTANCE_MM, FitResult, _first_problem, check_fit_options, model_label, schedules
 from ..io import validate_proposals
 from ..metrics import inliers
 from ..task import Task
@@ -140,4 +142,6 @@ def track(
                 result.errors.setdefault(f, "interrupted")
     result.inlier_distance_mm = float(objective.get_params().get("d_max_mm", INLIER_DISTANCE_MM))
     result.inliers = inliers(result.joints, proposals, confidences, result.inlier_distance_mm)
+    result.schedule = json.dumps(schedules(fitter, model, objective, proposals, confidences, names, search_radius_mm,
+                                           ~result.failed, observations))
     return result

@@ -24,8 +24,8 @@ from hybridfit_plugins.objectives.soft_l1 import SoftL1
 
 
 class ClampedThenSoftL1Settings(ClampedConfidenceSettings):
-    scale_mm: float = Field(10.0, gt=0, description="the local stage's soft-L1 scale s (mm)")
-    reach_mm: float = Field(40.0, gt=0, description="the local stage's reach (mm): proposals further do not pull")
+    scale_mm: float = Field(5.0, gt=0, description="the local stage's soft-L1 scale s (mm)")
+    reach_mm: float = Field(60.0, gt=0, description="the local stage's reach (mm): proposals further do not pull")
 
 
 class ClampedThenSoftL1(ClampedConfidence):

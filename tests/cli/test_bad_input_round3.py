@@ -92,7 +92,7 @@ def test_a_non_finite_loss_is_a_plugin_error_naming_the_objective(exact_frames, 
     optimizer = _OneBatch() if path == "task" else "pso"
     with pytest.raises(errors.PluginError, match=r"objective constant-loss: .*(nan|inf)") as err:
         hybridfit.fit(exact_frames["proposals"][:2], exact_frames["confidences"][:2], objective=objective,
-                      optimizer=optimizer, budget=40, polish=False)
+                      optimizer=optimizer, budget=40)
     assert "not finite" in str(err.value)
 
 

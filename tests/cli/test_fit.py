@@ -21,7 +21,8 @@ def proposals_file(tmp_path_factory):
 def test_plugins_lists_the_reference_plugins(capsys):
     assert main(["plugins"]) == 0
     out = capsys.readouterr().out
-    for name in ("hand26", "clamped-confidence", "pso", "stepwise-pso"):
+    for name in ("hand26", "clamped-confidence", "soft-l1", "clamped-then-soft-l1", "pso", "stepwise-pso",
+                 "levenberg-marquardt"):
         assert name in out
     assert "[hybridfit]" in out
 
@@ -29,11 +30,33 @@ def test_plugins_lists_the_reference_plugins(capsys):
 def test_fit_writes_the_documented_keys(proposals_file, tmp_path, capsys):
     out = tmp_path / "fits.npz"
     assert main(["fit", str(proposals_file), "--out", str(out), "--budget", "600", "--jobs", "2"]) == 0
-    assert "mean joint error" in capsys.readouterr().out
+    printed = capsys.readouterr().out.splitlines()
+    assert "mean joint error" in printed[2]
     with np.load(out) as fits:
-        assert {"params", "joints", "objective", "evaluations", "joint_names"} <= set(fits.files)
+        assert {"params", "joints", "objective", "evaluations", "joint_names", "schedule"} <= set(fits.files)
         assert fits["params"].shape == (4, 27) and (fits["evaluations"] == 600).all()
         assert list(fits["joint_names"]) == list(hybridfit.create("model", "hand26").joint_names)
+        (run,) = json.loads(str(fits["schedule"]))
+    # the default schedule: PSO on the palm, then each finger, then a local stage on soft-L1,
+    # every stage's evaluations in the budget, as the line after "fitted" says
+    stages = run["stages"]
+    assert run["frames"] == 4 and sum(s["budget"] for s in stages) == 600
+    assert [s["name"] for s in stages] == ["palm", "thumb", "index", "middle", "ring", "little", "local"]
+    assert {s["optimizer"]["name"] for s in stages[:-1]} == {"pso"}
+    assert stages[-1]["optimizer"]["name"] == "levenberg-marquardt" and stages[-1]["budget"] % 28 == 0
+    assert printed[1] == ("schedule: " + ", ".join(f"{s['name']} pso {s['budget']}" for s in stages[:-1])
+                          + f", local levenberg-marquardt on soft-l1 {stages[-1]['budget']}"
+                          + " (objective clamped-then-soft-l1)")
+
+
+def test_fit_help_describes_the_schedule(capsys):
+    with pytest.raises(SystemExit):
+        main(["fit", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for words in ("The fit is its schedule", "clamped-then-soft-l1", "Levenberg-Marquardt", "local_share",
+                  "key schedule"):
+        assert words in text
+    assert "--no-polish" not in text
 
 
 def test_plugin_settings_from_toml(proposals_file, tmp_path):
@@ -91,24 +114,40 @@ def test_an_interrupted_fit_saves_finished_frames_and_exits_130(proposals_file, 
         assert np.isfinite(fits["joints"][0]).all()
 
 
-def test_a_tracked_sequence_is_polished_like_a_fit(proposals_file, tmp_path):
-    polished, raw = tmp_path / "polished.npz", tmp_path / "raw.npz"
-    options = ["--budget", "300", "--track"]
-    assert main(["fit", str(proposals_file), "--out", str(polished), *options]) == 0
-    assert main(["fit", str(proposals_file), "--out", str(raw), *options, "--no-polish"]) == 0
-    with np.load(polished) as p, np.load(raw) as r:
+def paper_schedule(tmp_path):
+    """The options of the optimiser's own result at exactly its budget: every stage on the
+    paper's objective, no local stage."""
+    cfg = tmp_path / "paper.toml"
+    cfg.write_text("local_share = 0.0\n")
+    return ["--objective", "clamped-confidence", "--optimizer-config", str(cfg)]
+
+
+def test_a_tracked_sequence_runs_the_schedule_of_a_fit(proposals_file, tmp_path, capsys):
+    local, paper = tmp_path / "local.npz", tmp_path / "paper.npz"
+    options = ["--budget", "600", "--track"]
+    assert main(["fit", str(proposals_file), "--out", str(local), *options]) == 0
+    assert "local levenberg-marquardt on soft-l1" in capsys.readouterr().out
+    assert main(["fit", str(proposals_file), "--out", str(paper), *options, *paper_schedule(tmp_path)]) == 0
+    assert "local" not in capsys.readouterr().out.splitlines()[1]
+    with np.load(local) as p, np.load(paper) as r:
         assert "lost" in p.files and not np.array_equal(p["joints"], r["joints"])
+        assert (p["evaluations"] == 600).all() and (r["evaluations"] == 600).all()
+        assert [s["name"] for s in json.loads(str(p["schedule"]))[0]["stages"]][-1] == "local"
+        assert "local" not in [s["name"] for s in json.loads(str(r["schedule"]))[0]["stages"]]
         hand = hybridfit.create("model", str(p["model"]), json.loads(str(p["model_settings"])))
         np.testing.assert_allclose(hand.forward(p["params"]), p["model_joints"], atol=1e-6, rtol=0)
 
 
-@pytest.mark.parametrize("options", [[], ["--no-polish"], ["--model", "hand27", "--seed", "4"]])
+@pytest.mark.parametrize("options", [[], ["paper"], ["--model", "hand27", "--seed", "4"]])
 def test_python_and_the_command_line_give_the_same_fit_bit_for_bit(proposals_file, tmp_path, options):
     out = tmp_path / "fits.npz"
-    assert main(["fit", str(proposals_file), "--out", str(out), "--budget", "500", *options]) == 0
+    paper = options == ["paper"]
+    cli = paper_schedule(tmp_path) if paper else options
+    assert main(["fit", str(proposals_file), "--out", str(out), "--budget", "500", *cli]) == 0
     with np.load(proposals_file) as d:
-        kwargs = {"polish": "--no-polish" not in options, "model": "hand27" if "hand27" in options else "hand26",
-                  "seed": 4 if "--seed" in options else 0}
+        kwargs = {"model": "hand27" if "hand27" in options else "hand26", "seed": 4 if "--seed" in options else 0}
+        if paper:
+            kwargs |= {"objective": "clamped-confidence", "optimizer_config": {"local_share": 0.0}}
         result = hybridfit.fit(d["proposals"], d["confidences"], budget=500, **kwargs)
     with np.load(out) as fits:
         for key, value in result.to_npz().items():
