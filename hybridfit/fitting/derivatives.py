@@ -37,7 +37,17 @@ POINT_STEP_MM = 1e-3
 
 @nb.njit(cache=True, nogil=True)
 def positive_part(H, out):
-    """out (3, 3) = the symmetric H (3, 3) with its negative eigenvalues set to 0."""
+    """out (3, 3) = the symmetric H (3, 3) with its negative eigenvalues set to 0 (H itself when
+    it is positive semi-definite: every principal minor >= 0, the common case)."""
+    m01 = H[0, 0] * H[1, 1] - H[0, 1] * H[0, 1]
+    m02 = H[0, 0] * H[2, 2] - H[0, 2] * H[0, 2]
+    m12 = H[1, 1] * H[2, 2] - H[1, 2] * H[1, 2]
+    det = H[0, 0] * m12 - H[0, 1] * (H[0, 1] * H[2, 2] - H[1, 2] * H[0, 2]) \
+        + H[0, 2] * (H[0, 1] * H[1, 2] - H[1, 1] * H[0, 2])
+    if H[0, 0] >= 0.0 and H[1, 1] >= 0.0 and H[2, 2] >= 0.0 and m01 >= 0.0 and m02 >= 0.0 and m12 >= 0.0 \
+            and det >= 0.0:
+        out[:, :] = H
+        return
     values, vectors = np.linalg.eigh(H)
     for a in range(3):
         for b in range(3):
@@ -50,11 +60,12 @@ def positive_part(H, out):
 
 @nb.njit(cache=True, nogil=True)
 def pose_jacobians(parents, offsets, rest, rest_identity, axes, axis_params, mirror, pm_ptr, pm_joint, pm_weight,
-                   ints, floats, base, pidx, subset, X, points, jacobians):
+                   ints, floats, base, pidx, subset, X, fresh, points, jacobians):
     """points[f, i] (Q, 3) mm and jacobians[f, i] (Q, 3, d) (mm per unit of each parameter) of
     frame f's hypotheses X[f] (m, d) at the points ``subset``, the parameters ``pidx`` (d,)
     moving from ``base`` (F, P), by forward differences: the d + 1 poses of a hypothesis in one
-    call of :func:`tree_points` (``ints``, ``floats``: its :func:`block_setup` over d + 1 columns)."""
+    call of :func:`tree_points` (``ints``, ``floats``: its :func:`block_setup` over d + 1 columns).
+    Only the frames ``fresh`` (F,) bool are computed."""
     F, m, d = X.shape
     P = base.shape[1]
     Q = points.shape[2]
@@ -62,6 +73,8 @@ def pose_jacobians(parents, offsets, rest, rest_identity, axes, axis_params, mir
     pts = np.empty((Q, 3, d + 1))
     steps = np.empty(d)
     for f in range(F):
+        if not fresh[f]:
+            continue
         for i in range(m):
             poses[0] = base[f]
             for k in range(d):
@@ -80,16 +93,18 @@ def pose_jacobians(parents, offsets, rest, rest_identity, axes, axis_params, mir
                         jacobians[f, i, q, a, k] = (pts[q, a, 1 + k] - pts[q, a, 0]) / steps[k]
 
 
-def point_derivatives(constants, proposals, weights, subset, points, losses, gradients, hessians):
+def point_derivatives(constants, proposals, weights, subset, fresh, points, losses, gradients, hessians):
     """losses[f, i] = the loss of points[f, i] (Q, 3) over ``subset``; gradients[f, i, q] (3,)
     and hessians[f, i, q] (3, 3) (positive part) of each point's loss, by finite differences
     of the per-point loss at ten positions around the point (one call); 0 for a point without
-    proposals. proposals (F, Q, K, 3) mm, weights (F, Q, K)."""
+    proposals. proposals (F, Q, K, 3) mm, weights (F, Q, K); frames not ``fresh`` are skipped."""
     F, m = points.shape[0], points.shape[1]
     xs, ys, zs, term = np.empty(10), np.empty(10), np.empty(10), np.empty(10)
     H = np.empty((3, 3))
     h = POINT_STEP_MM
     for f in range(F):
+        if not fresh[f]:
+            continue
         for i in range(m):
             total = 0.0
             for t in range(subset.shape[0]):
@@ -126,12 +141,16 @@ def point_derivatives(constants, proposals, weights, subset, points, losses, gra
 
 
 @nb.njit(cache=True, nogil=True)
-def assemble(subset, jacobians, point_gradients, hessians, gradients, curvatures):
-    """gradients[f, i] = sum_q J^T g_q (d,) and curvatures[f, i] = sum_q J^T H_q J (d, d) over ``subset``."""
+def assemble(subset, fresh, jacobians, point_gradients, hessians, gradients, curvatures):
+    """gradients[f, i] = sum_q J^T g_q (d,) and curvatures[f, i] = sum_q J^T H_q J (d, d) over
+    ``subset``, for the ``fresh`` frames."""
     F, m = jacobians.shape[0], jacobians.shape[1]
     d = jacobians.shape[4]
     bent = np.empty((3, d))
+    moving = np.empty(d, dtype=np.int64)  # the parameters that move the point (its Jacobian's nonzero columns)
     for f in range(F):
+        if not fresh[f]:
+            continue
         for i in range(m):
             grad, curv = gradients[f, i], curvatures[f, i]
             grad[:] = 0.0
@@ -142,12 +161,20 @@ def assemble(subset, jacobians, point_gradients, hessians, gradients, curvatures
                 if g[0] == 0.0 and g[1] == 0.0 and g[2] == 0.0 and Hq[0, 0] == 0.0 and Hq[1, 1] == 0.0 \
                         and Hq[2, 2] == 0.0:
                     continue  # no pull (no proposals, or a flat loss there)
+                n = 0
                 for k in range(d):
+                    if J[0, k] != 0.0 or J[1, k] != 0.0 or J[2, k] != 0.0:
+                        moving[n] = k
+                        n += 1
+                for e in range(n):
+                    k = moving[e]
                     grad[k] += g[0] * J[0, k] + g[1] * J[1, k] + g[2] * J[2, k]
                     for a in range(3):
                         bent[a, k] = Hq[a, 0] * J[0, k] + Hq[a, 1] * J[1, k] + Hq[a, 2] * J[2, k]
-                for k in range(d):
-                    for l in range(k + 1):
+                for e in range(n):
+                    k = moving[e]
+                    for e2 in range(e + 1):
+                        l = moving[e2]
                         curv[k, l] += J[0, k] * bent[0, l] + J[1, k] * bent[1, l] + J[2, k] * bent[2, l]
             for k in range(d):
                 for l in range(k):

@@ -179,47 +179,35 @@ def _asked(st, X, shape):
 
 
 def _derivative_stage(st, scorer, base, start, lo, hi, keys, best_x, best_loss, out_used) -> None:
-    """A stage of derivative steps: rows of d + 1 evaluations each while the budget allows one."""
+    """A stage of derivative steps: rows of d + 1 evaluations each while the budget allows one;
+    every row is scored, and a row that lowers its frame's best loss of the stage also gets its
+    gradient and curvature (:class:`~hybridfit.task.DerivativeSteps`)."""
     if not hasattr(scorer, "derivatives"):
         raise HybridfitError(f"optimizer {_name(st.optimizer)} takes derivative steps, and {objective_label(scorer.objective)}"
                              f" offers no point_loss on a kinematic tree to take them by: schedule a gradient-free "
                              f"optimizer for stage {st.name!r}")
     F, d = start.shape
     cost = d + 1
+    scored = scorer.prepare(base, st.parameters, st.points, st.owned, st.batch)
     stage = scorer.prepare_derivatives(base, st.parameters, st.points, st.batch)
     state = st.steps.init(start, lo, hi, keys, st.budget, st.settings)
-    losses, gradients, curvatures = np.empty((F, st.batch)), np.empty((F, st.batch, d)), np.empty((F, st.batch, d, d))
+    losses, gradients, curvatures = np.empty((F, st.batch)), np.zeros((F, st.batch, d)), np.zeros((F, st.batch, d, d))
     left = st.budget
     while left >= cost:
         m = min(st.batch, left // cost)
         X = _asked(st, st.steps.ask(state, m), (F, m, d))
-        scorer.derivatives(stage, X, st.points, losses, gradients, curvatures)
+        scorer.score(scored, X, st.points, losses)
         require_finite(losses[:, :m], scorer.objective)
-        if not (np.isfinite(gradients[:, :m]).all() and np.isfinite(curvatures[:, :m]).all()):
-            raise PluginError(f"{objective_label(scorer.objective)}: its point_loss has non-finite derivatives")
+        better = losses[:, :m].min(axis=1) < best_loss
+        if better.any():
+            scorer.derivatives(stage, X, st.points, better, gradients, curvatures)
+            if not (np.isfinite(gradients[better, :m]).all() and np.isfinite(curvatures[better, :m]).all()):
+                raise PluginError(f"{objective_label(scorer.objective)}: its point_loss has non-finite derivatives")
         st.steps.tell(state, X, losses[:, :m], gradients[:, :m], curvatures[:, :m])
         keep_best(X, losses, best_x, best_loss)
         left -= m * cost
         stops.check()
     out_used += st.budget - left
-
-
-def _frame_scorer(scorer, stage, subset, n, objective):
-    """A callback solver's scores of its one frame's hypotheses X (k, d) -> (k,) by ``scorer``,
-    in blocks of at most n (a stop signal waits for the frame's end: a solver's callback is no
-    place for an exception it does not expect)."""
-
-    def score(X):
-        out = np.empty(len(X))
-        losses = np.empty((1, n))
-        for a in range(0, len(X), n):
-            block = np.ascontiguousarray(X[a:a + n])[None]
-            scorer.score(stage, block, subset, losses)
-            out[a:a + len(block[0])] = losses[0, :len(block[0])]
-        require_finite(out, objective)
-        return out
-
-    return score
 
 
 # ---------------------------------------------------------------- layouts
@@ -609,26 +597,26 @@ def _recording(make_scorer, record: list):
             self.scorer, self.objective = scorer, scorer.objective
 
         def prepare(self, base, pidx, subset, owned, n):
-            return self.scorer.prepare(base, pidx, subset, owned, n), base.copy(), pidx, subset
+            self.last = [self.scorer.prepare(base, pidx, subset, owned, n), base.copy(), pidx, subset, 1]
+            return self.last
 
-        def score(self, stage, X, subset, losses):
-            inner, base, pidx, evaluated = stage
+        def score(self, stage, X, subset, losses):  # a row of derivative steps (d + 1 evaluations) is in it d + 1 times
+            inner, base, pidx, evaluated, repeat = stage
             if subset is evaluated:  # not a guided stage's re-score on its owned points
-                record.extend(_full(base, pidx, X))
+                record.extend(np.repeat(_full(base, pidx, X), repeat, axis=1))
             self.scorer.score(inner, X, subset, losses)
 
         def __getattr__(self, name):  # derivatives, where the scorer offers them
             if name not in ("prepare_derivatives", "derivatives"):
                 raise AttributeError(name)
             method = getattr(self.scorer, name)
-            if name == "prepare_derivatives":
-                return lambda base, pidx, subset, n: (method(base, pidx, subset, n), base.copy(), pidx)
+            if name == "derivatives":
+                return method
 
-            def derivatives(stage, X, subset, *out):  # a row of d + 1 evaluations is recorded d + 1 times
-                inner, base, pidx = stage
-                record.extend(np.repeat(_full(base, pidx, X), len(pidx) + 1, axis=1))
-                method(inner, X, subset, *out)
-            return derivatives
+            def prepare_derivatives(base, pidx, subset, n):  # the stage just prepared scores rows of d + 1
+                self.last[4] = len(pidx) + 1
+                return method(base, pidx, subset, n)
+            return prepare_derivatives
 
     return lambda *args: Recording(make_scorer(*args))
 

@@ -129,20 +129,21 @@ class PointScorer(_Stages):
     def prepare_derivatives(self, base, pidx, subset, n):
         """A stage's set-up for :meth:`derivatives`: the block set-up and buffers for n rows a frame."""
         F, Q, d = base.shape[0], len(self.point_map[0]) - 1, len(pidx)
-        buffers = (np.zeros((F, n, Q, 3)), np.zeros((F, n, Q, 3, d)), np.zeros((F, n, Q, 3)), np.zeros((F, n, Q, 3, 3)))
+        buffers = (np.zeros((F, n, Q, 3)), np.zeros((F, n, Q, 3, d)), np.zeros((F, n, Q, 3)), np.zeros((F, n, Q, 3, 3)),
+                   np.zeros((F, n)))
         return derivative_setup(self.tree, self.point_map, base.shape[1], subset, d), base, pidx, buffers
 
-    def derivatives(self, stage, X, subset, losses, gradients, curvatures):
-        """losses[:, :m], gradients[:, :m] (d,) and curvatures[:, :m] (d, d) of hypotheses X (F,
-        m, d) over ``subset`` (:mod:`.derivatives`)."""
-        (ints, floats), base, pidx, (points, jacobians, point_gradients, hessians) = stage
+    def derivatives(self, stage, X, subset, frames, gradients, curvatures):
+        """gradients[f, :m] (d,) and curvatures[f, :m] (d, d) of hypotheses X (F, m, d) over
+        ``subset`` (:mod:`.derivatives`) for the ``frames`` (F,) bool; the others' are left as they are."""
+        (ints, floats), base, pidx, buffers = stage
         m = X.shape[1]
-        points, jacobians, point_gradients, hessians = (a[:, :m] for a in (points, jacobians, point_gradients, hessians))
-        pose_jacobians(*self.tree, *self.point_map, ints, floats, base, pidx, subset, np.ascontiguousarray(X), points,
-                       jacobians)
-        self.compiled.point_derivatives(self.compiled.constants, self.proposals, self.weights, subset, points,
-                                        losses[:, :m], point_gradients, hessians)
-        assemble(subset, jacobians, point_gradients, hessians, gradients[:, :m], curvatures[:, :m])
+        points, jacobians, point_gradients, hessians, losses = (a[:, :m] for a in buffers)
+        X = np.ascontiguousarray(X)
+        pose_jacobians(*self.tree, *self.point_map, ints, floats, base, pidx, subset, X, frames, points, jacobians)
+        self.compiled.point_derivatives(self.compiled.constants, self.proposals, self.weights, subset, frames, points,
+                                        losses, point_gradients, hessians)
+        assemble(subset, frames, jacobians, point_gradients, hessians, gradients[:, :m], curvatures[:, :m])
 
 
 @nb.njit(cache=True, nogil=True)

@@ -12,7 +12,9 @@ with the parameters at a bound that the gradient pushes out held there, and the 
 to the box. A step that lowers the loss is taken and lambda shrinks (/3); one that does not is
 refused and lambda grows (x10). So no row is worse than the start for the loss, and the stage
 spends its budget in whole rows (``budget // (d + 1)`` of them, whatever the frame: a frame's
-count of evaluations does not depend on the frames beside it).
+count of evaluations does not depend on the frames beside it). A frame has converged once a
+taken step gains less than ``tolerance`` (relative) or lambda passes ``1e4`` after a refusal:
+it then asks its best pose again (the driver does not compute a row it has just computed).
 
 Written as numba-compiled :class:`~hybridfit.task.DerivativeSteps` (a frame axis first): the
 driver runs it for many frames in lockstep. It draws no random numbers.
@@ -32,12 +34,16 @@ class LevenbergMarquardtSettings(Settings):
     damping: float = Field(1e-3, gt=0, description="lambda at the start, relative to the curvature's diagonal")
     shrink: float = Field(3.0, gt=1, description="lambda is divided by this after a step that lowers the loss")
     grow: float = Field(10.0, gt=1, description="lambda is multiplied by this after a refused step")
+    tolerance: float = Field(1e-4, ge=0, description="converged when a taken step lowers the loss by less than this "
+                             "times (1 + |loss|)")
 
 
 #: columns of the settings array (:meth:`LevenbergMarquardt.batch_settings`)
-DAMPING, SHRINK, GROW = range(3)
+DAMPING, SHRINK, GROW, TOLERANCE = range(4)
 #: lambda stays within these
 MIN_DAMPING, MAX_DAMPING = 1e-9, 1e12
+#: a refusal that takes lambda past this ends a frame's steps (they would no longer move it)
+HOLD_DAMPING = 1e4
 
 
 @nb.njit(cache=True, nogil=True)
@@ -47,7 +53,7 @@ def lm_init(start, lower, upper, keys, budget, settings):
     F, d = start.shape
     return (start.copy(), np.full(F, np.inf), np.zeros((F, d)), np.zeros((F, d, d)), np.full(F, settings[DAMPING]),
             lower.copy(), upper.copy(), np.zeros(1, dtype=np.int64), settings.copy(), np.empty((F, 1, d)),
-            np.empty((d, d)), np.empty((d, d)), np.empty(d))
+            np.empty((d, d)), np.empty((d, d)), np.empty(d), np.zeros(F, dtype=np.bool_))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -81,8 +87,9 @@ def cholesky_solve(A, b, L, out):
 
 @nb.njit(cache=True, nogil=True)
 def lm_ask(state, m):
-    """(F, 1, d): the start (first call), then each frame's damped step from its best pose."""
-    x, _, g, A, lam, lower, upper, scored, _, X, M, L, delta = state
+    """(F, 1, d): the start (first call), then each frame's damped step from its best pose (its
+    best pose itself once it has converged)."""
+    x, _, g, A, lam, lower, upper, scored, _, X, M, L, delta, done = state
     F, d = x.shape
     if scored[0] == 0:
         X[:, 0, :] = x
@@ -90,6 +97,9 @@ def lm_ask(state, m):
     rhs = np.empty(d)
     held = np.empty(d, dtype=np.bool_)
     for f in range(F):
+        if done[f]:
+            X[f, 0, :] = x[f]
+            continue
         top = 0.0
         for k in range(d):
             top = max(top, A[f, k, k])
@@ -108,19 +118,25 @@ def lm_ask(state, m):
 
 @nb.njit(cache=True, nogil=True)
 def lm_tell(state, X, losses, gradients, curvatures):
-    """Take each frame's row if it lowers the loss (lambda / shrink), else refuse it (lambda x grow)."""
-    x, loss, g, A, lam, _, _, scored, settings, _, _, _, _ = state
+    """Take each frame's row if it lowers the loss (lambda / shrink), else refuse it (lambda x
+    grow); a frame whose step gained too little, or whose lambda passed HOLD_DAMPING, is done."""
+    x, loss, g, A, lam, _, _, scored, settings, _, _, _, _, done = state
     F, d = x.shape
     for f in range(F):
+        if done[f]:
+            continue
         if scored[0] == 0 or losses[f, 0] < loss[f]:
+            gain = loss[f] - losses[f, 0]
             loss[f] = losses[f, 0]
             x[f] = X[f, 0]
             g[f] = gradients[f, 0]
             A[f] = curvatures[f, 0]
             if scored[0]:
                 lam[f] = max(lam[f] / settings[SHRINK], MIN_DAMPING)
+                done[f] = gain <= settings[TOLERANCE] * (1.0 + abs(loss[f]))
         else:
             lam[f] = min(lam[f] * settings[GROW], MAX_DAMPING)
+            done[f] = lam[f] > HOLD_DAMPING
     scored[0] = 1
 
 
@@ -137,7 +153,7 @@ class LevenbergMarquardt(Optimizer):
 
     def batch_settings(self, budget: int) -> tuple[int, np.ndarray]:
         s = self.settings
-        return 1, np.array([s.damping, s.shrink, s.grow], dtype=np.float64)
+        return 1, np.array([s.damping, s.shrink, s.grow, s.tolerance], dtype=np.float64)
 
     def min_budget(self, task: Task) -> int:
         # the start and one step, d + 1 evaluations each

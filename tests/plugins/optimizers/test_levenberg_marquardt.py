@@ -71,7 +71,7 @@ def test_a_far_mode_does_not_pull_under_soft_l1(model):
     near = model.forward(start[None])[0]
     proposals = np.stack([near + 3.0, near + 200.0], axis=1)  # a second mode 350 mm away
     r, _ = _local(model, "soft-l1", start, proposals, np.ones(proposals.shape[:2]), 40 * (model.n_params + 1))
-    np.testing.assert_allclose(model.forward(r.params[None])[0], near + 3.0, atol=0.05)
+    np.testing.assert_allclose(model.forward(r.params[None])[0], near + 3.0, atol=0.5)  # the far mode would pull 100 mm
 
 
 def test_the_default_fit_is_one_rigid_hand_that_its_file_rebuilds(model, tmp_path):
