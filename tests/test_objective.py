@@ -23,8 +23,9 @@ def _frame(seed=0, Q=7, K=3, N=11):
 
 def test_a_form_stands_in_for_bind_only_at_or_below_the_bind_in_effect():
     clamped = ClampedConfidence()
-    assert CAPABILITIES == ("point_loss", "casadi_loss")
+    assert CAPABILITIES == ("point_loss", "casadi_loss", "local_objective")
     assert capability(clamped, "point_loss") is not None and capability(clamped, "casadi_loss") is None
+    assert capability(clamped, "local_objective") is None  # one objective for every stage
     function, constants = point_loss_of(clamped)
     assert function is clamped_confidence_point and constants.dtype == np.float64 and constants.shape == (1,)
     OwnBind = type("OwnBind", (ClampedConfidence,), {"bind": testing.ToyLeastSquares.bind})
@@ -34,6 +35,26 @@ def test_a_form_stands_in_for_bind_only_at_or_below_the_bind_in_effect():
     assert capability(object(), "point_loss") is None  # not an Objective: offers nothing
     with pytest.raises(ValueError, match="unknown objective capability 'score_frames'"):
         capability(clamped, "score_frames")
+
+
+def test_a_pair_s_local_objective_is_dropped_by_a_subclass_with_a_loss_of_its_own():
+    """The default pair offers its local stage's objective; a subclass that defines its own
+    bind or point_loss scores otherwise than the pair, and offers no local objective of its
+    parent's (the local stage then minimises the subclass itself)."""
+    from hybridfit_plugins.objectives.clamped_then_soft_l1 import ClampedThenSoftL1
+    from hybridfit_plugins.objectives.soft_l1 import SoftL1
+
+    pair = ClampedThenSoftL1(scale_mm=7.0, reach_mm=50.0)
+    local = capability(pair, "local_objective")()
+    assert isinstance(local, SoftL1) and local.get_params() == {"scale_mm": 7.0, "reach_mm": 50.0}
+    assert point_loss_of(pair)[0] is clamped_confidence_point  # the search stages': the paper's
+    OwnBind = type("OwnBind", (ClampedThenSoftL1,), {"bind": testing.ToyLeastSquares.bind})
+    OwnPoint = type("OwnPoint", (ClampedThenSoftL1,), {"point_loss": ClampedConfidence.point_loss})
+    for cls in (OwnBind, OwnPoint):
+        assert capability(cls(), "local_objective") is None
+    assert capability(OwnPoint(), "point_loss") is not None and capability(OwnBind(), "point_loss") is None
+    Again = type("Again", (OwnPoint,), {"local_objective": ClampedThenSoftL1.local_objective})  # declared below
+    assert isinstance(capability(Again(), "local_objective")(), SoftL1)
 
 
 def test_an_objective_that_observes_depth_is_never_scored_per_point():

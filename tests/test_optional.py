@@ -147,6 +147,11 @@ CORE_ONLY = textwrap.dedent("""
     walk(hybridfit)
     codes = [main(["plugins"]), main(["synth", "proposals", "--frames", "2", "--seed", "3", "--out", "frames.npz"]),
              main(["fit", "frames.npz", "--budget", "300", "--out", "fit.npz"])]
+    import json
+    import numpy as np
+    with np.load("fit.npz") as fits:  # the default schedule ran, its local stage too
+        print("local stage", *(stage["optimizer"]["name"] for stage in json.loads(str(fits["schedule"]))[0]["stages"]
+                               if stage["name"] == "local"))
     print("exit codes", *codes)
     print("imported", *sorted(n for n in BLOCKED if n in sys.modules))
 """)
@@ -159,9 +164,10 @@ def test_a_core_only_install_fits_with_the_default_plugins_and_lists_the_others(
     assert done.returncode == 0, done.stderr
     out = done.stdout.splitlines()
     assert out[-2:] == ["exit codes 0 0 0", "imported"], done.stdout
-    assert "fitted 2/2 frames" in done.stdout
+    assert "fitted 2/2 frames" in done.stdout and "local stage levenberg-marquardt" in out
     lines = {ln.split()[0]: ln for ln in out if ln.startswith("  ")}
     for name, (library, extra) in OPTIONAL_PLUGINS.items():
         assert lines[name].endswith(f'needs {library}, not installed: pip install "hybridfit[{extra}]"'), lines[name]
-    for name in ("hand26", "hand27", "clamped-confidence", "pso", "stepwise", "stepwise-pso"):
+    for name in ("hand26", "hand27", "clamped-confidence", "clamped-then-soft-l1", "soft-l1", "pso", "stepwise",
+                 "stepwise-pso", "levenberg-marquardt"):
         assert "UNAVAILABLE" not in lines[name] and "FAILED" not in lines[name]

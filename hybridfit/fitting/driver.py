@@ -210,6 +210,24 @@ def _derivative_stage(st, scorer, base, start, lo, hi, keys, best_x, best_loss, 
     out_used += st.budget - left
 
 
+def _frame_scorer(scorer, stage, subset, n, objective):
+    """A callback solver's scores of its one frame's hypotheses X (k, d) -> (k,) by ``scorer``,
+    in blocks of at most n (a stop signal waits for the frame's end: a solver's callback is no
+    place for an exception it does not expect)."""
+
+    def score(X):
+        out = np.empty(len(X))
+        losses = np.empty((1, n))
+        for a in range(0, len(X), n):
+            block = np.ascontiguousarray(X[a:a + n])[None]
+            scorer.score(stage, block, subset, losses)
+            out[a:a + len(block[0])] = losses[0, :len(block[0])]
+        require_finite(out, objective)
+        return out
+
+    return score
+
+
 # ---------------------------------------------------------------- layouts
 
 def _require(a, dtype) -> np.ndarray:

@@ -47,10 +47,8 @@ class StepwiseSettings(Settings):
     stage_weights: list[float] | None = Field(None, description="relative budget per stage (overrides root_share)")
     refine_share: float = Field(0.0, ge=0, lt=1, description="share of the budget for a final joint refinement "
                                 "of all parameters (0 = the paper)")
-    refine_config: dict[str, Any] = Field(default_factory=lambda: {"init_share": 1.0, "init_sigma": 0.02},
-                                          description="the inner optimiser's settings overridden for the refinement "
-                                          "stage and a gradient-free local stage (PSO: the whole swarm starts near "
-                                          "the fit)")
+    refine_config: dict[str, Any] = Field(default_factory=dict, description="the inner optimiser's settings "
+                                          "overridden for the refinement stage and a gradient-free local stage")
     local_share: float = Field(0.0, ge=0, lt=1, description="share of the budget for a last, local stage of all "
                                "parameters (0 = the paper)")
     local_optimizer: str = Field("levenberg-marquardt", description="the local stage's optimiser (a registered name), "
@@ -240,6 +238,9 @@ class Stepwise(Optimizer):
 
 class StepwisePSOSettings(StepwiseSettings):
     optimizer: Literal["pso"] = Field("pso", description="always PSO")
+    refine_config: dict[str, Any] = Field(
+        default_factory=lambda: {"init_share": 1.0, "init_sigma": 0.02},
+        description="PSO settings of the refinement and a gradient-free local stage: the whole swarm starts near the fit")
     local_share: float = Field(0.2, ge=0, lt=1, description="share of the budget for a last, local stage of all "
                                "parameters (0 = the paper; 0.2 chosen on tuning data)")
 

@@ -50,13 +50,21 @@ def test_fit_writes_the_documented_keys(proposals_file, tmp_path, capsys):
 
 
 def test_fit_help_describes_the_schedule(capsys):
-    with pytest.raises(SystemExit):
-        main(["fit", "--help"])
+    assert main(["fit", "--help"]) == 0
     text = " ".join(capsys.readouterr().out.split())
     for words in ("The fit is its schedule", "clamped-then-soft-l1", "Levenberg-Marquardt", "local_share",
                   "key schedule"):
         assert words in text
     assert "--no-polish" not in text
+
+
+def test_fit_help_says_what_runs(capsys):
+    """The help as printed: percentages as such (its description is not %-formatted) and the
+    default objective it names is the one a fit runs."""
+    assert main(["fit", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "%%" not in text and "30% of the search budget" in text
+    assert "default: clamped-confidence" not in text and "default: clamped-then-soft-l1" in text
 
 
 def test_plugin_settings_from_toml(proposals_file, tmp_path):

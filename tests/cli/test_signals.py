@@ -5,6 +5,7 @@ Each test waits for a sign of progress on stderr, with a bounded wait."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -128,36 +129,40 @@ def test_a_later_synth_removes_a_killed_runs_hidden_folder(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([alive.name, "set"])
 
 
-# a fit that says on stderr when the polish of its second chunk starts
-POLISH_MARKED = ("import sys, hybridfit.fitting.driver as d; real = d.polish; seen = []\n"
-                 "def marked(*a, **k):\n"
-                 "    seen.extend([1] if len(a[1]) >= 200 else [])  # the main fit's chunks, not the set-up check's\n"
-                 "    if len(seen) == 2: print('polishing', file=sys.stderr, flush=True)\n"
-                 "    return real(*a, **k)\n"
-                 "d.polish = marked\n"
-                 "from hybridfit.cli import main; sys.exit(main(sys.argv[1:]))")
+# a fit that says on stderr when the local stage (derivative steps, the schedule's last) of its
+# second chunk starts
+LOCAL_MARKED = ("import sys, hybridfit.fitting.driver as d; real = d._derivative_stage; seen = []\n"
+                "def marked(*a, **k):\n"
+                "    seen.extend([1] if len(a[3]) >= 200 else [])  # the main fit's chunks, not the set-up check's\n"
+                "    if len(seen) == 2: print('local stage', file=sys.stderr, flush=True)\n"
+                "    return real(*a, **k)\n"
+                "d._derivative_stage = marked\n"
+                "from hybridfit.cli import main; sys.exit(main(sys.argv[1:]))")
 
 
-def test_a_stop_during_the_polish_keeps_the_finished_frames(tmp_path):
-    """The polish runs chunk by chunk inside the fit: a stop signal while it runs is acted on
-    when that chunk's polish ends, and every frame finished (fitted and polished) is written."""
+def test_a_stop_during_the_local_stage_keeps_the_finished_frames(tmp_path):
+    """The local stage runs chunk by chunk inside the fit, the last of each chunk's schedule: a
+    stop signal while it runs is acted on between its rows, and every frame finished (its whole
+    schedule, local stage included: its evaluations are the budget) is written."""
     np.savez(tmp_path / "p.npz", **hybridfit.synthetic_proposals(3000, seed=1))
-    run = Running([sys.executable, "-c", POLISH_MARKED, "fit", "p.npz", "--out", "fits.npz", "--budget", "3000"],
+    run = Running([sys.executable, "-c", LOCAL_MARKED, "fit", "p.npz", "--out", "fits.npz", "--budget", "3000"],
                   tmp_path)
-    run.wait_for("polishing")
+    run.wait_for("local stage")
     sent = time.monotonic()
     assert run.stop(signal.SIGTERM) == 143, run.err.decode()[-2000:]
     assert time.monotonic() - sent < 10.0  # bench_end_to_end.py measures it (well under 1 s); a loaded machine
     with np.load(tmp_path / "fits.npz") as fits:
         done = ~fits["failed"]
         assert 200 <= done.sum() < 3000 and set(fits["error_messages"]) == {"interrupted"}
+        assert (fits["evaluations"][done] == 3000).all()
+        assert [s["name"] for s in json.loads(str(fits["schedule"]))[0]["stages"]][-1] == "local"
         hand = hybridfit.create("model", str(fits["model"]))
         np.testing.assert_allclose(hand.forward(fits["params"][done]), fits["model_joints"][done], atol=1e-6)
 
 
 def test_a_long_fit_stays_within_a_memory_limit(tmp_path):
     """Memory is flat in the number of frames: 20000 frames fit under a 1.5 GiB address-space
-    limit (0.9.0's polish needed 3 GB at 15000 frames)."""
+    limit (0.9.0's polish, a stage after the fit, needed 3 GB at 15000 frames)."""
     resource = pytest.importorskip("resource")
     np.savez(tmp_path / "p.npz", **hybridfit.synthetic_proposals(20000, k=1, seed=1))
     limit = 1536 * 2**20

@@ -4,6 +4,7 @@ and optimiser, each a real distribution installed offline into a temporary folde
 conformance suite and a fit."""
 
 import importlib
+import json
 import shutil
 import subprocess
 import sys
@@ -56,14 +57,19 @@ def test_passes_the_conformance_suite(installed, kind, name, check):
 
 def test_the_per_point_objective_runs_compiled_and_fits_like_the_built_in(installed):
     """clamped-point is the paper's formula as a per-point function: the core compiles it into
-    its loops (a valid point_loss) and fits as with the built-in clamped-confidence."""
+    its loops (a valid point_loss) and fits as with the built-in clamped-confidence, the local
+    stage's Levenberg-Marquardt steps taken on its derivatives too."""
     from hybridfit.objective import point_loss_of
 
     objective = registry.create("objective", "clamped-point")
     assert point_loss_of(objective) is not None
     data = hybridfit.synthetic_proposals(6, k=3, seed=2)
     ours = hybridfit.fit(data["proposals"], data["confidences"], objective="clamped-point", budget=600, seed=1)
-    built_in = hybridfit.fit(data["proposals"], data["confidences"], budget=600, seed=1)
+    built_in = hybridfit.fit(data["proposals"], data["confidences"], objective="clamped-confidence", budget=600,
+                             seed=1)
+    local = json.loads(ours.schedule)[0]["stages"][-1]
+    assert (local["name"], local["optimizer"]["name"], local["objective"]["name"]) == (
+        "local", "levenberg-marquardt", "clamped-point")
     np.testing.assert_allclose(ours.params, built_in.params, rtol=0, atol=1e-6)
 
 
@@ -82,9 +88,15 @@ def test_the_numpy_objective_is_bind_only_and_scores_like_the_per_point_one(inst
         want = per_point.bind(proposals, weights)(points, subset)
         np.testing.assert_allclose(numpy_clamped.bind(proposals, weights)(points, subset), want, rtol=1e-12,
                                    atol=1e-12)
+    # bind only: no derivatives to take, so the default schedule's local stage is gradient-free
+    # (the PSO refiner, its swarm started near the fit); the built-in objective with that local stage
     data = hybridfit.synthetic_proposals(3, k=3, seed=2)
-    fit = hybridfit.fit(data["proposals"], data["confidences"], objective="numpy-clamped", budget=300, seed=1)
-    built_in = hybridfit.fit(data["proposals"], data["confidences"], budget=300, seed=1)
+    fit = hybridfit.fit(data["proposals"], data["confidences"], objective="numpy-clamped", budget=600, seed=1)
+    local = json.loads(fit.schedule)[0]["stages"][-1]
+    assert (local["name"], local["optimizer"]["name"]) == ("local", "pso") and (fit.evaluations == 600).all()
+    built_in = hybridfit.fit(data["proposals"], data["confidences"], objective="clamped-confidence", budget=600,
+                             seed=1, optimizer_config={"local_optimizer": "pso",
+                                                       "local_config": {"init_share": 1.0, "init_sigma": 0.02}})
     np.testing.assert_allclose(fit.params, built_in.params, rtol=0, atol=1e-6)
 
 

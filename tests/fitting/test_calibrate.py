@@ -250,7 +250,7 @@ def test_a_model_without_a_mirror_setting_refuses_a_hand():
 
 def test_reported_errors_are_those_of_the_default_fit(result):
     """No per-frame stretch: the calibrated model is one rigid hand, and the error calibration
-    reports is what hybridfit.fit (with its default polish) gives with it."""
+    reports is what hybridfit.fit (its default schedule) gives with it."""
     truth = _truth()[result.calibration_frames]
     r = hybridfit.fit(truth[:, :, None], np.ones(truth.shape[:2] + (1,)), model="hand26", model_config=result.settings,
                       joint_names=NAMES, budget=800)

@@ -3,6 +3,8 @@ frame only (not its chunk, batch, threads or --jobs)."""
 
 from __future__ import annotations
 
+import json
+
 import numba as nb
 import numpy as np
 import pytest
@@ -37,6 +39,18 @@ class UserClamped(Objective):
         return user_clamped_point, np.array([1.0 / 40.0**2])
 
 
+#: the same user's loss compiled with fastmath, as the built-in clamped-confidence is
+fast_user_clamped_point = nb.njit(cache=True, fastmath=True)(user_clamped_point.py_func)
+
+
+class FastUserClamped(Objective):
+    """UserClamped with the built-in's floating-point options: the local stage's derivatives
+    (finite differences of the per-point loss) then see the same roundings as the built-in's."""
+
+    def point_loss(self):
+        return fast_user_clamped_point, np.array([1.0 / 40.0**2])
+
+
 class NumpyClamped(ClampedConfidence):
     """clamped-confidence in numpy, its terms summed point by point as the driver's loop sums
     them. It defines bind: its parent's point_loss is never run (the capability rule)."""
@@ -65,11 +79,12 @@ def driver_path(data, optimizer, budget, seed, frames, names=None, jobs=1, model
     problem = Problem(model, objective, data["proposals"][0], data["confidences"][0], names or data["joint_names"])
     assert driver.batched_layout(model, objective, optimizer, problem, budget)
     fitter = driver.Driver(model, objective, optimizer, names or data["joint_names"], budget, seed)
-    assert (fitter.compiled is not None) == (point_loss_of(objective) is not None)
+    assert (fitter.compiled(objective) is not None) == (point_loss_of(objective) is not None)
     if scorer == "point":
-        assert fitter.compiled is not None
+        assert fitter.compiled(objective) is not None
     else:
-        fitter.compiled = None  # bind per frame (clamped-confidence's: the one built from its point_loss)
+        # bind per frame (clamped-confidence's: the one built from its point_loss)
+        fitter.compiled = lambda objective: None
     if scorer == "forward":
         fitter.tree = None
     chunks = [list(c) for c in np.array_split(np.asarray(frames), jobs)]  # jobs chunks run at once
@@ -100,7 +115,8 @@ def partial():
 
 
 OPTIMIZERS = {
-    "stepwise-pso": ("stepwise-pso", {}),
+    "stepwise-pso": ("stepwise-pso", {}),  # the default: palm, fingers, then the local stage
+    "search": ("stepwise-pso", {"local_share": 0.0}),  # the paper's: palm and fingers only
     "refine": ("stepwise-pso", {"refine_share": 0.3, "refine_config": {"init_sigma": 0.02}}),
     "joint": ("stepwise-pso", {"schedule": "joint"}),
     "stepwise+pso": ("stepwise", {"optimizer": "pso", "optimizer_config": {"cognitive": 2.0, "social": 2.0}}),
@@ -108,11 +124,32 @@ OPTIMIZERS = {
 }
 
 
+def search_alone(name: str):
+    """OPTIMIZERS[name] without its local stage (of derivative steps: a scorer by bind cannot
+    take them), the search stages as they are."""
+    kind, config = OPTIMIZERS[name]
+    return hybridfit.create("optimizer", kind,
+                            {**config, "local_share": 0.0} if kind.startswith("stepwise") else config)
+
+
+def has_local_stage(optimizer, data, budget, names=None, model=None) -> bool:
+    """Whether the optimiser's schedule of the first frame has a stage of derivative steps."""
+    model = model or hybridfit.create("model", "hand26")
+    problem = Problem(model, hybridfit.create("objective", "clamped-confidence"), data["proposals"][0],
+                      data["confidences"][0], names or data["joint_names"])
+    lay = driver.batched_layout(model, problem.objective, optimizer, problem, budget)
+    return any(st.kind == "derivative" for st in lay.stages)
+
+
 #: (scorer, objective) pairs that must fit as clamped-confidence's point_loss in the driver's loop
 #: does: its bind per frame, on a model without a kinematic tree, a user's point_loss, and a
-#: numpy bind (per frame, and without a kinematic tree)
+#: numpy bind (per frame, and without a kinematic tree). A schedule's local stage (derivative
+#: steps) needs a point_loss on a kinematic tree: these scorers are compared on the search stages
 SCORERS = (("bind", None), ("forward", None), ("point", UserClamped()), ("bind", NumpyClamped()),
            ("forward", NumpyClamped()))
+#: ... and these on the whole schedule, its local stage too: a user's point_loss (with the
+#: built-in's floating-point options, which the local stage's finite differences see)
+LOCAL_SCORERS = (("point", FastUserClamped()),)
 
 
 @pytest.mark.parametrize("name", OPTIMIZERS)
@@ -120,36 +157,75 @@ SCORERS = (("bind", None), ("forward", None), ("point", UserClamped()), ("bind",
 def test_every_scorer_gives_the_same_fits_and_the_losses_add_up(partial, name, budget):
     optimizer = hybridfit.create("optimizer", *OPTIMIZERS[name])
     frames = np.arange(6)
+    # the whole schedule, its local stage too where it has one (the default, at 1100)
     params, loss, used = driver_path(partial, optimizer, budget, 7, frames)
     assert used.tolist() == [budget] * 6
+    local = has_local_stage(optimizer, partial, budget)
+    if name in ("stepwise-pso", "refine") and budget == 1100:
+        assert local
+    if name in ("search", "joint", "stepwise+pso", "pso"):
+        assert not local
+    for scorer, objective in LOCAL_SCORERS:
+        other_params, other_loss, other_used = driver_path(partial, optimizer, budget, 7, frames, scorer=scorer,
+                                                           objective=objective)
+        np.testing.assert_allclose(other_params, params, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(other_loss, loss, rtol=0, atol=1e-9)
+        assert other_used.tolist() == [budget] * 6
+    np.testing.assert_allclose(frame_losses(partial, params), loss, rtol=0, atol=1e-9)
+    if local:  # a user's point_loss without fastmath: the local stage amplifies the roundings, a little
+        other_params, other_loss, _ = driver_path(partial, optimizer, budget, 7, frames, scorer="point",
+                                                  objective=UserClamped())
+        np.testing.assert_allclose(other_params, params, rtol=0, atol=1e-4)
+        np.testing.assert_allclose(other_loss, loss, rtol=0, atol=1e-6)
+    # the search stages, by every scorer
+    search = search_alone(name)
+    params, loss, used = driver_path(partial, search, budget, 7, frames)
+    assert used.tolist() == [budget] * 6 and not has_local_stage(search, partial, budget)
     for scorer, objective in SCORERS:
-        other_params, other_loss, _ = driver_path(partial, optimizer, budget, 7, frames, scorer=scorer,
+        other_params, other_loss, _ = driver_path(partial, search, budget, 7, frames, scorer=scorer,
                                                   objective=objective)
         np.testing.assert_allclose(other_params, params, rtol=0, atol=1e-9)
         np.testing.assert_allclose(other_loss, loss, rtol=0, atol=1e-9)
     np.testing.assert_allclose(frame_losses(partial, params), loss, rtol=0, atol=1e-9)
 
 
+def test_a_local_stage_needs_a_scorer_that_takes_derivatives(partial):
+    """A scorer by bind cannot take the local stage's derivative steps: one line, naming the stage."""
+    optimizer = hybridfit.create("optimizer", "stepwise-pso")
+    assert has_local_stage(optimizer, partial, 1100)
+    with pytest.raises(hybridfit.HybridfitError, match="offers no point_loss.*'local'"):
+        driver_path(partial, optimizer, 1100, 7, np.arange(2), scorer="bind")
+
+
 def test_derived_points_are_scored_alike_by_every_scorer():
     data = dict(hybridfit.synthetic_proposals(3, k=2, seed=2))
     names = ["palm_centre"] + list(data["joint_names"][1:])  # the wrist replaced by the palm centre
-    optimizer = hybridfit.create("optimizer", "stepwise-pso")
-    params, loss, _ = driver_path(data, optimizer, 700, 1, np.arange(3), names)
-    for scorer, objective in SCORERS:
-        ref_params, ref_loss, _ = driver_path(data, optimizer, 700, 1, np.arange(3), names, scorer=scorer,
-                                              objective=objective)
-        np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
-        np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(frame_losses(data, params, names), loss, rtol=0, atol=1e-9)
+    for optimizer, scorers in ((hybridfit.create("optimizer", "stepwise-pso"), LOCAL_SCORERS),
+                               (search_alone("stepwise-pso"), SCORERS)):
+        params, loss, used = driver_path(data, optimizer, 700, 1, np.arange(3), names)
+        assert (used == 700).all()
+        for scorer, objective in scorers:
+            ref_params, ref_loss, _ = driver_path(data, optimizer, 700, 1, np.arange(3), names, scorer=scorer,
+                                                  objective=objective)
+            np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(frame_losses(data, params, names), loss, rtol=0, atol=1e-9)
+    assert has_local_stage(hybridfit.create("optimizer", "stepwise-pso"), data, 700, names)
 
 
 def test_a_left_hand_with_other_bones_is_scored_alike_by_every_scorer():
     model = hybridfit.create("model", "hand26", {"mirror": True, "scale": 1.1})
     data = dict(hybridfit.synthetic_proposals(3, k=3, seed=8, model=model))
+    # the whole schedule: its local stage's derivatives through the mirrored tree, and its loss
+    # as the model's own forward kinematics give it
     optimizer = hybridfit.create("optimizer", "stepwise-pso")
-    params, loss, _ = driver_path(data, optimizer, 500, 2, np.arange(3), model=model)
+    assert has_local_stage(optimizer, data, 600, model=model)
+    params, loss, _ = driver_path(data, optimizer, 600, 2, np.arange(3), model=model)
+    np.testing.assert_allclose(frame_losses(data, params, model=model), loss, rtol=0, atol=1e-9)
+    search = search_alone("stepwise-pso")
+    params, loss, _ = driver_path(data, search, 500, 2, np.arange(3), model=model)
     for scorer, objective in (("forward", None), ("bind", NumpyClamped())):
-        ref_params, ref_loss, _ = driver_path(data, optimizer, 500, 2, np.arange(3), model=model, scorer=scorer,
+        ref_params, ref_loss, _ = driver_path(data, search, 500, 2, np.arange(3), model=model, scorer=scorer,
                                               objective=objective)
         np.testing.assert_allclose(params, ref_params, rtol=0, atol=1e-9)
         np.testing.assert_allclose(loss, ref_loss, rtol=0, atol=1e-9)
@@ -167,15 +243,21 @@ def test_a_frame_does_not_depend_on_its_batch_or_threads(frames):
 
 @pytest.mark.parametrize("chunk", [1, 3, 256])
 def test_fit_gives_the_same_results_for_any_jobs_and_chunking(frames, chunk, monkeypatch):
-    ref_params, ref_loss, _ = driver_path(frames, hybridfit.create("optimizer", "stepwise-pso"), 600, 5, np.arange(8))
+    pair = hybridfit.create("objective", "clamped-then-soft-l1")
+    ref_params, ref_loss, _ = driver_path(frames, hybridfit.create("optimizer", "stepwise-pso"), 600, 5, np.arange(8),
+                                          objective=pair)
+    search_params, search_loss, _ = driver_path(frames, search_alone("stepwise-pso"), 600, 5, np.arange(8))
     monkeypatch.setattr(fitting, "CHUNK", chunk)
-    raw = hybridfit.fit(frames["proposals"], frames["confidences"], budget=600, seed=5, polish=False)
-    assert np.array_equal(raw.params, ref_params) and np.array_equal(raw.objective, ref_loss)
-    one = hybridfit.fit(frames["proposals"], frames["confidences"], budget=600, seed=5)  # polished
+    # the search alone (the paper's objective and schedule) at exactly its budget
+    raw = hybridfit.fit(frames["proposals"], frames["confidences"], budget=600, seed=5, objective="clamped-confidence",
+                        optimizer_config={"local_share": 0.0})
+    assert np.array_equal(raw.params, search_params) and np.array_equal(raw.objective, search_loss)
+    one = hybridfit.fit(frames["proposals"], frames["confidences"], budget=600, seed=5)  # the default schedule
     two = hybridfit.fit(frames["proposals"], frames["confidences"], budget=600, seed=5, jobs=2)
+    assert np.array_equal(one.params, ref_params) and np.array_equal(one.objective, ref_loss)
     assert np.array_equal(one.params, two.params) and np.array_equal(one.objective, two.objective)
     assert not np.array_equal(one.params, raw.params)
-    assert (one.evaluations == 600).all()
+    assert (one.evaluations == 600).all() and (raw.evaluations == 600).all()
 
 
 @settings(max_examples=12, deadline=None)
@@ -211,8 +293,8 @@ def test_a_schedule_depends_on_a_frame_only_through_its_observed_points():
         first = plans.setdefault(f % 3, lay)
         assert [(st.budget, st.batch, st.owns_all) for st in first.stages] == \
             [(st.budget, st.batch, st.owns_all) for st in lay.stages]
-        assert all(np.array_equal(a, b) for st, other in zip(first.stages, lay.stages) for a, b in
-                   zip(st[6:9], other[6:9]))
+        assert all(np.array_equal(getattr(st, k), getattr(other, k)) for st, other in zip(first.stages, lay.stages)
+                   for k in ("parameters", "points", "owned"))
 
 
 def test_the_driver_runs_what_offers_batch_steps_and_follows_overrides():
@@ -318,14 +400,27 @@ def test_bound_losses_are_converted_together_and_a_frame_of_the_wrong_shape_name
 
 def test_a_users_point_loss_fits_as_its_numpy_bind_equivalent(partial):
     """A point_loss written outside hybridfit is compiled into the driver's loop and fits, through
-    the public ``fit`` (polished), as the same loss written in numpy (bind, per frame) does."""
-    def run(objective):
-        return hybridfit.fit(partial["proposals"], partial["confidences"], objective=objective, budget=900, seed=2)
+    the public ``fit``, as the same loss written in numpy (bind, per frame) does on the search
+    stages; in the default schedule its local stage takes derivative steps as the built-in's
+    does (the numpy bind's is gradient-free: it offers no per-point loss)."""
+    def run(objective, **options):
+        return hybridfit.fit(partial["proposals"], partial["confidences"], objective=objective, budget=900, seed=2,
+                             **options)
 
-    ours, numpy = run(UserClamped()), run(NumpyClamped())
+    def local_optimizer(result):
+        return json.loads(result.schedule)[0]["stages"][-1]["optimizer"]["name"]
+
+    search = {"optimizer_config": {"local_share": 0.0}}
+    ours, numpy = run(UserClamped(), **search), run(NumpyClamped(), **search)
     assert not ours.failed.any() and (ours.evaluations == 900).all()
     np.testing.assert_allclose(ours.params, numpy.params, rtol=0, atol=1e-9)
     np.testing.assert_allclose(ours.objective, numpy.objective, rtol=0, atol=1e-9)
+    ours, builtin, numpy = run(FastUserClamped()), run("clamped-confidence"), run(NumpyClamped())
+    assert local_optimizer(ours) == local_optimizer(builtin) == "levenberg-marquardt"
+    assert local_optimizer(numpy) == "pso"
+    assert not ours.failed.any() and (ours.evaluations == 900).all() and (numpy.evaluations == 900).all()
+    np.testing.assert_allclose(ours.params, builtin.params, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ours.objective, builtin.objective, rtol=0, atol=1e-9)
 
 
 def test_a_subclass_that_defines_bind_never_runs_its_parents_point_loss(partial):
@@ -347,22 +442,32 @@ def test_a_subclass_that_defines_bind_never_runs_its_parents_point_loss(partial)
     assert np.array_equal(child.params, numpy.params) and np.array_equal(child.objective, numpy.objective)
 
 
-@pytest.mark.parametrize("config", [{}, {"refine_share": 0.0}], ids=["default", "paper"])
+@pytest.mark.parametrize("config", [{}, {"local_share": 0.0}, {"refine_share": 0.25}],
+                         ids=["default", "paper", "refine"])
 def test_the_task_path_fits_every_frame_as_the_driver_does_bit_for_bit(monkeypatch, config):
-    """One frame's Task (the path of depth objectives and callback solvers) runs the same
-    schedule with the same documented keys (seed, frame, stage) as the driver: the same fit,
-    bit for bit, and the same for Optimizer.run on one frame."""
+    """One frame at a time (the path of depth objectives and callback solvers) runs the same
+    schedule with the same documented keys (seed, frame, stage) as frames in lockstep: the same
+    fit, bit for bit, for the paper's objective and the default pair, and the same for
+    run_problem (Optimizer.run) on one frame."""
     data = hybridfit.synthetic_proposals(5, k=3, seed=4)
     optimizer = hybridfit.create("optimizer", "stepwise-pso", config)
-    run = lambda polish: hybridfit.fit(data["proposals"], data["confidences"], budget=700, seed=7,  # noqa: E731
-                                       optimizer=optimizer, polish=polish)
-    by_driver, polished_by_driver = run(False), run(True)
-    monkeypatch.setattr(driver, "batched_layout", lambda *args: None)  # every frame through its Task
-    by_task, polished_by_task = run(False), run(True)
+    run = lambda objective: hybridfit.fit(data["proposals"], data["confidences"], budget=700, seed=7,  # noqa: E731
+                                          optimizer=optimizer, objective=objective)
+    by_driver, default_by_driver = run("clamped-confidence"), run("clamped-then-soft-l1")
+    monkeypatch.setattr(driver.Layout, "lockstep", property(lambda self: False))  # every frame on its own
+    sizes, real_run = [], driver.Driver.run
+    monkeypatch.setattr(driver.Driver, "run",
+                        lambda fitter, chunk: sizes.append(len(chunk.kept)) or real_run(fitter, chunk))
+    by_task, default_by_task = run("clamped-confidence"), run("clamped-then-soft-l1")
+    assert sizes == [1] * 10  # the patch took: one frame at a time
     assert np.array_equal(by_task.params, by_driver.params)
     assert np.array_equal(by_task.objective, by_driver.objective)
-    assert np.array_equal(polished_by_task.params, polished_by_driver.params)
-    np.testing.assert_allclose(polished_by_task.objective, polished_by_driver.objective, rtol=1e-12)
-    problem = Problem(hybridfit.create("model", "hand26"), hybridfit.create("objective", "clamped-confidence"),
-                      data["proposals"][3], data["confidences"][3], data["joint_names"])
-    assert np.array_equal(run_problem(optimizer, problem, 700, 7, 3).params, by_driver.params[3])
+    assert np.array_equal(default_by_task.params, default_by_driver.params)
+    np.testing.assert_allclose(default_by_task.objective, default_by_driver.objective, rtol=1e-12)
+    assert (by_task.evaluations == 700).all() and (default_by_task.evaluations == 700).all()
+    stages = json.loads(default_by_driver.schedule)[0]["stages"]
+    assert (stages[-1]["name"] == "local") == ("local_share" not in config)
+    for objective, fitted in (("clamped-confidence", by_driver), ("clamped-then-soft-l1", default_by_driver)):
+        problem = Problem(hybridfit.create("model", "hand26"), hybridfit.create("objective", objective),
+                          data["proposals"][3], data["confidences"][3], data["joint_names"])
+        assert np.array_equal(run_problem(optimizer, problem, 700, 7, 3).params, fitted.params[3])

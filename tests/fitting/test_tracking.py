@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -30,12 +32,18 @@ def test_frames_start_from_the_previous_fit_and_runs_repeat_bit_for_bit():
     assert no_start.started_from_proposals.tolist() == [True, False, False, False, False]
 
 
+@pytest.mark.parametrize("schedule", ["pso", "default"])
 @pytest.mark.parametrize("on_lost, restarted", [("reinit", True), ("continue", False)])
-def test_a_lost_fit_reinitialises_from_proposals_only_under_reinit(on_lost, restarted):
+def test_a_lost_fit_reinitialises_from_proposals_only_under_reinit(on_lost, restarted, schedule):
+    """PSO alone, and the default schedule, whose local stage (like every stage) stays in the
+    search box: it cannot carry a lost fit onto the far proposals."""
     props = TRUTH[:, :, None].copy()
     props[2:] += np.array([400.0, 0.0, 0.0])  # the hand jumps far beyond the search radius
-    # unpolished: the polish would carry the fit onto the far proposals (it is not bound to the search box)
-    res = run(props, first_params=POSES[0], settings={"on_lost": on_lost}, polish=False)
+    if schedule == "pso":
+        res = run(props, first_params=POSES[0], settings={"on_lost": on_lost})
+    else:
+        res = track(props, CONF, budget=600, seed=3, first_params=POSES[0], settings={"on_lost": on_lost})
+        assert json.loads(res.schedule)[0]["stages"][-1]["name"] == "local" and (res.evaluations == 600).all()
     assert res.lost[2] and not res.lost[:2].any()
     assert bool(res.started_from_proposals[3]) is restarted
     assert bool(res.lost[3]) is not restarted

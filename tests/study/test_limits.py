@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import sqlite3
 
+import hybridfit
 from hybridfit.cli import main
 from hybridfit.study import load_spec
 from hybridfit.study.runner import MAX_TRIALS, check_size, count_trials
+from hybridfit.task import Task
 
 from .conftest import write
 
@@ -31,8 +33,14 @@ def test_a_budget_too_small_in_the_grid_fails_before_any_trial(tmp_path, capsys)
     code = main(["study", str(write(tmp_path, SMALL_BUDGET)), "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err, err
+    # the least budget of the default schedule's search stages (its local stage is left out at such budgets)
+    frame = hybridfit.synthetic_proposals(1, k=3, seed=0)
+    need = hybridfit.create("optimizer", "stepwise-pso").min_budget(Task(hybridfit.Problem(
+        hybridfit.create("model", "hand26"), hybridfit.create("objective", "clamped-then-soft-l1"),
+        frame["proposals"][0], frame["confidences"][0]), 5))
+    assert 5 < need < 400
     assert err.splitlines()[-1] == ("hybridfit: error: trial budget=5: budget 5 is too small for optimizer "
-                                    "stepwise-pso: it needs at least 39 evaluations; no trial was run")
+                                    f"stepwise-pso: it needs at least {need} evaluations; no trial was run")
     with sqlite3.connect(out / "study.db") as db:
         assert db.execute("SELECT COUNT(*) FROM trials WHERE method = 'fit'").fetchone()[0] == 0
 

@@ -24,7 +24,7 @@ def spy(self, *args, **kwargs):
 
 
 dispatcher._DispatcherBase._compile_for_args = spy
-calls = []
+calls, local = [], []
 real_fit = runner.fit
 
 
@@ -32,17 +32,20 @@ def fit(proposals, *args, **kwargs):
     before = len(compiled)
     result = real_fit(proposals, *args, **kwargs)
     calls.append((len(proposals), compiled[before:]))
+    local.append("levenberg-marquardt" in result.schedule)
     return result
 
 
 runner.fit = fit
 data = {**hybridfit.synthetic_proposals(12, k=3, seed=1), "empty": np.zeros(12, bool)}
-for polish in (False, True):
-    settings = {"model": "hand26", "objective": "clamped-confidence", "objective_config": {}, "optimizer": "stepwise-pso",
-                "optimizer_config": {}, "budget": 400, "search_radius_mm": 60.0, "polish": polish}
+# the paper's schedule (no local stage), then the default one (its local stage's kernels are new)
+for objective, optimizer_config in (("clamped-confidence", {"local_share": 0.0}), ("clamped-then-soft-l1", {})):
+    settings = {"model": "hand26", "objective": objective, "objective_config": {}, "optimizer": "stepwise-pso",
+                "optimizer_config": optimizer_config, "budget": 600, "search_radius_mm": 60.0}
     for seed in (1, 2):
         runner.run_trial(settings, {}, seed, data)
 print(calls)
+assert local == [False] * 3 + [True] * 3, local
 warm_up, *timed = calls[:3]
 assert warm_up[0] == runner.WARM_UP_FRAMES and warm_up[1], warm_up  # compiles (or loads) the kernels
 assert [n for n, _ in timed] == [12, 12] and all(not c for _, c in timed), timed

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -90,9 +92,10 @@ def test_a_subclass_that_overrides_bind_moves_the_fit():
             return super().bind(moved, weights)
 
     data = hybridfit.synthetic_proposals(4, k=3, seed=5)
-    plain = hybridfit.fit(data["proposals"], data["confidences"], budget=600, seed=1, polish=False)
-    shifted = hybridfit.fit(data["proposals"], data["confidences"], objective=ShiftedX(), budget=600, seed=1,
-                            polish=False)  # the objective's fit (the polish pulls to the proposals themselves)
+    plain = hybridfit.fit(data["proposals"], data["confidences"], budget=600, seed=1)
+    shifted = hybridfit.fit(data["proposals"], data["confidences"], objective=ShiftedX(), budget=600, seed=1)
+    # every stage of the default schedule, its local one too, minimises the subclass's own bind
+    assert {s["objective"]["name"] for s in json.loads(shifted.schedule)[0]["stages"]} == {"ShiftedX"}
     move = (shifted.model_joints - plain.model_joints).mean(axis=(0, 1))
     assert 20.0 < move[0] < 40.0 and abs(move[1]) < 10.0 and abs(move[2]) < 10.0
 

@@ -42,12 +42,27 @@ def test_stepwise_budget_split_is_exact(hand26, clamped, frames):
     p = problem(hand26, clamped, frames, 1)
     result = run_problem(opt, p, 3401, seed=0)
     assert result.evaluations == 3401
+    search = ["palm", "thumb", "index", "middle", "ring", "little"]
     plan = opt.plan(Task(p, 3401))
-    assert [st.name for st in plan] == ["palm", "thumb", "index", "middle", "ring", "little", "refine"]
+    assert [st.name for st in plan] == search + ["local"]
     assert sum(st.budget for st in plan) == 3401
-    paper = opt.with_params(refine_share=0.0)
-    assert [st.name for st in paper.plan(Task(p, 3401))] == ["palm", "thumb", "index", "middle", "ring", "little"]
+    # the local stage: whole rows of d + 1 evaluations, the remainder to the search stages
+    row, share = hand26.n_params + 1, opt.settings.local_share
+    assert 0 < share and plan[-1].budget % row == 0
+    assert round(share * 3401) - row < plan[-1].budget <= round(share * 3401)
+    paper = opt.with_params(local_share=0.0)
+    assert [st.name for st in paper.plan(Task(p, 3401))] == search
     assert run_problem(paper, p, 3401, seed=0).evaluations == 3401
+    refined = opt.with_params(refine_share=0.25)
+    plan = refined.plan(Task(p, 3401))
+    assert [st.name for st in plan] == search + ["refine", "local"] and sum(st.budget for st in plan) == 3401
+    assert run_problem(refined, p, 3401, seed=0).evaluations == 3401
+    # a budget whose local share is below the local optimiser's minimum (two rows): no local
+    # stage, its share goes to the search stages, and the budget is still exact
+    small = int((2 * row - 0.5) / share) - 1
+    plan = opt.plan(Task(p, small))
+    assert [st.name for st in plan] == search and sum(st.budget for st in plan) == small
+    assert run_problem(opt, p, small, seed=0).evaluations == small
 
 
 def test_a_task_refuses_to_overshoot(hand26, clamped, frames):
@@ -104,9 +119,26 @@ def test_stepwise_beats_joint_on_noisy_proposals(hand26, clamped, frames):
     assert sum(better) >= 6, better
 
 
+@pytest.mark.parametrize("objective", ["clamped-confidence", "clamped-then-soft-l1"])
+def test_the_local_stage_keeps_the_budget_and_never_loses(hand26, frames, objective):
+    """The default schedule's last stage (Levenberg-Marquardt, all parameters): the fit's loss
+    (the objective in force, for the pair the paper's at the final pose) is never worse than
+    that of the search stages before it, which draw the same numbers."""
+    p = problem(hand26, hybridfit.create("objective", objective), frames, 4)
+    opt = hybridfit.create("optimizer", "stepwise-pso")
+    local = run_problem(opt, p, 1200, seed=2)
+    plan = opt.plan(Task(p, 1200))
+    assert local.evaluations == 1200 and plan[-1].name == "local"
+    assert type(plan[-1].optimizer).__name__ == "LevenbergMarquardt"
+    assert local.loss == pytest.approx(p.evaluate(local.params[None])[0])
+    before = run_problem(opt.with_params(local_share=0.0), p, 1200 - plan[-1].budget, seed=2)
+    assert local.loss <= before.loss + 1e-12
+    assert not np.array_equal(local.params, before.params)
+
+
 def test_refinement_stage_keeps_the_budget_and_never_loses(hand26, clamped, frames):
     p = problem(hand26, clamped, frames, 4)
-    opt = hybridfit.create("optimizer", "stepwise-pso", {"refine_share": 0.25})
+    opt = hybridfit.create("optimizer", "stepwise-pso", {"refine_share": 0.25, "local_share": 0.0})
     refined = run_problem(opt, p, 1200, seed=2)
     plan = opt.plan(Task(p, 1200))
     assert refined.evaluations == 1200 and plan[-1].name == "refine" and plan[-1].budget == 300
