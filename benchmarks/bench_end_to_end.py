@@ -8,7 +8,7 @@ Every figure is a whole process (start-up, reading, fitting, writing), pinned to
 
 - time per frame of the default fit (PSO stages, then the local Levenberg-Marquardt stage,
   all in the budget of 3400) and of the search alone at the same budget (the paper's schedule:
-  ``--objective clamped-confidence --optimizer-config '{"local_share": 0}'``) on ``--frames``
+  ``--objective clamped-confidence --optimizer-config 'local_share = 0'``) on ``--frames``
   frames, runs alternated, medians and the ratio of the medians;
 - the local stage's cost per frame against the PSO evaluations it replaces, inside one process
   (``hybridfit.fit`` of both, after a warm-up, medians);
@@ -62,7 +62,7 @@ def run(args: list[str], cwd: Path, stop_after_s: float | None = None) -> tuple[
 
 
 #: the search alone: the paper's objective and schedule, no local stage
-SEARCH = ["--objective", "clamped-confidence", "--optimizer-config", '{"local_share": 0}']
+SEARCH = ["--objective", "clamped-confidence", "--optimizer-config", "local_share = 0"]
 
 
 def local_cost_ms(path: Path, repeat: int) -> float:

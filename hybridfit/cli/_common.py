@@ -50,6 +50,17 @@ def load_toml(path: str | None) -> dict[str, Any]:
         raise HybridfitError(f"{p}: not a text file; expected TOML settings") from None
 
 
+def load_settings(value: str | None, option: str) -> dict[str, Any]:
+    """Plugin settings: a TOML file, or inline TOML (``'local_share = 0'``: a value holding "="
+    that names no file), errors naming the file or the option."""
+    if value is not None and "=" in value and not Path(value).exists():
+        try:
+            return tomllib.loads(value)
+        except tomllib.TOMLDecodeError as err:
+            raise HybridfitError(f"{option} {value!r}: neither a file nor valid inline TOML: {err}") from None
+    return load_toml(value)
+
+
 #: the plugins a command uses when none is named
 DEFAULT_PLUGINS = {"model": "hand26", "objective": "clamped-then-soft-l1", "optimizer": "stepwise-pso"}
 #: the key of a model settings file that names the model it is for (``hybridfit calibrate`` writes it)
@@ -82,11 +93,14 @@ def add_plugin_options(parser: argparse.ArgumentParser) -> None:
                    "calibrate` writes it, else hand26)")
     g.add_argument("--model-config", metavar="TOML", help="hand model settings file (`hybridfit calibrate` writes one "
                    "that names its model)")
-    g.add_argument("--objective", help="objective plugin (default: clamped-confidence; for proposals made from "
-                   "results files, the objective the file names: gaussian-mixture)")
-    g.add_argument("--objective-config", metavar="TOML", help="objective settings file")
+    g.add_argument("--objective", help="objective plugin, minimised by every stage (default: clamped-then-soft-l1, "
+                   "the paper's clamped-confidence for the search and soft-l1 fusion for the local stage; for "
+                   "proposals made from results files, the objective the file names: gaussian-mixture)")
+    g.add_argument("--objective-config", metavar="TOML", help="objective settings: a TOML file, or inline TOML "
+                   "such as 'd_max_mm = 30'")
     g.add_argument("--optimizer", default="stepwise-pso", help="optimizer plugin (default: stepwise-pso)")
-    g.add_argument("--optimizer-config", metavar="TOML", help="optimizer settings file")
+    g.add_argument("--optimizer-config", metavar="TOML", help="optimizer settings: a TOML file, or inline TOML "
+                   "such as 'local_share = 0' (the paper's schedule)")
 
 
 def add_fit_options(parser: argparse.ArgumentParser) -> None:
@@ -107,7 +121,7 @@ def plugin_kwargs(args: argparse.Namespace) -> dict[str, Any]:
         if kind == "model":
             name, config = load_model_toml(path, args.model)
         else:
-            name, config = getattr(args, kind), load_toml(path)
+            name, config = getattr(args, kind), load_settings(path, f"--{kind}-config")
         out[kind], out[f"{kind}_config"] = name or DEFAULT_PLUGINS[kind], config
         check_plugin(kind, out[kind], out[f"{kind}_config"], path)
     return out

@@ -35,7 +35,7 @@ SCHEDULE_HELP = (
     "parameters (30%% of the search budget), then on each finger's 4 (the rest, equally), minimising the paper's "
     "clamped-confidence objective; then a local Levenberg-Marquardt stage of all parameters (local_share 20%% of "
     "the budget) on soft-L1 fusion of the proposals. --objective NAME makes every stage minimise NAME; "
-    "--optimizer-config '{\"local_share\": 0}' is the paper's schedule. The schedule that ran is printed and "
+    "--optimizer-config 'local_share = 0' is the paper's schedule. The schedule that ran is printed and "
     "stored in the fits file (key schedule, JSON).")
 
 
