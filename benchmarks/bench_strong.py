@@ -11,7 +11,7 @@ frame's annotations; ``--frames`` test frames spread evenly over the frames ``--
 predictions of those 100 frames alone).
 Mean 3D error (mm) on the test frames of:
 
-- the predictor itself, and refined by ``hybridfit.fit`` (k = 1, the defaults, polished) with
+- the predictor itself, and refined by ``hybridfit.fit`` (k = 1, the default schedule) with
   the model (a) calibrated on the annotations of the frames ``--calibrate`` (default 0-99), (b)
   self-calibrated on the predictions of all frames (of frames 0 to the end of ``--test``) (``self_calibrate``, no ground truth),
   (c) as it is (the dataset's skeleton mapping only);

@@ -32,8 +32,8 @@ AUTO_MIN_FRAMES = 30
 SCHEDULE_HELP = (
     "Fit the hand model to each frame's joint proposals. The fit is its schedule, every stage's evaluations counted "
     "in --budget: by default (optimizer stepwise-pso, objective clamped-then-soft-l1) PSO on the palm's 7 "
-    "parameters (30%% of the search budget), then on each finger's 4 (the rest, equally), minimising the paper's "
-    "clamped-confidence objective; then a local Levenberg-Marquardt stage of all parameters (local_share 20%% of "
+    "parameters (30% of the search budget), then on each finger's 4 (the rest, equally), minimising the paper's "
+    "clamped-confidence objective; then a local Levenberg-Marquardt stage of all parameters (local_share 20% of "
     "the budget) on soft-L1 fusion of the proposals. --objective NAME makes every stage minimise NAME; "
     "--optimizer-config 'local_share = 0' is the paper's schedule. The schedule that ran is printed and "
     "stored in the fits file (key schedule, JSON).")
@@ -58,8 +58,8 @@ def register(sub) -> None:
     p = sub.add_parser("fit", help="fit the hand model to joint proposals (.npz)", description=SCHEDULE_HELP)
     p.add_argument("proposals", help="npz with proposals (F,J,K,3) mm, confidences (F,J,K), optional joint_names, ground_truth")
     p.add_argument("--out", required=True, help="output npz: params, joints, objective (the loss), evaluations, "
-                   "joint_names, failed, inliers (points within inlier_distance_mm of a proposal), ground_truth "
-                   "(copied from the input)")
+                   "joint_names, failed, inliers (points within inlier_distance_mm of a proposal), schedule (the "
+                   "stages that ran, JSON), ground_truth (copied from the input)")
     add_plugin_options(p)
     add_fit_options(p)
     p.add_argument("--depth", metavar="DIR", help="a data-set folder (hybridfit synth test) holding the proposals' "
