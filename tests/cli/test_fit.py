@@ -74,6 +74,15 @@ def test_plugin_settings_from_toml(proposals_file, tmp_path):
     assert main(["fit", str(proposals_file), "--out", str(out), "--budget", "300", "--optimizer-config", str(cfg)]) == 0
     cfg.write_text('schedule = "diagonal"\n')
     assert main(["fit", str(proposals_file), "--out", str(out), "--optimizer-config", str(cfg)]) == 2
+    # inline TOML is the same settings as the file holding it
+    cfg.write_text("local_share = 0\n")
+    inline = tmp_path / "inline.npz"
+    assert main(["fit", str(proposals_file), "--out", str(out), "--budget", "600", "--optimizer-config", str(cfg)]) == 0
+    assert main(["fit", str(proposals_file), "--out", str(inline), "--budget", "600",
+                 "--optimizer-config", "local_share = 0"]) == 0
+    with np.load(out) as a, np.load(inline) as b:
+        np.testing.assert_array_equal(a["params"], b["params"])
+        assert "local" not in str(a["schedule"]) and str(a["schedule"]) == str(b["schedule"])
 
 
 def corrupt(tmp_path):
@@ -124,10 +133,8 @@ def test_an_interrupted_fit_saves_finished_frames_and_exits_130(proposals_file, 
 
 def paper_schedule(tmp_path):
     """The options of the optimiser's own result at exactly its budget: every stage on the
-    paper's objective, no local stage."""
-    cfg = tmp_path / "paper.toml"
-    cfg.write_text("local_share = 0.0\n")
-    return ["--objective", "clamped-confidence", "--optimizer-config", str(cfg)]
+    paper's objective, no local stage (inline TOML, as ``fit --help`` says)."""
+    return ["--objective", "clamped-confidence", "--optimizer-config", "local_share = 0"]
 
 
 def test_a_tracked_sequence_runs_the_schedule_of_a_fit(proposals_file, tmp_path, capsys):

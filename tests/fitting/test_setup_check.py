@@ -22,6 +22,7 @@ def test_the_other_hand_is_found(seed):
 # random streams of 0.4.x (10.95 mm before), against FAR_MM = 12; over seeds 0-23 the median is
 # 9.77 mm (9.86 before) and only seed 1 passes 12 mm (seed 7 reached 11.93 before): the margin
 # of FAR_MM at the check's budget is thin (reported to the lead), so this test uses seeds 0 and 2
+# (0.13.0: FAR_MM = 14, since the default's local stage fuses agreeing proposals; seed 7 reaches 11.4)
 @pytest.mark.parametrize("seed", [0, 2])
 def test_the_right_hand_and_geometry_raise_nothing(seed):
     right = hybridfit.synthetic_proposals(20, seed=seed)
