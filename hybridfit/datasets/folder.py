@@ -21,8 +21,9 @@ training grid in well under a second instead of seconds of PNG decoding). Withou
 in a thread pool. A cache older than any of its frame PNGs (a PNG edited or replaced since)
 is not used: the PNGs are decoded, with a warning.
 
-:func:`write_dataset` writes into a hidden temporary folder made exclusively beside the
-target (``tempfile.mkdtemp``), then renames it into place; over an existing data set it moves
+:func:`write_dataset` writes into a hidden scratch folder made exclusively beside the
+target (:mod:`hybridfit.scratch`: what a killed run leaves is removed by the next one, and
+nothing else there ever is), then renames it into place; over an existing data set it moves
 in the data set's own files only (meta.json, labels.npz, the caches and the frame PNGs),
 leaving anything else the folder holds (the user's fits, notes) where it is, with meta.json
 moved in last, so a folder that has a meta.json is complete (an interrupted replacement
@@ -38,7 +39,6 @@ import json
 import re
 import os
 import shutil
-import tempfile
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -51,7 +51,8 @@ from pydantic import ValidationError
 from .camera import Intrinsics, xyz_to_uvd
 from .images import depth_mm, read_image
 from ..errors import HybridfitError
-from ..io import _UMASK, WriteError, load_npz, process_alive, write_error
+from .. import scratch
+from ..io import _UMASK, WriteError, load_npz, write_error
 
 FORMAT = "hybridfit-dataset"
 VERSION = 1
@@ -185,12 +186,12 @@ def write_dataset(path, depth: np.ndarray, parts: np.ndarray, joints_xyz: np.nda
         raise HybridfitError(f"{path}: meta is not JSON-serialisable ({err})") from None
     check_writable(path)
 
-    remove_stale_partials(path)
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.partial-{os.getpid()}-", dir=path.parent))
-        os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp's 0700 -> what a plain mkdir gives (a new data set keeps it)
+        scratch.sweep(path.parent)  # what killed runs left here; nothing of the user's
+        tmp = scratch.make(path.parent, path.name)
+        os.chmod(tmp, 0o777 & ~_UMASK)  # 0700 -> what a plain mkdir gives (a new data set keeps it)
         (tmp / "depth").mkdir()
         (tmp / "parts").mkdir()
 
@@ -216,6 +217,7 @@ def write_dataset(path, depth: np.ndarray, parts: np.ndarray, joints_xyz: np.nda
         if path.is_dir():
             _move_in(tmp, path)
         else:
+            scratch.release(tmp)
             os.rename(tmp, path)
             tmp = None
     except BaseException as err:  # a Ctrl-C or stop signal included: no hidden folder is left
@@ -226,21 +228,6 @@ def write_dataset(path, depth: np.ndarray, parts: np.ndarray, joints_xyz: np.nda
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
     return path
-
-
-def remove_stale_partials(path: Path) -> None:
-    """Remove the hidden ``.NAME.partial-PID`` / ``.NAME.old-PID`` folders that a run writing
-    the data set ``path`` left when it was killed (its process is gone)."""
-    if not path.parent.is_dir():
-        return
-    pattern = re.compile(rf"^\.{re.escape(path.name)}\.(partial|old)-(\d+)(-.*)?$")
-    for entry in path.parent.iterdir():
-        m = pattern.match(entry.name)
-        if m and not process_alive(int(m.group(2))):
-            if entry.is_symlink() or not entry.is_dir():
-                entry.unlink(missing_ok=True)
-            else:
-                shutil.rmtree(entry, ignore_errors=True)
 
 
 def _read_png(path: Path, shape: tuple[int, int], dtype) -> np.ndarray:

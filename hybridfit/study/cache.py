@@ -3,12 +3,15 @@
 An entry is ``ROOT/KIND/KEY[SUFFIX]``, KEY a hash of everything that determines it, the
 versions of hybridfit and of every plugin distribution and a hash of their Python sources
 included (``code_versions``), so an upgrade, or an edit of an installed checkout,
-recomputes instead of reusing what other code made. It is built in a private temporary
-folder made exclusively (``tempfile.mkdtemp``: a random name holding the builder's PID,
-``.tmp-PID-...``, mode 0700) beside it and renamed into place, so no link planted in the
-cache is followed and a killed run leaves no half-written entry, and the temporary files and folders of runs
-that are gone are removed when a cache is opened; two runs building the same entry at once
-both succeed (the second rename finds it in place and discards its own copy).
+recomputes instead of reusing what other code made. It is built in a private scratch
+folder beside it (:mod:`hybridfit.scratch`: a random name, mode 0700, a manifest naming
+the process) and renamed into place, so no link planted in the cache is followed and a
+killed run leaves no half-written entry; the scratch folders of runs that are gone are
+removed when a cache is opened, and nothing else ever is. Two runs building the same entry
+at once both succeed (the second rename finds it in place and discards its own copy).
+
+``ROOT`` holds the marker ``.hybridfit-cache.json``; a folder that holds anything else and
+no marker (a user's folder given as ``--cache`` by mistake) is refused, never written to.
 """
 
 from __future__ import annotations
@@ -20,11 +23,12 @@ import json
 import os
 import re
 import shutil
-import tempfile
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Callable
 
+from .. import scratch
+from ..errors import HybridfitError
 from ..io import atomic_open, process_alive  # noqa: F401  (the study lock uses process_alive too)
 from .expand import digest
 
@@ -35,7 +39,8 @@ class Cache:
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
         self.made: list[tuple[str, str]] = []
-        self.removed = remove_stale(self.root)
+        claim(self.root)
+        self.removed = sum(scratch.sweep(kind) for kind in self.root.iterdir() if kind.is_dir() and not kind.is_symlink())
 
     def path(self, kind: str, payload: Any, suffix: str = "") -> tuple[str, Path]:
         """(key, path) of the entry for ``payload`` (made by this code: versions included)."""
@@ -48,11 +53,13 @@ class Cache:
         if path.exists():
             return key, path
         path.parent.mkdir(parents=True, exist_ok=True)
-        scratch = Path(tempfile.mkdtemp(prefix=f".tmp-{os.getpid()}-", dir=path.parent))
-        tmp = scratch / path.name
+        folder = scratch.make(path.parent, "tmp")
+        tmp = folder / path.name
         try:
             make(tmp)
-            _write_json(path.parent / f"{key}.payload.json", payload)
+            record = folder / f"{key}.payload.json"
+            record.write_text(json.dumps(payload, indent=1, sort_keys=True, default=str))
+            os.replace(record, path.parent / record.name)
             try:
                 if not path.exists():
                     os.replace(tmp, path)
@@ -60,7 +67,7 @@ class Cache:
                 if not path.exists():
                     raise
         finally:
-            _remove(scratch)
+            _remove(folder)
         self.made.append((kind, key))
         return key, path
 
@@ -105,19 +112,39 @@ def source_hash(packages: list[str]) -> str:
     return h.hexdigest()[:12]
 
 
-_TEMPORARY = re.compile(r"^\.?\.tmp-(\d+)-|\.(?:partial|old)-(\d+)(?:-|$)|^\.hybridfit-(\d+)-")
+MARKER = ".hybridfit-cache.json"
+_KEYED = re.compile(r"^[0-9a-f]{16,}")
 
 
-def remove_stale(root: Path) -> int:
-    """Remove temporary entries (``.tmp-PID-*``, ``*.partial-PID[-*]``, ``.hybridfit-PID-*``)
-    under ``root/KIND/`` whose process is gone (a killed run); returns how many."""
-    removed = 0
-    for entry in root.glob("*/.*") if root.is_dir() else []:
-        m = _TEMPORARY.search(entry.name)
-        if m and not process_alive(int(next(g for g in m.groups() if g))):
-            _remove(entry)
-            removed += 1
-    return removed
+def claim(root: Path) -> None:
+    """Make ``root`` a cache (created, or an empty folder, gets the marker) or check it is
+    one: it has the marker, or it is a cache of an earlier version (only KIND folders of
+    keyed entries with their ``KEY.payload.json``). Anything else is a
+    :class:`~hybridfit.errors.HybridfitError`, before anything is written there."""
+    marker = root / MARKER
+    if marker.is_file() and not marker.is_symlink():
+        return
+    if root.exists() and not root.is_dir():
+        raise HybridfitError(f"{root}: the cache must be a folder, not a file")
+    try:
+        entries = list(root.iterdir()) if root.exists() else []
+    except OSError as err:
+        raise HybridfitError(f"{root}: cannot use as a cache: {err.strerror or err}") from None
+    if entries and not all(_an_earlier_caches_kind(e) for e in entries):
+        other = sorted(e.name for e in entries if not _an_earlier_caches_kind(e))
+        raise HybridfitError(f"{root}: not a hybridfit cache (it holds {len(other)} entries that are not, e.g. "
+                             f"{other[0]!r}, and no {MARKER}); give a new or empty folder as the cache")
+    root.mkdir(parents=True, exist_ok=True)
+    _write_json(marker, {"format": "hybridfit-cache", "version": 1})
+
+
+def _an_earlier_caches_kind(entry: Path) -> bool:
+    """Whether ``entry`` is a KIND folder as earlier versions wrote them (without a marker)."""
+    if entry.is_symlink() or not entry.is_dir():
+        return False
+    names = [e.name for e in entry.iterdir()]
+    visible = [n for n in names if not n.startswith(".")]
+    return any(n.endswith(".payload.json") for n in visible) and all(_KEYED.match(n) for n in visible)
 
 
 def _write_json(path: Path, payload: Any) -> None:

@@ -118,15 +118,19 @@ def test_a_stopped_synth_leaves_no_hidden_folder(tmp_path):
     assert os.listdir(tmp_path) == []
 
 
-def test_a_later_synth_removes_a_killed_runs_hidden_folder(tmp_path, capsys):
-    dead = subprocess.Popen([sys.executable, "-c", "pass"])
-    dead.wait()
-    stale = tmp_path / f".set.partial-{dead.pid}"
-    (stale / "depth").mkdir(parents=True)
-    alive = tmp_path / f".set.partial-{os.getppid()}"  # a live process's folder is left alone
-    alive.mkdir()
+def test_a_later_synth_removes_a_killed_runs_scratch_and_nothing_of_the_users(tmp_path):
+    from tests.test_scratch import dead_pid, left_by
+
+    dead = dead_pid()
+    stale = left_by(dead, tmp_path)
+    alive = left_by(os.getppid(), tmp_path, start="")  # a live process's folder is left alone
+    users = [tmp_path / f".set.partial-{dead}", tmp_path / ".scans.old-2023", tmp_path / ".set.old-2023"]
+    for p in users:
+        p.mkdir()
+        (p / "k").write_text("x")
     assert main(["synth", "test", "--out", str(tmp_path / "set"), "--frames", "2"]) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([alive.name, "set"])
+    assert not stale.exists() and alive.exists() and all((p / "k").read_text() == "x" for p in users)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([alive.name, "set", *(p.name for p in users)])
 
 
 # a fit that says on stderr when the local stage (derivative steps, the schedule's last) of its

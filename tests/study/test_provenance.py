@@ -106,20 +106,6 @@ def test_quick_validates_what_quick_overrides(tmp_path):
         load_spec(path, quick=True)
 
 
-def test_a_killed_runs_temporary_entries_are_removed(tmp_path):
-    kind = tmp_path / "cache" / "train-data"
-    kind.mkdir(parents=True)
-    dead = 2**22 + 12345  # above the default pid_max: no such process
-    stale = [kind / f".tmp-{dead}-abcd1234-KEY", kind / f"..tmp-{dead}-abcd1234-KEY.partial-{dead}"]
-    for p in stale:
-        p.mkdir()
-        (p / "depth.png").write_bytes(b"x")
-    mine = kind / f".tmp-{os.getpid()}-abcd1234-OTHER"
-    mine.mkdir()
-    cache = Cache(tmp_path / "cache")
-    assert cache.removed == 2 and not any(p.exists() for p in stale) and mine.exists()
-
-
 def test_only_the_training_frames_used_are_rendered(tmp_path):
     study = parse_spec({"name": "s", "data": {"kind": "synthetic-depth", "train_subset": 3,
                                                "test": {"frames": 2}}}, root=tmp_path)
