@@ -37,6 +37,11 @@ def test_the_site_builds_strictly_within_a_minute(tmp_path):
                  "hybridfit.Objective", "hybridfit.Optimizer", "hybridfit.Task", "hybridfit.Problem",
                  "hybridfit.registry.create", "hybridfit.testing.check_optimizer", "hybridfit.study.run_study"):
         assert f'id="{name}"' in api, name
+    roles = re.findall(r":(?:func|class|mod|meth|attr|data|exc):`", api)
+    assert roles == [], f"{len(roles)} raw reST roles on the API page"
+    assert 'href="#hybridfit.fitting.calibrate.calibrate"><code>' in api  # a role, now a link
+    signature = api[api.index('id="hybridfit.fit"'):].split("</pre>", 1)[0]
+    assert signature.count("\n") > 10, "long signatures are formatted one parameter a line (ruff)"
     cli = (tmp_path / "site" / "cli" / "index.html").read_text()
     from hybridfit.cli import build_parser
 
@@ -52,6 +57,8 @@ def small_site(tmp_path):
     config = yaml.safe_load((ROOT / "mkdocs.yml").read_text())
     config.pop("nav")
     config["hooks"] = [str(ROOT / h) for h in config.get("hooks", [])]
+    python = config["plugins"][2]["mkdocstrings"]["handlers"]["python"]["options"]
+    python["extensions"] = [str(ROOT / e) for e in python["extensions"]]
     (tmp_path / "docs").mkdir()
     (tmp_path / "mkdocs.yml").write_text(yaml.safe_dump(config))
     (tmp_path / "docs" / "index.md").write_text("# Home\n\nThe [API](api.md#hybridfit.fit).\n")
@@ -120,3 +127,20 @@ def test_the_docs_sections_that_docstrings_point_to_exist():
     for module, page, section in pointers:
         headings = re.findall(r"^#+ (.+)$", (ROOT / "docs" / f"{page}.md").read_text(), re.M)
         assert section in headings, f"{module} points to docs/{page}.md, section {section!r}, which is not a heading"
+
+
+def test_rest_roles_become_references_relative_to_their_module():
+    import importlib.util as iu
+
+    spec = iu.spec_from_file_location("rest_roles", ROOT / "docs_hooks" / "rest_roles.py")
+    roles = iu.module_from_spec(spec)
+    spec.loader.exec_module(roles)
+    module = "hybridfit.datasets.folder"
+    assert roles.target_of("~hybridfit.errors.HybridfitError", module) == ("hybridfit.errors.HybridfitError", "HybridfitError")
+    assert roles.target_of(".images", module) == ("hybridfit.datasets.images", "hybridfit.datasets.images")
+    assert roles.target_of(".images", "hybridfit.datasets", package=True)[0] == "hybridfit.datasets.images"
+    assert roles.target_of("write_dataset", module) == ("hybridfit.datasets.folder.write_dataset", "write_dataset")
+    assert roles.target_of("the fit <hybridfit.fit>", module) == ("hybridfit.fit", "the fit")
+    out = roles.roles_to_links("See :func:`~hybridfit.fit` and :class:`a <b>`.", module)
+    assert out == ('See <autoref identifier="hybridfit.fit" optional><code>fit</code></autoref> and '
+                   '<autoref identifier="b" optional><code>a</code></autoref>.')
