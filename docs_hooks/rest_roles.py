@@ -26,7 +26,7 @@ def target_of(body: str, module: str, package: bool = False) -> tuple[str, str]:
     else:
         target, shown = body, None
     short = target.startswith("~")
-    target = target.lstrip("~")
+    target = written = target.lstrip("~")
     if target.startswith("."):
         up = len(target) - len(target.lstrip("."))
         base = module.split(".")
@@ -34,7 +34,7 @@ def target_of(body: str, module: str, package: bool = False) -> tuple[str, str]:
     elif "." not in target:  # a name of the docstring's own module
         target = f"{module}.{target}"
     if shown is None:
-        shown = target.rsplit(".", 1)[-1] if short else target
+        shown = target.rsplit(".", 1)[-1] if short else written.lstrip(".")
     return target, shown
 
 

@@ -137,7 +137,7 @@ def test_rest_roles_become_references_relative_to_their_module():
     spec.loader.exec_module(roles)
     module = "hybridfit.datasets.folder"
     assert roles.target_of("~hybridfit.errors.HybridfitError", module) == ("hybridfit.errors.HybridfitError", "HybridfitError")
-    assert roles.target_of(".images", module) == ("hybridfit.datasets.images", "hybridfit.datasets.images")
+    assert roles.target_of(".images", module) == ("hybridfit.datasets.images", "images")
     assert roles.target_of(".images", "hybridfit.datasets", package=True)[0] == "hybridfit.datasets.images"
     assert roles.target_of("write_dataset", module) == ("hybridfit.datasets.folder.write_dataset", "write_dataset")
     assert roles.target_of("the fit <hybridfit.fit>", module) == ("hybridfit.fit", "the fit")
