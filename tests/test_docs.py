@@ -141,6 +141,6 @@ def test_rest_roles_become_references_relative_to_their_module():
     assert roles.target_of(".images", "hybridfit.datasets", package=True)[0] == "hybridfit.datasets.images"
     assert roles.target_of("write_dataset", module) == ("hybridfit.datasets.folder.write_dataset", "write_dataset")
     assert roles.target_of("the fit <hybridfit.fit>", module) == ("hybridfit.fit", "the fit")
-    out = roles.roles_to_links("See :func:`~hybridfit.fit` and :class:`a <b>`.", module)
+    out = roles.roles_to_links("See :func:`~hybridfit.fit` and :class:`a <x.B>`.", module)
     assert out == ('See <autoref identifier="hybridfit.fit" optional><code>fit</code></autoref> and '
-                   '<autoref identifier="b" optional><code>a</code></autoref>.')
+                   '<autoref identifier="x.B" optional><code>a</code></autoref>.')
