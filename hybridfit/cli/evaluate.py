@@ -23,6 +23,7 @@ from ..errors import HybridfitError
 from ..fitting.frames import INLIER_DISTANCE_MM
 from ..io import atomic_path, load_npz
 from ..plausible import check_hand_scale, check_unique_names
+from ..text import check_name, plain
 from ..metrics import SUCCESS_THRESHOLDS_MM, fingertips, inliers, joint_errors, oracle, success_rate
 from ._common import FRAMES_HELP, check_image_format, declare_paths, frames_range, read_results
 
@@ -68,14 +69,14 @@ def check_objective(path: str, data: dict, failed, F: int) -> None:
 
 
 def point_names(path: str, data: dict, J: int) -> list[str] | None:
-    """The npz's joint_names (plain strings), checked against J points."""
+    """The npz's joint_names (plain strings), checked against J points (unique, printable)."""
     if "joint_names" not in data:
         return None
     names = np.asarray(data["joint_names"])
     if names.ndim != 1 or names.dtype.kind not in "US" or len(names) != J:
         raise HybridfitError(f"{path}: 'joint_names' must be {J} strings, got {names.dtype} {names.shape}")
     check_unique_names(names, path)
-    return [str(n) for n in names]
+    return [check_name(n, f"{path}: 'joint_names'") for n in names]
 
 
 def load_points(path: str, dataset: str | None) -> list[tuple[str, np.ndarray, list[str] | None]]:
@@ -304,7 +305,8 @@ def save_figure(fig, out: str) -> None:
 
 
 def plot_success(curves, out: str, title: str) -> None:
-    """Success-rate curves [(label, (81,))] over 0..80 mm as a PNG."""
+    """Success-rate curves [(label, (81,))] over 0..80 mm as a PNG (labels and title as written:
+    no mathtext, a lone surrogate as its escape)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -312,10 +314,10 @@ def plot_success(curves, out: str, title: str) -> None:
 
     fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=120)
     for label, curve in curves:
-        ax.plot(SUCCESS_THRESHOLDS_MM, curve, label=label, linewidth=1.8)
+        ax.plot(SUCCESS_THRESHOLDS_MM, curve, label=plain(label, "utf-8"), linewidth=1.8)
     ax.set_xlabel("distance threshold D (mm)")
     ax.set_ylabel("share of frames with every joint within D")
-    ax.set_title(title)
+    ax.set_title(plain(title, "utf-8"))
     ax.set_xlim(0, 80)
     ax.set_ylim(0, 1)
     ax.grid(alpha=0.3)

@@ -4,7 +4,13 @@
 from __future__ import annotations
 
 from ..exports import export, export_format
-from ._common import declare_paths, positive_float
+from ..exports.bvh import MAX_FPS, MIN_FPS
+from ._common import _number, declare_paths
+
+
+def bvh_fps(text: str) -> float:
+    """--fps: a frame rate whose Frame Time a BVH holds."""
+    return _number(text, float, lambda v: MIN_FPS <= v <= MAX_FPS, f"a frame rate from {MIN_FPS:g} to {MAX_FPS:g}")
 
 
 def register(sub) -> None:
@@ -15,8 +21,8 @@ def register(sub) -> None:
                    "with the model and its settings; FILE.bvh: the model's skeleton and every frame's rotations "
                    "(mm, camera coordinates; failed frames hold the previous pose); FILE.csv: the angle table "
                    "of `hybridfit export-angles`")
-    p.add_argument("--fps", type=positive_float, default=30.0, help="frame rate of a .bvh (its Frame Time is "
-                   "1/fps; default 30)")
+    p.add_argument("--fps", type=bvh_fps, default=30.0, help=f"frame rate of a .bvh, from {MIN_FPS:g} to "
+                   f"{MAX_FPS:g} (its Frame Time is 1/fps; default 30)")
     p.add_argument("--model", help="for .csv only: the model that made a fits file without parameter_names "
                    "(hybridfit 0.3.0 and older), e.g. hand26")
     declare_paths(p, inputs=("fits",), outputs=("--out",))

@@ -12,11 +12,21 @@ from ..datasets.camera import xyz_to_uvd
 from ..datasets.folder import load_dataset
 from ..errors import HybridfitError
 from ..io import atomic_path, frame_slice, load_npz, load_proposals
-from ._common import FRAMES_HELP, check_image_format, declare_paths, frames_range, positive_float
+from ..text import plain
+from ._common import FRAMES_HELP, _number, check_image_format, declare_paths, frames_range
 from .evaluate import save_figure
 
 #: pixels around the drawn points and the hand's depth pixels
 MARGIN_PX = 15
+#: the GIF frame rates written (frames per second): a GIF's delays are hundredths of a second, and
+#: browsers play delays under 2 of them slower
+GIF_FPS = (0.01, 50.0)
+
+
+def gif_fps(text: str) -> float:
+    """--fps: a frame rate a GIF holds (GIF_FPS)."""
+    return _number(text, float, lambda v: GIF_FPS[0] <= v <= GIF_FPS[1],
+                   f"GIF frames per second from {GIF_FPS[0]:g} to {GIF_FPS[1]:g}")
 
 
 def register(sub) -> None:
@@ -28,7 +38,8 @@ def register(sub) -> None:
                    f"per data frame (--out must end in .gif): {FRAMES_HELP}")
     p.add_argument("--out", required=True, help="output image: PNG (or another format matplotlib writes) for "
                    "--frame, .gif for --frames")
-    p.add_argument("--fps", type=positive_float, default=10.0, help="GIF frames per second (default 10)")
+    p.add_argument("--fps", type=gif_fps, default=10.0, help=f"GIF frames per second, from {GIF_FPS[0]:g} to "
+                   f"{GIF_FPS[1]:g} (default 10)")
     p.add_argument("--fits", metavar="NPZ", help="fit results with 'joints' (F, J, 3) mm (hybridfit fit --out)")
     p.add_argument("--proposals", metavar="NPZ", help="proposals (F, J, K, 3) mm with 'confidences' (F, J, K)")
     p.add_argument("--model", default="hand26", help="model whose skeleton to draw when the data set names none")
@@ -124,7 +135,7 @@ def _draw(fig, ax, ds, f: int, depth: np.ndarray, parents, overlays: _Overlays, 
     fig.colorbar(img, ax=ax, fraction=0.046, pad=0.03).set_label("depth (mm)")
     uv = _uv(ds, overlays, f)
     handles = []
-    title = f"{ds.path.name}: frame {f} of {ds.frames}"
+    title = f"{plain(ds.path.name, 'utf-8')}: frame {f} of {ds.frames}"  # a folder name drawn as written
     if "truth" in uv:
         handles.append(_skeleton(ax, uv["truth"], parents, color="tab:red", label="ground truth"))
     if "proposals" in uv:

@@ -69,6 +69,10 @@ def export(fits: str | os.PathLike, out: str | os.PathLike, *, model: Any = None
                              "only for .csv")
     from .fitted import load_fitted
 
+    if kind == "BVH":
+        from .bvh import check_fps
+
+        check_fps(fps)  # before anything is read
     fitted = load_fitted(fits)
     if kind == "JSON":
         from .tojson import write_json

@@ -11,8 +11,11 @@ joint to child (Blender) give the tip a bone too; the End Sites are not model jo
 **MOTION.** Per frame: the root's position (``Xposition Yposition Zposition``, mm, camera
 coordinates: x right, y down, z forward, as the fits' joints) and every joint's local
 rotation as Euler angles in degrees, channels ``Zrotation Xrotation Yrotation`` (the local
-rotation is ``Rz(z) @ Rx(x) @ Ry(y)``, the usual BVH reading). ``Frame Time`` is 1/fps.
-The root's ``OFFSET`` is zero: its channels carry its position.
+rotation is ``Rz(z) @ Rx(x) @ Ry(y)``, the usual BVH reading). ``Frame Time`` is 1/fps in
+seconds, to 6 decimals or more (4 significant digits at least), for frame rates from
+:data:`MIN_FPS` to :data:`MAX_FPS`. The root's ``OFFSET`` is zero: its channels carry its
+position. A joint's BVH name is the model's with whitespace as ``_``; names with control
+characters, or not unique that way, are refused.
 
 **The kinematics.** A model joint's frame is ``R_j = R_parent @ rest_j @ Rot(axis, angle)
 ...`` and ``p_j = p_parent + R_parent @ offset_j`` (:mod:`hybridfit.model.kinematics`); a
@@ -37,6 +40,7 @@ export marks them ``"failed": true``.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -47,6 +51,7 @@ from ..errors import HybridfitError
 from ..fitting.angles import unit_quaternions
 from ..io import atomic_path
 from ..model.base import ORIENTATION, POSITION
+from ..text import check_name
 from .fitted import Fitted
 
 #: the rotation channels of every joint, in order: local rotation = Rz @ Rx @ Ry
@@ -61,6 +66,10 @@ DECIMALS = 6
 END_SITE_SHARE = 0.5
 #: cos(x angle) below which the Euler decomposition is at gimbal lock (the y angle is set to 0)
 GIMBAL = 1e-9
+#: the frame rates written (frames per second): a Frame Time from 1 microsecond to 1000 seconds
+MIN_FPS, MAX_FPS = 1e-3, 1e6
+#: the Frame Time's significant digits at least (its decimals: DECIMALS at least)
+FRAME_TIME_DIGITS = 4
 
 
 @dataclass(frozen=True)
@@ -175,10 +184,10 @@ def bvh_skeleton(model) -> BvhSkeleton:
     root = int(np.flatnonzero(parents < 0)[0])
     bone = offsets.copy()
     offsets[root] = 0.0
-    names = tuple(re.sub(r"\s+", "_", str(n)) for n in model.joint_names)
+    label = model.name or type(model).__name__
+    names = tuple(re.sub(r"\s+", "_", check_name(n, f"model {label}: joint name")) for n in model.joint_names)
     if len(set(names)) != len(names) or not all(names):
-        raise HybridfitError(f"model {model.name or type(model).__name__}: its joint names are not unique "
-                             "BVH names (no whitespace)")
+        raise HybridfitError(f"model {label}: its joint names are not unique BVH names (no whitespace)")
     rest = _reflect(np.asarray(tree.rest, dtype=np.float64), mirror)
     end_sites = {}
     for j in set(range(len(parents))) - set(parents.tolist()):
@@ -243,6 +252,8 @@ def bvh_motion(fitted: Fitted) -> BvhMotion:
     docstring), checked: reading them back gives the fits' model joints to TOLERANCE_MM."""
     skeleton = bvh_skeleton(fitted.model)
     ok = fitted.ok
+    if not len(ok):
+        raise HybridfitError(f"{fitted.path}: no frames: there is no pose to write as BVH")
     if not ok.any():
         raise HybridfitError(f"{fitted.path}: every frame failed: there is no pose to write as BVH")
     fitted_rows = np.flatnonzero(ok)
@@ -289,20 +300,32 @@ def bvh_text(motion: BvhMotion, fps: float = 30.0) -> str:
 
     joint(sk.order[0], 0)
     F = len(motion.root_mm)
-    lines += ["MOTION", f"Frames: {F}", f"Frame Time: {1.0 / fps:.{DECIMALS}f}"]
+    lines += ["MOTION", f"Frames: {F}", f"Frame Time: {frame_time(fps)}"]
     for f in range(F):
         values = [motion.root_mm[f]] + [motion.angles_deg[f, j] for j in sk.order]
         lines.append(_numbers(np.concatenate(values)))
     return "\n".join(lines) + "\n"
 
 
+def check_fps(fps: float) -> float:
+    """``fps`` if a BVH can hold its frame time (MIN_FPS to MAX_FPS), else a one-line HybridfitError."""
+    if not MIN_FPS <= fps <= MAX_FPS:  # NaN too
+        raise HybridfitError(f"fps {fps:g}: a BVH frame rate must be from {MIN_FPS:g} to {MAX_FPS:g} frames per second")
+    return float(fps)
+
+
+def frame_time(fps: float) -> str:
+    """1/fps seconds as written (fixed point, DECIMALS decimals or enough for FRAME_TIME_DIGITS digits)."""
+    seconds = 1.0 / check_fps(fps)
+    return f"{seconds:.{max(DECIMALS, FRAME_TIME_DIGITS - 1 - math.floor(math.log10(seconds)))}f}"
+
+
 def write_bvh(path: str | os.PathLike, fitted: Fitted, fps: float = 30.0) -> BvhMotion:
     """Write a fits file's motion as BVH (atomically: an existing file is replaced only by a
     complete one); the motion written."""
-    if not (np.isfinite(fps) and fps > 0):
-        raise HybridfitError(f"fps must be a positive number, got {fps}")
+    check_fps(fps)
     motion = bvh_motion(fitted)
     text = bvh_text(motion, fps)
     with atomic_path(path) as tmp:
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8")
     return motion

@@ -5,7 +5,9 @@ a 0-d string) and ``model_settings`` (its settings, ``json.dumps(model.get_param
 that ``registry.create("model", model, json.loads(model_settings)).forward(params)`` gives
 the file's ``model_joints`` (to 1e-6 mm; failed frames aside). :func:`load_fitted` checks
 that contract (to :data:`MODEL_JOINTS_TOLERANCE_MM`) and refuses a file without ``model``
-(written by an older hybridfit) in one line saying to re-run ``hybridfit fit``.
+(written by an older hybridfit) in one line saying to re-run ``hybridfit fit``, a proposals
+file saying to fit it first, and ``model_settings`` that hold a non-finite number or are
+nested deeper than :data:`MAX_NESTING`; names are checked as ``load_fits`` checks them.
 """
 
 from __future__ import annotations
@@ -19,12 +21,14 @@ import numpy as np
 
 from .. import registry
 from ..errors import HybridfitError
-from ..fitting.angles import load_fits
+from ..fitting.angles import check_fits_keys, load_fits
 from ..fitting.frames import FitResult
 from ..io import load_npz
 
 #: how far the file's ``model_joints`` may be from its model's forward kinematics of ``params``
 MODEL_JOINTS_TOLERANCE_MM = 1e-3
+#: how deeply ``model_settings`` may nest objects and lists (the settings object itself is level 1)
+MAX_NESTING = 32
 
 
 @dataclass(frozen=True)
@@ -58,6 +62,7 @@ def load_fitted(path: str | os.PathLike) -> Fitted:
     naming the file and key."""
     where = str(path)
     data = load_npz(path, "fits")
+    check_fits_keys(data, where)
     if "model" not in data:
         raise HybridfitError(f"{where}: written by an older hybridfit (no 'model' key naming the model that "
                              "fitted it); re-run `hybridfit fit` to export it")
@@ -68,13 +73,7 @@ def load_fitted(path: str | os.PathLike) -> Fitted:
     if "model_settings" not in data:
         raise HybridfitError(f"{where}: missing key 'model_settings' (the settings of model {name!r}); "
                              "re-run `hybridfit fit`")
-    text = _string(data, "model_settings", where)
-    try:
-        settings = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise HybridfitError(f"{where}: 'model_settings' is not JSON ({err})") from None
-    if not isinstance(settings, dict):
-        raise HybridfitError(f"{where}: 'model_settings' must be a JSON object, got {type(settings).__name__}")
+    settings = _settings(_string(data, "model_settings", where), where)
     model = _create_model(name, settings, where)
     result = load_fits(path)
     F = len(result.params)
@@ -110,6 +109,31 @@ def load_fitted(path: str | os.PathLike) -> Fitted:
                 f"frame {int(np.flatnonzero(ok)[worst])}): the model or its settings changed since the fit, or the "
                 "fit bent the model (refined bones); re-run `hybridfit fit`")
     return Fitted(where, result, name, settings, model, np.asarray(frames))
+
+
+def _settings(text: str, where: str) -> dict[str, Any]:
+    """``model_settings`` as a dict: JSON, an object, nested at most MAX_NESTING deep, every number finite."""
+    deep = f"{where}: 'model_settings' is nested deeper than {MAX_NESTING} levels; re-run `hybridfit fit`"
+    try:
+        settings = json.loads(text)
+    except RecursionError:
+        raise HybridfitError(deep) from None
+    except ValueError as err:  # JSONDecodeError, or an integer of too many digits
+        raise HybridfitError(f"{where}: 'model_settings' is not JSON ({err})") from None
+    if not isinstance(settings, dict):
+        raise HybridfitError(f"{where}: 'model_settings' must be a JSON object, got {type(settings).__name__}")
+    todo = [(settings, "", 1)]
+    while todo:
+        value, key, depth = todo.pop()
+        if isinstance(value, (dict, list)):
+            if depth > MAX_NESTING:
+                raise HybridfitError(deep)
+            items = value.items() if isinstance(value, dict) else enumerate(value)
+            todo.extend((v, f"{key}.{k}" if isinstance(value, dict) else f"{key}[{k}]", depth + 1) for k, v in items)
+        elif isinstance(value, float) and not np.isfinite(value):
+            raise HybridfitError(f"{where}: 'model_settings' holds {value} at {key.lstrip('.')}; settings must be "
+                                 "finite numbers")
+    return settings
 
 
 def _create_model(name: str, settings: dict[str, Any], where: str):

@@ -72,4 +72,4 @@ def write_json(path: str | os.PathLike, fitted: Fitted) -> None:
     """Write :func:`fits_document` (atomically: an existing file is replaced only by a complete one)."""
     text = json.dumps(fits_document(fitted), indent=1, allow_nan=False)
     with atomic_path(path) as tmp:
-        tmp.write_text(text + "\n")
+        tmp.write_text(text + "\n", encoding="utf-8")  # ASCII: json.dumps escapes the rest

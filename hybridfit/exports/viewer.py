@@ -10,7 +10,10 @@ sets the starting view. Bones are coloured by the chain they belong to (one colo
 child of the root: per finger for a hand), in :data:`BONE_COLOURS`. The view starts as the
 camera saw the hand (x right, y down), each frame centred on its joints. Failed frames show
 no hand and say so. After drawing, the page sets ``data-drawn`` on <body> to the number of
-bones drawn (the tests read it in a headless browser).
+bones drawn (the tests read it in a headless browser). Names are inert: the data is JSON
+with ``<``, ``>`` and ``&`` escaped, drawn as text; the title is HTML-escaped, and a
+character the file system gave for a byte that is not UTF-8 is written as an escape
+(``\\udcff``). A fits file without frames is refused.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import os
 
 import numpy as np
 
+from ..errors import HybridfitError
 from ..io import atomic_path
 from .fitted import Fitted
 
@@ -65,6 +69,8 @@ def view_page(fitted: Fitted) -> str:
     """The HTML page (see the module docstring)."""
     from .. import __version__
 
+    if not len(fitted.result.params):
+        raise HybridfitError(f"{fitted.path}: no frames (an empty fit): nothing to view")
     data = json.dumps(page_data(fitted), separators=(",", ":"), allow_nan=False)
     data = data.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
     title = html.escape(f"{os.path.basename(fitted.path)} \u00b7 {fitted.model_name}")
@@ -75,7 +81,7 @@ def write_view(path: str | os.PathLike, fitted: Fitted) -> None:
     """Write :func:`view_page` (atomically: an existing file is replaced only by a complete one)."""
     text = view_page(fitted)
     with atomic_path(path) as tmp:
-        tmp.write_text(text, encoding="utf-8")
+        tmp.write_text(text, encoding="utf-8", errors="backslashreplace")  # a file name's lone surrogates
 
 
 _PAGE = r"""<!DOCTYPE html>

@@ -17,6 +17,11 @@ all named by ``HandModel.parameter_names``; fits files (``hybridfit fit`` and ``
 A fits file written before ``parameter_names`` were saved (hybridfit 0.3.0 and older) does
 not say which model made it: ``load_fits(path, model=NAME)`` takes that model's names
 (its parameter count must match); without a model it fails with one line saying so.
+
+Names are checked where they are read: a file's ``joint_names`` and ``parameter_names`` (or
+a model's) that repeat or hold control characters are refused in one line naming the file
+and key. A header cell that a spreadsheet would run as a formula (``=...``, ``@...``) is
+written with a leading ``'`` (:func:`hybridfit.text.csv_cell`).
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from __future__ import annotations
 import csv
 import os
 import re
+from collections import Counter
 from typing import Any, Sequence
 
 import numpy as np
@@ -32,6 +38,7 @@ from .. import registry
 from ..errors import HybridfitError
 from ..io import atomic_path, load_npz
 from ..model.base import ORIENTATION, POSITION
+from ..text import check_name, csv_cell
 from .frames import FitResult
 
 #: the columns before the joint angles
@@ -48,11 +55,30 @@ def load_fits(path: str | os.PathLike, model: Any = None) -> FitResult:
     return _fit_result(load_npz(path, "fits"), str(path), model)
 
 
-def _fit_result(data: dict[str, np.ndarray], where: str, model: Any) -> FitResult:
+def check_fits_keys(data, where: str) -> None:
+    """Refuse a file that is not a fits file in one line: a proposals file (saying to fit it
+    first) or one without ``params`` and ``failed`` (naming the keys it has)."""
+    if "failed" not in data and "proposals" in data:
+        raise HybridfitError(f"{where}: a proposals file, not fits: fit it first (`hybridfit fit {where} --out "
+                             "fits.npz`) and give the fits file")
     for key in ("params", "failed"):
         if key not in data:
             raise HybridfitError(f"{where}: missing key {key!r} (is it a fits file? keys present: "
                                  f"{', '.join(sorted(data)) or 'none'})")
+
+
+def checked_names(values, where: str, key: str) -> tuple[str, ...]:
+    """``values`` as names, refused in one line naming ``where`` and ``key`` if one holds a
+    control character or is listed twice."""
+    names = tuple(check_name(n, f"{where}: {key!r}") for n in values)
+    name, count = next(iter(Counter(names).most_common(1)), ("", 1))
+    if count > 1:
+        raise HybridfitError(f"{where}: {key!r}: {name!r} is listed {count} times; each needs its own name")
+    return names
+
+
+def _fit_result(data: dict[str, np.ndarray], where: str, model: Any) -> FitResult:
+    check_fits_keys(data, where)
     params, failed = data["params"], data["failed"]
     if params.ndim != 2 or params.shape[1] < 7 or params.dtype.kind not in "iuf":
         raise HybridfitError(f"{where}: 'params' must be numbers of shape (frames, parameters >= 7), "
@@ -77,7 +103,7 @@ def _fit_result(data: dict[str, np.ndarray], where: str, model: Any) -> FitResul
         params=params.astype(np.float64), joints=data.get("joints", nan_points),
         model_joints=data.get("model_joints", nan_points), objective=data.get("objective", np.full(F, np.nan)),
         evaluations=data.get("evaluations", np.zeros(F, np.int64)),
-        joint_names=tuple(str(n) for n in data.get("joint_names", ())), failed=failed,
+        joint_names=checked_names(data.get("joint_names", ()), where, "joint_names"), failed=failed,
         errors={int(f): str(m) for f, m in zip(frames_with_errors, messages)},
         inliers=data.get("inliers"), parameter_names=names, model=str(data.get("model", "")),
         model_settings=str(data.get("model_settings", "{}")),
@@ -110,8 +136,8 @@ def _parameter_names(data: dict[str, np.ndarray], where: str, P: int, model: Any
     declared = None
     if model is not None:
         plugin = registry.create("model", model)
-        declared = tuple(plugin.parameter_names)
         label = plugin.name or type(plugin).__name__
+        declared = _column_names(plugin.parameter_names, f"{where}: model {label!r}")
         if len(declared) != P:
             raise HybridfitError(f"{where}: {P} parameters per frame, but model {label!r} has {len(declared)}")
     if stored is None or not len(stored):
@@ -121,9 +147,20 @@ def _parameter_names(data: dict[str, np.ndarray], where: str, P: int, model: Any
         return declared
     if stored.ndim != 1 or stored.dtype.kind not in "US" or len(stored) != P:
         raise HybridfitError(f"{where}: 'parameter_names' must be {P} strings, got {stored.dtype} {stored.shape}")
-    names = tuple(str(n) for n in stored)
+    names = _column_names(stored, where)
     if declared is not None and declared != names:
         raise HybridfitError(f"{where}: its parameter_names are not model {model!r}'s (leave out --model)")
+    return names
+
+
+def _column_names(values, where: str) -> tuple[str, ...]:
+    """Parameter names that can name the table's columns (:func:`checked_names`, and no
+    whitespace, commas or quotes), else one line naming ``where``."""
+    names = checked_names(values, where, "parameter_names")
+    unnamed = [n for n in names if not PARAMETER_NAME.fullmatch(n)]
+    if unnamed:
+        raise HybridfitError(f"{where}: 'parameter_names': {unnamed[0]!r} cannot name a column (no whitespace, "
+                             "commas or quotes)")
     return names
 
 
@@ -135,12 +172,12 @@ def angle_table(result: FitResult, frames: Sequence[int] | None = None) -> tuple
     frames = np.arange(F) if frames is None else np.asarray(frames)
     if frames.shape != (F,) or frames.dtype.kind not in "iu":
         raise HybridfitError(f"frames must be {F} integer indices, got {frames.dtype} {frames.shape}")
-    unnamed = [n for n in names if not PARAMETER_NAME.fullmatch(n)]
+    unnamed = [n for n in names if not PARAMETER_NAME.fullmatch(check_name(n, "parameter names"))]
     if unnamed:
         raise HybridfitError(f"parameter name {unnamed[0]!r} cannot name a column (no whitespace, commas or quotes)")
     position = result.params[:, POSITION]
     quaternion = unit_quaternions(result.params[:, ORIENTATION])
-    header = [*POSE_COLUMNS, *(f"{n}_deg" for n in names)]
+    header = [*POSE_COLUMNS, *(csv_cell(f"{n}_deg") for n in names)]
     rows = []
     for f in range(F):
         if result.failed[f]:
@@ -164,7 +201,7 @@ def write_angles_csv(path: str | os.PathLike, result: FitResult, frames: Sequenc
     """Write :func:`angle_table` as CSV (atomically: an existing file is replaced only by a
     complete one)."""
     header, rows = angle_table(result, frames)
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
         writer = csv.writer(fh)
         writer.writerow(header)
         writer.writerows(rows)
