@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -144,3 +145,18 @@ def test_rest_roles_become_references_relative_to_their_module():
     out = roles.roles_to_links("See :func:`~hybridfit.fit` and :class:`a <x.B>`.", module)
     assert out == ('See <autoref identifier="hybridfit.fit" optional><code>fit</code></autoref> and '
                    '<autoref identifier="x.B" optional><code>a</code></autoref>.')
+
+
+def test_the_blender_import_gives_the_camera_view_axes_and_frame_rate():
+    """The BVH is in camera axes (x right, y down, z forward): Blender's importer needs forward
+    Z and up -Y to show it as the camera saw it, and update_scene_fps for the file's rate."""
+    page = " ".join((ROOT / "docs" / "data.md").read_text().split())
+    for needed in ("global_scale=0.001", "axis_forward='Z'", "axis_up='-Y'", "update_scene_fps=True"):
+        assert needed in page, needed
+    # the axes as Blender's axis_conversion applies them (to forward Y, up Z): camera -> Blender
+    forward, up = np.array([0, 0, 1]), np.array([0, -1, 0])  # the file's axes named forward and up
+    R = np.stack([np.cross(forward, up), forward, up])  # rows: Blender X, Y, Z in file axes
+    assert np.linalg.det(R) == 1  # a rotation
+    assert (R @ [1, 0, 0]).tolist() == [1, 0, 0]  # camera right = Blender X (right in the front view)
+    assert (R @ [0, -1, 0]).tolist() == [0, 0, 1]  # image up = Blender Z
+    assert (R @ [0, 0, 1]).tolist() == [0, 1, 0]  # into the scene = Blender Y (away, in the front view)

@@ -21,8 +21,8 @@ def register(sub) -> None:
                    "with the model and its settings; FILE.bvh: the model's skeleton and every frame's rotations "
                    "(mm, camera coordinates; failed frames hold the previous pose); FILE.csv: the angle table "
                    "of `hybridfit export-angles`")
-    p.add_argument("--fps", type=bvh_fps, default=30.0, help=f"frame rate of a .bvh, from {MIN_FPS:g} to "
-                   f"{MAX_FPS:g} (its Frame Time is 1/fps; default 30)")
+    p.add_argument("--fps", type=bvh_fps, default=30.0, help=f"frame rate of a .bvh or .json, from {MIN_FPS:g} "
+                   f"to {MAX_FPS:g} (a BVH's Frame Time is 1/fps; default 30)")
     p.add_argument("--model", help="for .csv only: the model that made a fits file without parameter_names "
                    "(hybridfit 0.3.0 and older), e.g. hand26")
     declare_paths(p, inputs=("fits",), outputs=("--out",))

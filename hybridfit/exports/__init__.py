@@ -55,8 +55,8 @@ def export_format(out: str | os.PathLike) -> str:
 def export(fits: str | os.PathLike, out: str | os.PathLike, *, model: Any = None, fps: float = 30.0) -> Exported:
     """Write the fits file ``fits`` as ``out`` in the format of its extension (see the module
     docstring). model: only for ``.csv`` of a fits file without ``parameter_names`` (hybridfit
-    0.3.0 and older; ``.json`` and ``.bvh`` take the model the file names); fps: the BVH's
-    frame rate."""
+    0.3.0 and older; ``.json`` and ``.bvh`` take the model the file names); fps: the frame
+    rate a BVH or JSON records."""
     kind = export_format(out)
     check_output(out, "output")
     if kind == "CSV":
@@ -69,7 +69,7 @@ def export(fits: str | os.PathLike, out: str | os.PathLike, *, model: Any = None
                              "only for .csv")
     from .fitted import load_fitted
 
-    if kind == "BVH":
+    if kind in ("BVH", "JSON"):
         from .bvh import check_fps
 
         check_fps(fps)  # before anything is read
@@ -77,7 +77,7 @@ def export(fits: str | os.PathLike, out: str | os.PathLike, *, model: Any = None
     if kind == "JSON":
         from .tojson import write_json
 
-        write_json(out, fitted)
+        write_json(out, fitted, fps)
     else:
         from .bvh import write_bvh
 

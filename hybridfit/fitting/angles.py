@@ -107,6 +107,7 @@ def _fit_result(data: dict[str, np.ndarray], where: str, model: Any) -> FitResul
         errors={int(f): str(m) for f, m in zip(frames_with_errors, messages)},
         inliers=data.get("inliers"), parameter_names=names, model=str(data.get("model", "")),
         model_settings=str(data.get("model_settings", "{}")),
+        **({"inlier_distance_mm": float(data["inlier_distance_mm"])} if "inlier_distance_mm" in data else {}),
     )
 
 
@@ -125,6 +126,7 @@ _OPTIONAL_ARRAYS = (
     ("objective", lambda a, F: _numbers(a, (F,)), "({F},) numbers"),
     ("evaluations", lambda a, F: _numbers(a, (F,)), "({F},) numbers"),
     ("inliers", lambda a, F: _numbers(a, (F,)), "({F},) numbers"),
+    ("inlier_distance_mm", lambda a, F: _numbers(a, ()) and np.isfinite(a) and a > 0, "one positive number"),
     ("joint_names", lambda a, F: _strings(a), "a list of strings"),
     ("error_frames", lambda a, F: a.ndim == 1 and a.dtype.kind in "iu", "a list of frame indices"),
     ("error_messages", lambda a, F: _strings(a), "a list of strings"),

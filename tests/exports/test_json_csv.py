@@ -50,6 +50,27 @@ def test_the_json_holds_every_frame_with_its_model(fits):
         assert frame["quaternion_wxyz"][0] >= 0 and np.linalg.norm(frame["quaternion_wxyz"]) == pytest.approx(1)
 
 
+def test_the_json_says_the_hand_the_frame_rate_and_each_frames_fit_quality(fits):
+    root, model, settings, arrays = fits
+    export(root / "fits.npz", root / "hand.json", fps=24.0)
+    doc = json.loads((root / "hand.json").read_text())
+    assert doc["handedness"] == ("left" if settings.get("mirror") else "right") and doc["fps"] == 24.0
+    assert "origin" in doc["position_mm_is"] and doc["inlier_distance_mm"] == float(arrays["inlier_distance_mm"])
+    for f, frame in enumerate(doc["frames"]):
+        if frame["failed"]:
+            assert frame["objective"] is None and frame["inliers"] is None
+        else:
+            assert frame["objective"] == pytest.approx(arrays["objective"][f], abs=1e-6)
+            assert frame["inliers"] == int(arrays["inliers"][f]) and 0 <= frame["inliers"] <= len(doc["joint_names"])
+
+
+def test_the_json_refuses_a_frame_rate_it_cannot_record(fits):
+    root = fits[0]
+    with pytest.raises(HybridfitError, match="frame rate"):
+        export(root / "fits.npz", root / "bad.json", fps=float("nan"))
+    assert not (root / "bad.json").exists()
+
+
 def test_the_csv_is_the_angle_table_of_export_angles(fits):
     root, model, settings, arrays = fits
     assert export(root / "fits.npz", root / "angles.csv").format == "CSV"
