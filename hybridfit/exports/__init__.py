@@ -7,11 +7,13 @@ extension names:
   settings (:mod:`.tojson`);
 - ``.bvh``: the model's skeleton and each frame's rotations, whose kinematics give the
   fitted joints (:mod:`.bvh`);
+- ``.glb`` / ``.gltf``: glTF 2.0, the model's surface skinned to its skeleton and a keyframe
+  per frame, whose joint nodes give the fitted joints (:mod:`.gltf`);
 - ``.csv``: the joint-angle table of ``hybridfit export-angles``
   (:func:`hybridfit.fitting.angles.export_angles`, the same function).
 
 :func:`hybridfit.exports.viewer.write_view` writes the 3D page of ``hybridfit view``. The
-``.json``, ``.bvh`` and page exports read the model from the fits file
+``.json``, ``.bvh``, glTF and page exports read the model from the fits file
 (:mod:`.fitted`); a file written before fits named their model is refused, saying to re-run
 ``hybridfit fit``.
 """
@@ -29,13 +31,14 @@ from ..errors import HybridfitError
 from ..io import check_output
 
 #: the formats :func:`export` writes, by extension
-FORMATS = {".json": "JSON", ".bvh": "BVH", ".csv": "CSV"}
+FORMATS = {".json": "JSON", ".bvh": "BVH", ".glb": "GLB", ".gltf": "glTF", ".csv": "CSV"}
 
 
 @dataclass(frozen=True)
 class Exported:
-    """What :func:`export` wrote: format ("JSON", "BVH", "CSV"); frames: how many; failed:
-    the rows of the frames that could not be fitted (in a BVH they hold the previous pose)."""
+    """What :func:`export` wrote: format ("JSON", "BVH", "GLB", "glTF", "CSV"); frames: how many;
+    failed: the rows of the frames that could not be fitted (in a BVH or glTF they hold the
+    previous pose)."""
 
     format: str
     frames: int
@@ -55,8 +58,8 @@ def export_format(out: str | os.PathLike) -> str:
 def export(fits: str | os.PathLike, out: str | os.PathLike, *, model: Any = None, fps: float = 30.0) -> Exported:
     """Write the fits file ``fits`` as ``out`` in the format of its extension (see the module
     docstring). model: only for ``.csv`` of a fits file without ``parameter_names`` (hybridfit
-    0.3.0 and older; ``.json`` and ``.bvh`` take the model the file names); fps: the frame
-    rate a BVH or JSON records."""
+    0.3.0 and older; the other formats take the model the file names); fps: the frame rate a
+    BVH, JSON or glTF records."""
     kind = export_format(out)
     check_output(out, "output")
     if kind == "CSV":
@@ -69,15 +72,18 @@ def export(fits: str | os.PathLike, out: str | os.PathLike, *, model: Any = None
                              "only for .csv")
     from .fitted import load_fitted
 
-    if kind in ("BVH", "JSON"):
-        from .bvh import check_fps
+    from .bvh import check_fps
 
-        check_fps(fps)  # before anything is read
+    check_fps(fps)  # before anything is read
     fitted = load_fitted(fits)
     if kind == "JSON":
         from .tojson import write_json
 
         write_json(out, fitted, fps)
+    elif kind in ("GLB", "glTF"):
+        from .gltf import write_gltf
+
+        write_gltf(out, fitted, fps)
     else:
         from .bvh import write_bvh
 

@@ -27,15 +27,19 @@ def error_line(capsys) -> str:
     return err
 
 
-@pytest.mark.parametrize("name, kind", [("hand.json", "JSON"), ("hand.bvh", "BVH"), ("angles.csv", "CSV")])
+@pytest.mark.parametrize("name, kind", [("hand.json", "JSON"), ("hand.bvh", "BVH"), ("hand.glb", "GLB"),
+                                        ("hand.gltf", "glTF"), ("angles.csv", "CSV")])
 def test_export_writes_the_format_of_the_extension(fits, tmp_path, capsys, name, kind):
     assert main(["export", str(fits / "fits.npz"), "--out", str(tmp_path / name)]) == 0
     out = capsys.readouterr().out
     assert out.startswith(f"wrote 3 frames (1 failed: 1") and f"as {kind} -> " in out
-    assert ("hold the previous pose" in out) == (kind == "BVH")
-    text = (tmp_path / name).read_text()
-    assert {"JSON": lambda t: json.loads(t)["model"] == "hand26", "BVH": lambda t: t.startswith("HIERARCHY\nROOT wrist"),
-            "CSV": lambda t: t.startswith("frame,failed,x_mm")}[kind](text)
+    assert ("hold the previous pose" in out) == (kind in ("BVH", "GLB", "glTF"))
+    data = (tmp_path / name).read_bytes()
+    assert {"JSON": lambda d: json.loads(d)["model"] == "hand26",
+            "BVH": lambda d: d.startswith(b"HIERARCHY\nROOT wrist"),
+            "GLB": lambda d: d[:4] == b"glTF" and d[16:20] == b"JSON",
+            "glTF": lambda d: json.loads(d)["scenes"][0]["extras"]["model"] == "hand26",
+            "CSV": lambda d: d.startswith(b"frame,failed,x_mm")}[kind](data)
 
 
 def test_export_angles_is_an_alias_of_export_to_csv(fits, tmp_path):
@@ -52,10 +56,13 @@ def test_the_bvh_frame_time_is_one_over_fps(fits, tmp_path):
 @pytest.mark.parametrize("args, match", [
     (["{old}", "--out", "{tmp}/hand.json"], "written by an older hybridfit"),
     (["{old}", "--out", "{tmp}/hand.bvh"], "re-run `hybridfit fit`"),
-    (["{fits}", "--out", "{tmp}/hand.fbx"], "cannot tell the export format from '.fbx'; use .json, .bvh, .csv"),
+    (["{fits}", "--out", "{tmp}/hand.fbx"],
+     "cannot tell the export format from '.fbx'; use .json, .bvh, .glb, .gltf, .csv"),
     (["{fits}", "--out", "{tmp}/hand"], "a name without an extension"),
     (["{fits}", "--out", "{tmp}/hand.json", "--model", "hand27"], "a model is given only for .csv"),
     (["{fits}", "--out", "{tmp}/hand.bvh", "--fps", "0"], "--fps"),
+    (["{fits}", "--out", "{tmp}/hand.glb", "--fps", "0"], "--fps"),
+    (["{old}", "--out", "{tmp}/hand.glb"], "re-run `hybridfit fit`"),
     (["{tmp}/none.npz", "--out", "{tmp}/hand.json"], "no such fits file"),
 ])
 def test_export_refuses_in_one_line(fits, tmp_path, capsys, args, match):
