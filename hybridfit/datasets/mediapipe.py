@@ -24,10 +24,10 @@ say which wrote it (``labels``):
 - ``"subject"`` (the default): the current Tasks API reference (``HandLandmarkerResult.handedness``,
   Python, JavaScript and Swift): "Left and Right handedness correspond to the subject's hands,
   not the viewer. Passing a horizontally mirrored image will invert these outputs." A
-  maintainer confirms the change (google-ai-edge/mediapipe-samples#450, 2024: the labels "were
-  reversed in the older version").
-- ``"selfie"``: MediaPipe Hands before the Tasks API (``mp.solutions.hands``; the Tasks API's
-  0.10.0 behaved so too, google-ai-edge/mediapipe#4803): "handedness is determined assuming the
+  maintainer confirms the change (google-ai-edge/mediapipe-samples#450, 2024, of tasks-vision
+  0.10.0 and 0.10.15: "it was reversed in the older version").
+- ``"selfie"``: MediaPipe Hands before the Tasks API (``mp.solutions.hands``; reported of the
+  Tasks API's 0.10.0 too, google-ai-edge/mediapipe#4803): "handedness is determined assuming the
   input image is mirrored, i.e., taken with a front-facing/selfie camera with images flipped
   horizontally. If it is not the case, please swap the handedness output in the application."
 
