@@ -44,6 +44,10 @@ class Plugin:
 
     def __init__(self, **params: Any) -> None:
         require(f"plugin {type(self).name or type(self).__name__!r}", self.requires)
+        too_deep = nested_too_deep(params)
+        if too_deep is not None:
+            raise HybridfitError(f"{type(self).__name__} settings: {too_deep}: nested more than {MAX_NESTING} levels "
+                                 "deep")
         try:
             self.settings = self.Settings(**params)
         except ValidationError as err:
@@ -88,6 +92,27 @@ def declare_offers(cls: type, forms: tuple[str, ...], supersedes: Mapping[str, t
     for form in own:
         inherited -= set(supersedes.get(form, ()))
     cls.offers = frozenset(inherited | own)
+
+
+#: how deep settings may nest (tables and lists within one another): deeper ones cannot be
+#: pickled for worker processes, printed or written as JSON
+MAX_NESTING = 32
+
+
+def nested_too_deep(params: Mapping[str, Any], limit: int = MAX_NESTING) -> str | None:
+    """The setting (its name) whose value nests tables or lists more than ``limit`` levels
+    deep, or None; walked without recursion, so any depth is safe to ask about."""
+    for name, value in params.items():
+        level = [value]
+        for _ in range(limit):
+            level = [v for x in level if isinstance(x, (dict, list, tuple, set, frozenset))
+                     for v in (x.values() if isinstance(x, dict) else x)]
+            if not level:
+                break
+        else:
+            if any(isinstance(x, (dict, list, tuple, set, frozenset)) for x in level):
+                return str(name)
+    return None
 
 
 def _has_defaults(settings: type[Settings]) -> bool:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import difflib
 import functools
+import importlib
 import importlib.metadata as metadata
 import re
 import sys
@@ -176,7 +177,8 @@ def name_of(cls: type) -> str:
 
 
 def get(kind: str, name: str) -> type:
-    """The plugin class registered under ``name``; imports its module only (and only now).
+    """The plugin class registered under ``name``; imports its module only (and only now). A
+    ``module:qualname`` name is an unregistered class a fit recorded (:func:`unregistered`).
 
     Raises UnknownPluginError listing the registered names and the closest match;
     HybridfitError when two distributions other than hybridfit register the name;
@@ -186,6 +188,8 @@ def get(kind: str, name: str) -> type:
     KeyboardInterrupt). A third-party entry point taking a built-in's name is never used:
     the built-in is returned, with a warning naming the other.
     """
+    if ":" in name:
+        return unregistered(kind, name)
     scan = _scan(kind)
     if name in scan.ambiguous:
         eps = scan.ambiguous[name]
@@ -221,13 +225,67 @@ def get(kind: str, name: str) -> type:
         ) from err
 
 
+#: the base class of each kind's plugins, by kind (``module:class``, imported when asked)
+BASES = {"model": "hybridfit.model.base:HandModel", "objective": "hybridfit.objective:Objective",
+         "optimizer": "hybridfit.optimizer:Optimizer"}
+
+
+def _base(kind: str) -> type:
+    module, _, cls = BASES[kind].partition(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def reference(cls: type) -> str:
+    """``module:qualname`` of an unregistered plugin class, the name a fit records it by
+    (:func:`get` finds it again while its module is imported)."""
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
+def unregistered(kind: str, name: str) -> type:
+    """The unregistered plugin class ``module:qualname`` (:func:`reference`) of the kind, if its
+    module is imported (nothing is imported here: a name read from a file runs no code);
+    else an UnknownPluginError saying how to rebuild it."""
+    module, _, qualname = name.partition(":")
+    found = sys.modules.get(module)
+    for part in qualname.split(".") if found is not None else ():
+        found = getattr(found, part, None)
+    if found is None and "<locals>" in qualname:
+        raise UnknownPluginError(f"{kind} {name!r} is a class defined inside a function, which nothing can find "
+                                 f"again: define it at the top level of a module, or register it in the "
+                                 f"entry-point group {_group(kind)} (docs/plugins.md, 'The entry point')")
+    if found is None:
+        raise UnknownPluginError(
+            f"{kind} {name!r} is a class that is not registered as a plugin (a {kind} instance passed to hybridfit "
+            f"without an entry point): import {module} first to rebuild it in Python, or register it in the "
+            f"entry-point group {_group(kind)} (docs/plugins.md, 'The entry point') and fit with its name")
+    if not (isinstance(found, type) and issubclass(found, _base(kind))):
+        raise UnknownPluginError(f"{kind} {name!r} names no {_base(kind).__name__} class")
+    return found
+
+
 def create(kind: str, spec: Any, config: Mapping[str, Any] | None = None):
-    """A configured plugin from a name (plus settings) or an existing plugin instance."""
+    """A configured plugin from a name (plus settings) or an existing plugin instance. A
+    ``config`` that is not a table of settings ``{name: value}`` (``{kind}_config``) and a
+    ``spec`` that is neither a name nor a plugin of the kind are refused in one line."""
+    _group(kind)
+    if config is not None and not (isinstance(config, Mapping) and all(isinstance(k, str) for k in config)):
+        got = (f"the setting name {next(k for k in config if not isinstance(k, str))!r}"
+               if isinstance(config, Mapping) else f"a {type(config).__name__}")
+        raise HybridfitError(f"{kind}_config must be a table of settings {{name: value}} with string names, got {got}")
+    base = _base(kind)
     if isinstance(spec, str):
         return get(kind, spec)(**dict(config or {}))
+    if not isinstance(spec, base):
+        raise HybridfitError(f"{kind} must be a registered name or a{'n' if base.__name__[0] in 'AEIOU' else ''} "
+                             f"{base.__name__} instance, got {type(spec).__name__} {_short(spec)}")
     if config:
         return spec.with_params(**config)
     return spec
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def available(kind: str) -> list[PluginInfo]:

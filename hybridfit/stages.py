@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import PluginError
 from .model.base import HandModel
 
 
@@ -49,6 +50,7 @@ class _Structure:
     def __init__(self, model: HandModel, point_matrix: np.ndarray | None) -> None:
         self.model = model
         self.settings = getattr(model, "settings", None)  # the settings it was computed for
+        check_model(model)
         owner = model.stage_of_joint()
         M = np.eye(model.n_joints) if point_matrix is None else point_matrix
         point_stage = np.array([owner[np.flatnonzero(row)].max() for row in M])
@@ -64,6 +66,8 @@ class _Structure:
         self.default_params = model.default_params().astype(float)
         # the points in the default pose (Q, 3) mm, as Problem.points gives them
         joints = model.forward(self.default_params[None])
+        if not np.isfinite(joints).all():
+            raise PluginError(f"model {_name(model)}: its default pose has non-finite joints (NaN or inf)")
         #: the median distance of the neutral pose's joints from their centre, mm (the model's size)
         self.spread_mm = float(np.median(np.linalg.norm(joints[0] - np.median(joints[0], axis=0), axis=-1)))
         self.canonical = np.ascontiguousarray(
@@ -100,6 +104,43 @@ class _Tree:
         self.arrays = (self.parents, _require(tree.offsets, np.float64), _require(tree.rest, np.float64),
                        _require(tree.rest_is_identity, np.bool_), self.axes, self.axis_params, float(tree.mirror))
         self.point_map = point_map
+
+
+def check_model(model: HandModel) -> None:
+    """What the core reads of a model before it fits with it, checked once per model and points
+    (a model's bug is a PluginError naming it): parents (J,), bounds two (P,) arrays with
+    lower <= upper, default_params (P,) within them, stages naming parameters and joints it has."""
+    name, P, J = _name(model), model.n_params, model.n_joints
+
+    def named(indices) -> str:
+        return ", ".join(repr(model.parameter_names[i]) for i in indices[:5]) + (" ..." if len(indices) > 5 else "")
+
+    parents = np.asarray(model.parents)
+    if parents.shape != (J,):
+        raise PluginError(f"model {name}: parents has shape {parents.shape}, expected ({J},) (one per joint)")
+    lower, upper = (np.asarray(b) for b in model.bounds())
+    if lower.shape != (P,) or upper.shape != (P,) or lower.dtype.kind not in "fiu" or upper.dtype.kind not in "fiu":
+        raise PluginError(f"model {name}: bounds() gave arrays of shapes {lower.shape} and {upper.shape} "
+                          f"({lower.dtype}, {upper.dtype}), expected two ({P},) float arrays (one entry per parameter)")
+    crossed = np.flatnonzero(~(lower <= upper))
+    if len(crossed):
+        raise PluginError(f"model {name}: bounds() has lower > upper (or NaN) for {named(crossed)}")
+    x0 = np.asarray(model.default_params())
+    if x0.shape != (P,):
+        raise PluginError(f"model {name}: default_params() has shape {x0.shape}, expected ({P},)")
+    outside = np.flatnonzero(~((x0 >= lower) & (x0 <= upper)))
+    if len(outside):
+        raise PluginError(f"model {name}: default_params() is outside its bounds for {named(outside)}")
+    for stage in model.stages():
+        for kind, indices, n in (("parameter", stage.parameters, P), ("joint", stage.joints, J)):
+            beyond = [int(i) for i in indices if not 0 <= int(i) < n]
+            if beyond:
+                raise PluginError(f"model {name}: stage {stage.name!r} names {kind} {beyond[0]}, beyond its {n} "
+                                  f"{kind}s")
+
+
+def _name(model) -> str:
+    return getattr(model, "name", None) or type(model).__name__
 
 
 def _require(a, dtype) -> np.ndarray:

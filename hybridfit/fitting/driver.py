@@ -81,6 +81,24 @@ def keep_best(X, losses, best_x, best_loss):
                 best_x[f, k] = X[f, i, k]
 
 
+@nb.njit(cache=True, nogil=True)
+def within(XT, lo, hi):
+    """Whether every hypothesis XT (F, d, m) (hypotheses innermost: the transposed view of the
+    asked rows, C-contiguous for PSO's swarm) is finite and within its frame's bounds lo, hi
+    (F, d): one branch-free pass over each parameter's m values (NaN fails both comparisons)."""
+    F, d, m = XT.shape
+    for f in range(F):
+        for k in range(d):
+            a, b = lo[f, k], hi[f, k]
+            ok = True
+            for i in range(m):
+                v = XT[f, k, i]
+                ok &= (v >= a) & (v <= b)
+            if not ok:
+                return False
+    return True
+
+
 def commit(base, pidx, best_x, owned_loss, owns_all: bool, frame_loss, committed) -> None:
     """Fix each frame's stage best into ``base``; a stage owning every point replaces the
     stages before only where it is better."""
@@ -93,11 +111,13 @@ def commit(base, pidx, best_x, owned_loss, owns_all: bool, frame_loss, committed
 
 
 def run_schedule(lay: "Layout", scorer_of, x0, lower, upper, keys, out_params, out_loss, out_used,
-                 problem_of=None) -> None:
+                 problem_of=None, parameter_names=None) -> None:
     """Fit F frames of one layout (see the module doc): x0, lower, upper (F, P), keys (F, S)
     uint64 -> out_params (F, P), out_loss (F,), out_used (F,) evaluations. ``scorer_of(objective)``:
     the frames' scorer of an objective (None: the objective in force). ``problem_of(f)``:
-    frame f's Problem, for a callback solver's Task (its stages need F == 1)."""
+    frame f's Problem, for a callback solver's Task (its stages need F == 1). Every hypothesis
+    an optimiser gives must be finite and within the stage's bounds (else a PluginError naming
+    it and the first ``parameter_names`` (P,) it breaks)."""
     F = x0.shape[0]
     base = x0.copy()
     frame_loss = np.full(F, np.inf)
@@ -112,7 +132,8 @@ def run_schedule(lay: "Layout", scorer_of, x0, lower, upper, keys, out_params, o
         best_loss = np.full(F, np.inf)
         best_x = start.copy()
         if st.kind == "derivative":
-            _derivative_stage(st, scorer, base, start, lo, hi, keys[:, s].copy(), best_x, best_loss, out_used)
+            _derivative_stage(st, scorer, base, start, lo, hi, keys[:, s].copy(), best_x, best_loss, out_used,
+                              parameter_names)
         elif st.kind == "batch":
             stage = scorer.prepare(base, pidx, subset, owned, n)
             state = st.steps.init(start, lo, hi, keys[:, s].copy(), budget, st.settings)
@@ -120,7 +141,7 @@ def run_schedule(lay: "Layout", scorer_of, x0, lower, upper, keys, out_params, o
             left = budget
             while left > 0:
                 m = min(n, left)
-                X = _asked(st, st.steps.ask(state, m), (F, m, len(pidx)))
+                X = _asked(st, st.steps.ask(state, m), (F, m, len(pidx)), lo, hi, parameter_names)
                 scorer.score(stage, X, subset, losses)
                 require_finite(losses[:, :m], objective)  # a NaN or -inf loss: a plugin's bug
                 st.steps.tell(state, X, losses[:, :m])
@@ -134,7 +155,7 @@ def run_schedule(lay: "Layout", scorer_of, x0, lower, upper, keys, out_params, o
                                   f"frame, not {F}")
             stage = scorer.prepare(base, pidx, subset, owned, n)
             task = Task(problem_of(0), budget, pidx, subset, base[0], st.name, owned,
-                        _frame_scorer(scorer, stage, subset, n, objective), lo[0], hi[0])
+                        _frame_scorer(scorer, stage, subset, n, objective, st, lo, hi, parameter_names), lo[0], hi[0])
             try:
                 st.optimizer.minimize(task, np.random.default_rng(int(keys[0, s])))
             except BudgetExceeded as err:
@@ -170,15 +191,42 @@ def run_schedule(lay: "Layout", scorer_of, x0, lower, upper, keys, out_params, o
     out_loss[:] = frame_loss
 
 
-def _asked(st, X, shape):
-    """An optimiser's asked hypotheses X, checked to be float64 of ``shape``."""
+def _asked(st, X, shape, lo, hi, parameter_names=None, call=None):
+    """An optimiser's asked hypotheses X, checked to be float64 of ``shape`` (F, m, d), finite
+    and within the stage's bounds lo, hi (F, d), where they enter the core (``call``: how they
+    came, for the message; default the steps' ask)."""
+    call = call or f"ask(state, {shape[1]}) returned"
     if not (isinstance(X, np.ndarray) and X.shape == shape and X.dtype == np.float64):
-        raise PluginError(f"optimizer {_name(st.optimizer)}: ask(state, {shape[1]}) returned "
+        raise PluginError(f"optimizer {_name(st.optimizer)}: {call} "
                           f"{getattr(X, 'shape', type(X))} {getattr(X, 'dtype', '')}, expected float64 {shape}")
+    if not within(X.transpose(0, 2, 1), lo, hi):
+        raise PluginError(f"optimizer {_name(st.optimizer)}: {call} {_outside(X, lo, hi, st, parameter_names)}")
     return X
 
 
-def _derivative_stage(st, scorer, base, start, lo, hi, keys, best_x, best_loss, out_used) -> None:
+def _outside(X, lo, hi, st, parameter_names) -> str:
+    """What is wrong with hypotheses X (F, m, d) that are not all finite and within lo, hi (F, d)."""
+    finite = np.isfinite(X)
+    if not finite.all():
+        f, i, k = np.argwhere(~finite)[0]
+        return (f"NaN or inf ({int((~finite).sum())} of {X.size} values; the first: row {i} of frame {f} of the "
+                f"group, parameter {_parameter(st, k, parameter_names)})")
+    low, high = X < lo[:, None], X > hi[:, None]
+    bad = low | high
+    names = list(dict.fromkeys(_parameter(st, k, parameter_names) for k in np.flatnonzero(bad.any(axis=(0, 1)))))
+    f, i, k = np.argwhere(bad)[0]
+    return (f"hypotheses outside the bounds of the stage (its search box): {', '.join(names[:5])}{' ...' if len(names) > 5 else ''} "
+            f"({int(bad.sum())} of {X.size} values; the first: {X[f, i, k]:.6g} not in [{lo[f, k]:.6g}, "
+            f"{hi[f, k]:.6g}], row {i} of frame {f} of the group): an optimiser keeps within the bounds it is given")
+
+
+def _parameter(st, k, parameter_names) -> str:
+    """The name of the stage's k-th parameter (its index in the model's, without names)."""
+    p = int(st.parameters[k])
+    return str(parameter_names[p]) if parameter_names is not None else f"#{p}"
+
+
+def _derivative_stage(st, scorer, base, start, lo, hi, keys, best_x, best_loss, out_used, parameter_names=None) -> None:
     """A stage of derivative steps: rows of d + 1 evaluations each while the budget allows one;
     every row is scored, and a row that lowers its frame's best loss of the stage also gets its
     gradient and curvature (:class:`~hybridfit.task.DerivativeSteps`)."""
@@ -195,7 +243,7 @@ def _derivative_stage(st, scorer, base, start, lo, hi, keys, best_x, best_loss, 
     left = st.budget
     while left >= cost:
         m = min(st.batch, left // cost)
-        X = _asked(st, st.steps.ask(state, m), (F, m, d))
+        X = _asked(st, st.steps.ask(state, m), (F, m, d), lo, hi, parameter_names)
         scorer.score(scored, X, st.points, losses)
         require_finite(losses[:, :m], scorer.objective)
         better = losses[:, :m].min(axis=1) < best_loss
@@ -210,12 +258,14 @@ def _derivative_stage(st, scorer, base, start, lo, hi, keys, best_x, best_loss, 
     out_used += st.budget - left
 
 
-def _frame_scorer(scorer, stage, subset, n, objective):
+def _frame_scorer(scorer, stage, subset, n, objective, st, lo, hi, parameter_names=None):
     """A callback solver's scores of its one frame's hypotheses X (k, d) -> (k,) by ``scorer``,
     in blocks of at most n (a stop signal waits for the frame's end: a solver's callback is no
-    place for an exception it does not expect)."""
+    place for an exception it does not expect); X is checked as asked rows are (:func:`_asked`),
+    within the stage's bounds lo, hi (1, d)."""
 
     def score(X):
+        _asked(st, X[None], (1, *X.shape), lo, hi, parameter_names, "task.evaluate was given")
         out = np.empty(len(X))
         losses = np.empty((1, n))
         for a in range(0, len(X), n):
@@ -520,7 +570,7 @@ class Driver:
         try:
             run_schedule(lay, scorer_of, _require(chunk.x0[sel], np.float64), _require(chunk.lower[sel], np.float64),
                          _require(chunk.upper[sel], np.float64), _require(keys, np.uint64), out_params, out_loss,
-                         out_used, self._problem_of(chunk, sel))
+                         out_used, self._problem_of(chunk, sel), self.model.parameter_names)
         except (HybridfitError, KeyboardInterrupt):
             raise
         except Exception as err:  # a plugin's bug: it propagates, naming the frames and the plugins
@@ -552,7 +602,8 @@ class Driver:
         """Yield each chunk's :class:`Fitted` (:meth:`fit_chunk`'s result as arrays), in order. With
         ``jobs`` > 1 up to ``jobs`` chunks run at once on threads (the numba parts release the
         GIL) while the next chunk is prepared; an interrupt while preparing still yields the
-        chunks that were running."""
+        chunks that were running, and so does a chunk's error (a plugin's bug): the chunks
+        running beside it are yielded before it is raised."""
         def prepared(c):
             return self.prepare(c, proposals[c], confidences[c],
                                 None if observations is None else [observations[i] for i in c])
@@ -564,21 +615,24 @@ class Driver:
             return
         with ThreadPoolExecutor(max_workers=jobs) as pool:
             running: deque = deque()
-            for c in chunks:
-                try:
+            try:
+                for c in chunks:
                     chunk = prepared(c)
-                except BaseException:
-                    while running:
+                    running.append((chunk, pool.submit(self.run, chunk)))
+                    if len(running) >= jobs:
                         done, future = running.popleft()
                         yield self.fitted(done, future.result())
-                    raise
-                running.append((chunk, pool.submit(self.run, chunk)))
-                if len(running) >= jobs:
+                while running:
                     done, future = running.popleft()
                     yield self.fitted(done, future.result())
-            while running:
-                done, future = running.popleft()
-                yield self.fitted(done, future.result())
+            except GeneratorExit:  # the caller stopped: nothing to hand over
+                raise
+            except BaseException:  # an interrupt while preparing, or a chunk's error: the chunks beside it are kept
+                while running:
+                    done, future = running.popleft()
+                    if future.exception() is None:
+                        yield self.fitted(done, future.result())
+                raise
 
 
 def run_problem(optimizer, problem: Problem, budget: int, seed: int | np.random.Generator = 0,

@@ -58,9 +58,9 @@ class FitResult:
     evaluations (F,); failed (F,) bool with ``errors`` {frame: message}; inliers (F,) the
     number of points within ``inlier_distance_mm`` of one of their proposals (the
     objective's ``d_max_mm`` when it has one, else 40 mm; 0 for failed frames). ``model``
-    (the plugin name) and ``model_settings`` (its settings as JSON) rebuild the hand
-    (:meth:`hand`): ``model_joints`` are its forward kinematics of ``params``, one rigid
-    hand in every frame."""
+    (the plugin name; ``module:qualname`` for an unregistered class) and ``model_settings``
+    (its settings as JSON) rebuild the hand (:meth:`hand`): ``model_joints`` are its forward
+    kinematics of ``params``, one rigid hand in every frame."""
 
     params: np.ndarray
     joints: np.ndarray
@@ -341,8 +341,11 @@ def schedules(fitter, model, objective, proposals, confidences, names, search_ra
 
 
 def model_label(model) -> dict[str, str]:
-    """``model`` and ``model_settings`` of a FitResult fitted with ``model`` (a plugin instance)."""
-    return {"model": _name(model), "model_settings": json.dumps(model.get_params(), sort_keys=True)}
+    """``model`` and ``model_settings`` of a FitResult fitted with ``model`` (a plugin instance):
+    its registered name or, for a class without an entry point, ``module:qualname``
+    (:func:`hybridfit.registry.reference`), which rebuilds it while its module is imported."""
+    name = registry.name_of(type(model)) or registry.reference(type(model))
+    return {"model": name, "model_settings": json.dumps(model.get_params(), sort_keys=True)}
 
 
 def _with_inliers(result: FitResult, objective, proposals, confidences) -> FitResult:

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import HybridfitError
+from ..errors import HybridfitError, PluginError
 from ..plugin import Plugin
 
 GLOBAL_POSE = slice(0, 7)
@@ -166,7 +166,8 @@ class HandModel(Plugin, abc.ABC):
         return len(self.joint_names)
 
     def forward(self, params: np.ndarray) -> np.ndarray:
-        """Batched forward kinematics: params (N, P) or (P,) -> joints (N, J, 3) or (J, 3), mm."""
+        """Batched forward kinematics: params (N, P) or (P,) -> joints (N, J, 3) or (J, 3), mm.
+        ``_forward`` giving anything but float64 (N, J, 3) is a PluginError naming the model."""
         params = np.asarray(params, dtype=np.float64)
         single = params.ndim == 1
         batch = np.ascontiguousarray(params[None] if single else params)
@@ -176,6 +177,11 @@ class HandModel(Plugin, abc.ABC):
                 f"got {params.shape}"
             )
         out = self._forward(batch)
+        shape = (len(batch), self.n_joints, 3)
+        if not (isinstance(out, np.ndarray) and out.dtype == np.float64 and out.shape == shape):
+            raise PluginError(f"model {self.name or type(self).__name__}: forward((N, {self.n_params})) returned "
+                              f"{getattr(out, 'dtype', type(out).__name__)} {getattr(out, 'shape', '')}, expected "
+                              f"float64 {shape} (N, J, 3) joints in mm")
         return out[0] if single else out
 
     @property

@@ -43,6 +43,12 @@ whose weights are a convex combination (all >= 0, sum 1) keeps them so: each wei
 support (the palm joints and its own joints) lies in [0, 1] and they are normalised to sum
 1; any other derived point is an offset from its largest-weight joint, each other weight
 within +-``OFFSET_WEIGHT_MAX``.
+
+Settings no human hand has are refused, one line naming the setting: ``scale`` 0.2 to 5;
+bone lengths 1 to 200 mm (a hand's bones are millimetres to about 100 mm); each coordinate
+of a base position within +-300 mm of the wrist and of a bone offset within +-50 mm; angle
+limits within +-180 degrees, lower <= upper; derived-point weights within +-10 (all finite).
+Calibration's hard limits lie inside these ranges.
 """
 
 from __future__ import annotations
@@ -177,6 +183,24 @@ JOINT_NAMES = ("wrist",) + tuple(f"{f}_{j}" for f in FINGERS for j in FINGER_JOI
 BONE_NAMES = tuple(f"{f}_{s}" for f in FINGERS for s in SEGMENTS[f])
 
 
+#: plausible geometry settings, wider than any human hand (an adult's is about 190 mm long, its
+#: bones millimetres to about 100 mm) and narrow enough to refuse nonsense: the whole-hand
+#: scale; a bone's length (mm, before scaling); each coordinate of a finger's base position
+#: relative to the wrist and of a bone's offset across the bone (mm, before scaling); an
+#: angle's limits (degrees); the magnitude of a derived point's weights
+SCALE_RANGE = (0.2, 5.0)
+BONE_MM = (1.0, 200.0)
+BASE_MAX_MM = 300.0
+OFFSET_MAX_SETTING_MM = 50.0
+LIMIT_MAX_DEG = 180.0
+WEIGHT_MAX = 10.0
+
+
+def _within(values, lo: float, hi: float) -> bool:
+    """Whether every value is a number within [lo, hi] (NaN is not)."""
+    return all(lo <= v <= hi for v in values)
+
+
 def _known(names, known, kind: str) -> None:
     """Raise ValueError naming the first of ``names`` not in ``known`` (a settings check)."""
     for name in names:
@@ -190,47 +214,67 @@ class Hand26Settings(Settings):
     #: the articulation angles whose limits ``limits_deg`` may override
     angle_names: ClassVar[tuple[str, ...]] = PARAMETER_NAMES[7:]
 
-    scale: float = Field(1.0, gt=0, description="global scale of every length")
+    scale: float = Field(1.0, description="global scale of every length, 0.2 to 5")
     bone_lengths: dict[str, float] = Field(
-        default_factory=dict, description="per-bone length overrides in mm before scaling, e.g. {'index_proximal': 42}"
+        default_factory=dict, description="per-bone length overrides in mm before scaling, 1 to 200, e.g. "
+        "{'index_proximal': 42}"
     )
     base_positions: dict[str, tuple[float, float, float]] = Field(
-        default_factory=dict, description="per-finger base joint position relative to the wrist (hand frame, mm)"
+        default_factory=dict, description="per-finger base joint position relative to the wrist (hand frame, mm, "
+        "each coordinate within +-300)"
     )
     bone_offsets: dict[str, tuple[float, float]] = Field(
         default_factory=dict,
         description="per-bone offset (x, z) of its end joint across the bone in mm before scaling, in the bone's "
-        "frame (x along the flexion axis, z palmar), e.g. {'thumb_distal': [1.5, -2]}; default 0",
+        "frame (x along the flexion axis, z palmar), e.g. {'thumb_distal': [1.5, -2]}; default 0, each within +-50",
     )
     limits_deg: dict[str, tuple[float, float]] = Field(
-        default_factory=dict, description="per-angle limit overrides in degrees, e.g. {'index_mcp_flexion': [-10, 90]}"
+        default_factory=dict, description="per-angle limit overrides in degrees, within +-180, e.g. "
+        "{'index_mcp_flexion': [-10, 90]}"
     )
     mirror: bool = Field(False, description="left hand (mirror image of the right hand)")
     derived_points: dict[str, dict[str, float]] = Field(
         default_factory=dict,
-        description="extra named points as joint weights, e.g. {'icvl_palm': {'wrist': 0.5, 'middle_mcp': 0.5}}; "
-        "a name given here replaces a built-in derived point of that name",
+        description="extra named points as joint weights (each within +-10), e.g. {'icvl_palm': {'wrist': 0.5, "
+        "'middle_mcp': 0.5}}; a name given here replaces a built-in derived point of that name",
     )
+
+    @field_validator("scale")
+    @classmethod
+    def _scale(cls, v):
+        if not _within([v], *SCALE_RANGE):
+            raise ValueError(f"the scale must be {SCALE_RANGE[0]:g} to {SCALE_RANGE[1]:g} (times an average adult "
+                             f"hand, about 190 mm long), got {v}")
+        return v
 
     @field_validator("bone_lengths")
     @classmethod
     def _bones(cls, v):
         _known(v, BONE_NAMES, "bone")
         for name, length in v.items():
-            if not length > 0:
-                raise ValueError(f"bone {name!r} must have a positive length, got {length}")
+            if not _within([length], *BONE_MM):
+                raise ValueError(f"bone {name!r} must be {BONE_MM[0]:g} to {BONE_MM[1]:g} mm long (a human hand's "
+                                 f"bones are millimetres to about 100 mm), got {length}")
         return v
 
     @field_validator("bone_offsets")
     @classmethod
     def _offsets(cls, v):
         _known(v, BONE_NAMES, "bone")
+        for name, offset in v.items():
+            if not _within(offset, -OFFSET_MAX_SETTING_MM, OFFSET_MAX_SETTING_MM):
+                raise ValueError(f"the offset of {name!r} must be finite, within +-{OFFSET_MAX_SETTING_MM:g} mm in "
+                                 f"each coordinate, got {list(offset)}")
         return v
 
     @field_validator("base_positions")
     @classmethod
     def _bases(cls, v):
         _known(v, FINGERS, "finger")
+        for name, position in v.items():
+            if not _within(position, -BASE_MAX_MM, BASE_MAX_MM):
+                raise ValueError(f"the base position of {name!r} must be finite, within +-{BASE_MAX_MM:g} mm of the "
+                                 f"wrist in each coordinate (a hand is about 190 mm long), got {list(position)}")
         return v
 
     @field_validator("limits_deg")
@@ -238,8 +282,9 @@ class Hand26Settings(Settings):
     def _limits(cls, v):
         _known(v, cls.angle_names, "angle")
         for name, (lo, hi) in v.items():
-            if not lo <= hi:
-                raise ValueError(f"limits of {name!r} must satisfy lower <= upper, got ({lo}, {hi})")
+            if not (_within([lo, hi], -LIMIT_MAX_DEG, LIMIT_MAX_DEG) and lo <= hi):
+                raise ValueError(f"the limits of {name!r} must be degrees within [-{LIMIT_MAX_DEG:g}, "
+                                 f"{LIMIT_MAX_DEG:g}] with lower <= upper, got ({lo}, {hi})")
         return v
 
     @field_validator("derived_points")
@@ -250,9 +295,12 @@ class Hand26Settings(Settings):
                 raise ValueError(f"derived point {name!r} has the name of a joint")
             if not weights:
                 raise ValueError(f"derived point {name!r} has no joint weights")
-            for joint in weights:
+            for joint, weight in weights.items():
                 if joint not in JOINT_NAMES:
                     raise ValueError(f"derived point {name!r}: unknown joint {joint!r} (joints: {', '.join(JOINT_NAMES)})")
+                if not _within([weight], -WEIGHT_MAX, WEIGHT_MAX):
+                    raise ValueError(f"derived point {name!r}: the weight of {joint!r} must be finite, within "
+                                     f"+-{WEIGHT_MAX:g}, got {weight}")
         return v
 
 
