@@ -12,6 +12,17 @@ traceback in code that is not hybridfit's (even for ``hybridfit --help``):
   mode 0700, and used only if this user owns it and nobody else can write to it; else a new
   one each run), so the first run compiles there and later runs reuse it.
 
+Two more things a process can be started with break a run, and are mended here:
+
+- a standard stream the shell closed (``2>&-``, ``>&-``: Python's ``sys.stderr`` or
+  ``sys.stdout`` is then None, and the first message or progress bar raises): :func:`prepare`
+  (and the command line) open it on ``os.devnull`` (:func:`open_closed_streams`), so the run
+  completes and its messages go nowhere;
+- a damaged file in numba's cache (garbage or empty, as a killed run or a full disk leaves it:
+  numba raises UnpicklingError or EOFError loading it): once numba is imported,
+  :func:`tolerate_damaged_cache` makes numba drop such a file, with a warning, and compile the
+  kernel again (its cache is then written anew).
+
 Only the standard library is imported here. The command line also says, on a run that will
 compile hybridfit's kernels first (:func:`cache_is_cold`), that this first run takes a while.
 :func:`machine` describes the machine a figure is measured on (studies and benchmarks record it).
@@ -38,7 +49,9 @@ NOTES: list[str] = []
 
 def prepare() -> list[str]:
     """Fix the environment for numba (see the module docstring) unless numba is imported
-    already (hybridfit's ``__init__`` calls it); the notes added to :data:`NOTES`."""
+    already (hybridfit's ``__init__`` calls it), and open closed standard streams on
+    ``os.devnull``; the notes added to :data:`NOTES`."""
+    open_closed_streams()
     if "numba" in sys.modules:
         return []
     notes: list[str] = []
@@ -46,6 +59,78 @@ def prepare() -> list[str]:
     _cache(notes)
     NOTES.extend(notes)
     return notes
+
+
+def open_closed_streams() -> None:
+    """``sys.stdout`` / ``sys.stderr`` that are None (the shell closed the descriptor: ``>&-``,
+    ``2>&-``) opened on ``os.devnull``: what is written there goes nowhere instead of raising.
+    A closed descriptor 1 or 2 is itself opened on ``os.devnull`` first, so that no file the
+    run opens later takes its number (C libraries and worker processes write there)."""
+    for fd, name in ((1, "stdout"), (2, "stderr")):
+        if getattr(sys, name) is not None:
+            continue
+        try:
+            os.fstat(fd)
+        except OSError:  # closed: os.devnull takes its number
+            try:
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                if devnull != fd:
+                    os.dup2(devnull, fd)
+                    os.close(devnull)
+            except OSError:
+                pass
+        setattr(sys, name, open(os.devnull, "w", encoding="utf-8"))
+
+
+def _damaged(err: Exception) -> bool:
+    """Whether numba's error loading a cache file says the file is damaged: any error of
+    unpickling it (garbage, empty, cut short), not one of reading it (OSError, numba's own
+    business) or of memory (the file may be fine)."""
+    return not isinstance(err, (OSError, MemoryError))
+
+
+def tolerate_damaged_cache() -> None:
+    """Make numba treat a cache file it cannot unpickle (index ``*.nbi`` or data ``*.nbc``:
+    garbage or empty, as a killed run or a full disk leaves it) as no cache: the file is
+    removed with a warning naming it and the kernel compiled again (and cached anew). Imports
+    numba; idempotent; nothing where numba's cache is not the one this was written for."""
+    import warnings
+
+    from numba.core import caching
+
+    cls = getattr(caching, "IndexDataCacheFile", None)
+    if cls is None or getattr(cls, "_hybridfit_tolerant", False) or not all(
+            callable(getattr(cls, m, None)) for m in ("_load_index", "_load_data", "_data_path")):
+        return
+    load_index, load_data = cls._load_index, cls._load_data
+
+    def drop(path: str, err: Exception) -> None:
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
+        warnings.warn(f"numba's cache file {path} is damaged ({type(err).__name__}; a killed run or a full disk "
+                      "leaves such files): removed, its kernel is compiled again", RuntimeWarning, stacklevel=2)
+
+    def _load_index(self):
+        try:
+            return load_index(self)
+        except Exception as err:
+            if not _damaged(err):
+                raise
+            drop(self._index_path, err)
+            return {}
+
+    def _load_data(self, name):
+        try:
+            return load_data(self, name)
+        except Exception as err:
+            if not _damaged(err):
+                raise
+            drop(self._data_path(name), err)
+            return None  # no cache entry: numba compiles and writes it again
+
+    cls._load_index, cls._load_data, cls._hybridfit_tolerant = _load_index, _load_data, True
 
 
 def _threads(notes: list[str]) -> None:

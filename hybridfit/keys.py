@@ -7,7 +7,10 @@ stream with key
 *Fast splittable pseudorandom number generators*, OOPSLA 2014), all arithmetic modulo 2^64.
 So a frame's numbers depend on nothing but (seed, frame, stage): not on the frames fitted
 beside it, the chunking, ``--jobs`` or the path that runs it (the driver, or one frame's
-:class:`hybridfit.optimizer.Task`). The numbers of a key's stream are
+:class:`hybridfit.optimizer.Task`). The frame f is the frame's index in its data set
+(:func:`frame_indices`: ``hybridfit.fit(frames=...)``; ``estimate`` takes it from the data set,
+``fit`` from the proposals file's ``frames``, which ``propose`` writes), so a frame draws the same
+numbers whichever range of frames (``--frames``) is fitted. The numbers of a key's stream are
 :mod:`hybridfit.fitting.streams`'.
 """
 
@@ -16,8 +19,15 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ._environment import tolerate_damaged_cache
+from .errors import HybridfitError
+
+tolerate_damaged_cache()  # every fit draws its keys here: a damaged numba cache file recompiles, for the API too
+
 #: the largest seed: seeds are unsigned 64-bit integers
 MAX_SEED = 2**64 - 1
+#: the largest frame index (numpy's int64)
+MAX_FRAME = 2**63 - 1
 #: the largest budget (objective evaluations per frame): a billion, hours per frame; more
 #: is a typo, and would overflow the counters
 MAX_BUDGET = 10**9
@@ -53,6 +63,21 @@ def _stage_keys(seed, frames, stages, out):
     for i in range(frames.shape[0]):
         for s in range(stages):
             out[i, s] = stage_key(seed, frames[i], s)
+
+
+def frame_indices(frames, count: int, what: str = "frames") -> np.ndarray:
+    """(count,) int64: the indices of ``count`` frames in their data set, which key their random
+    streams: ``frames`` or, for None, 0 .. count - 1. A HybridfitError names ``what`` unless
+    ``frames`` are ``count`` integers from 0 to MAX_FRAME."""
+    if frames is None:
+        return np.arange(count, dtype=np.int64)
+    values = np.asarray(frames)
+    if values.shape != (count,) or (values.size and values.dtype.kind not in "iu"):
+        raise HybridfitError(f"{what}: expected {count} frame indices (integers, one per frame), got "
+                             f"{values.dtype} {values.shape}")
+    if values.size and (values.min() < 0 or values.max() > MAX_FRAME):
+        raise HybridfitError(f"{what}: frame indices must be 0 to {MAX_FRAME}, got {values.min()} to {values.max()}")
+    return values.astype(np.int64)
 
 
 def stage_keys(seed: int, frames, stages: int) -> np.ndarray:

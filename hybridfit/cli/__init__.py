@@ -16,6 +16,11 @@ by SIGHUP (the terminal closed): 128 + the signal's number, as a shell reports i
 the run the same way, the finished frames are written and the rest marked; 141 the output
 pipe was closed (``| head``).
 
+Whatever the process is started with, messages never stop a run: a closed stdout or stderr
+(``2>&-``) is opened on ``os.devnull`` and the run completes, its messages going nowhere;
+characters the streams cannot encode (a file name with bytes that are not UTF-8, a non-ASCII
+name under ``LC_ALL=C``) are written as backslash escapes.
+
 This module imports only the standard library at start-up: everything else is imported
 inside :func:`main`, with the stop signals held back until the imports are done, so that a
 Ctrl-C at any moment exits 130 without a traceback.
@@ -27,6 +32,7 @@ import argparse
 import importlib
 import os
 import pkgutil
+import re
 import signal
 import sys
 import threading
@@ -84,6 +90,7 @@ COMPILING = ("calibrate", "estimate", "fit", "propose", "study", "synth", "train
 
 def main(argv: list[str] | None = None) -> int:
     try:  # first statement: a Ctrl-C from here on is handled
+        _tolerant_streams()
         Terminated.received = None
         for note in _environment.NOTES:  # what the environment check changed for numba (NUMBA_NUM_THREADS)
             print(f"hybridfit: warning: {note}", file=sys.stderr)
@@ -101,6 +108,17 @@ def main(argv: list[str] | None = None) -> int:
             _install(STOP_SIGNALS, previous)
     except KeyboardInterrupt as stop:  # right after start-up, or while reporting another error
         return _interrupted(stop)
+
+
+def _tolerant_streams() -> None:
+    """Closed standard streams opened on os.devnull, and stdout and stderr set to write what
+    they cannot encode as backslash escapes (``\\udcff``, ``\\xe9``) instead of raising."""
+    _environment.open_closed_streams()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.reconfigure(errors="backslashreplace")
+        except (AttributeError, ValueError, OSError):  # not a text file of the io module (tests' stand-ins)
+            pass
 
 
 def _check_address_space() -> None:
@@ -185,7 +203,7 @@ def _main(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
 
     warnings.formatwarning = lambda msg, cat, *a, **k: f"hybridfit: warning: {msg}\n"
     try:
-        args = parser.parse_args(argv)
+        args = parser.parse_args(_joined_ranges(sys.argv[1:] if argv is None else argv))
     except SystemExit as exit:  # --help, --version, or an option error already printed as one line
         return int(exit.code or 0)
     if args.command is None:  # a bare `hybridfit`: the usage and the commands; a missing argument is a user error
@@ -195,6 +213,7 @@ def _main(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
         from ._common import check_declared
 
         check_declared(args)
+        _environment.tolerate_damaged_cache()  # numba is imported (the commands' modules): a damaged cache file recompiles
         if args.command in COMPILING and _environment.cache_is_cold():
             where = os.environ.get("NUMBA_CACHE_DIR")
             print("hybridfit: note: a first run: numba compiles hybridfit's kernels first, a few minutes once (later "
@@ -235,6 +254,19 @@ def _main(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
         return EXIT_USER_ERROR
     except KeyboardInterrupt as stop:
         return _interrupted(stop)
+
+
+#: a ``--frames`` value that starts with "-" (``-3:``, the last 3 frames), which argparse takes for an option
+_NEGATIVE_RANGE = re.compile(r"-\d+:-?\d*")
+
+
+def _joined_ranges(argv: list[str]) -> list[str]:
+    """``--frames -3:`` as ``--frames=-3:``, as argparse reads only the second form."""
+    out = list(argv)
+    for i in range(len(out) - 1, 0, -1):
+        if out[i - 1] == "--frames" and _NEGATIVE_RANGE.fullmatch(out[i]):
+            out[i - 1:i + 1] = [f"--frames={out[i]}"]
+    return out
 
 
 def _one_line(err: Exception) -> str:

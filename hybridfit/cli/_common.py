@@ -37,28 +37,66 @@ def check_declared(args: argparse.Namespace) -> None:
     check_paths(values(inputs), values(outputs), values(folders))
 
 
+#: the deepest nesting of tables a settings file may have (hybridfit's settings nest two or three
+#: levels; thousands make the TOML reader or the settings' validation recurse past Python's limit)
+MAX_TOML_DEPTH = 32
+
+
 def load_toml(path: str | None) -> dict[str, Any]:
-    """A TOML file as a dict ({} for None), with errors naming the file and line."""
+    """A TOML file as a dict ({} for None), with errors naming the file and line. A UTF-8 byte
+    order mark (which some Windows editors write) is skipped."""
     if path is None:
         return {}
     p = require_file(path)
     try:
-        return tomllib.loads(p.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise HybridfitError(f"{p}: invalid TOML: {err}") from None
+        text = p.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise HybridfitError(f"{p}: not a text file; expected TOML settings") from None
+    return _parse_toml(text, f"{p}: ", f"{p}: invalid TOML: ")
+
+
+def _parse_toml(text: str, where: str, invalid: str) -> dict[str, Any]:
+    """``tomllib.loads(text)``, its tables nested at most MAX_TOML_DEPTH deep; errors start
+    with ``where`` (an invalid text's with ``invalid``)."""
+    try:
+        out = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise HybridfitError(f"{invalid}{err}") from None
+    except RecursionError:
+        out = None
+    if out is None or _depth(out) > MAX_TOML_DEPTH:
+        raise HybridfitError(f"{where}tables or values nested more than {MAX_TOML_DEPTH} levels deep; hybridfit's "
+                             "settings nest a few levels")
+    return out
+
+
+def _depth(value: Any) -> int:
+    """How deep tables and arrays nest in ``value`` (a scalar: 0), counted without recursion."""
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        value, depth = stack.pop()
+        children = value.values() if isinstance(value, dict) else value if isinstance(value, list) else None
+        if children is not None:
+            deepest = max(deepest, depth + 1)
+            if depth < MAX_TOML_DEPTH:  # deeper is refused anyway: no need to walk it all
+                stack.extend((c, depth + 1) for c in children)
+    return deepest
 
 
 def load_settings(value: str | None, option: str) -> dict[str, Any]:
     """Plugin settings: a TOML file, or inline TOML (``'local_share = 0'``: a value holding "="
     that names no file), errors naming the file or the option."""
-    if value is not None and "=" in value and not Path(value).exists():
-        try:
-            return tomllib.loads(value)
-        except tomllib.TOMLDecodeError as err:
-            raise HybridfitError(f"{option} {value!r}: neither a file nor valid inline TOML: {err}") from None
+    if value is not None and "=" in value and not _is_file(value):
+        return _parse_toml(value, f"{option}: ", f"{option} {value!r}: neither a file nor valid inline TOML: ")
     return load_toml(value)
+
+
+def _is_file(value: str) -> bool:
+    """Whether ``value`` names an existing path (a text too long to be a file name names none)."""
+    try:
+        return Path(value).exists()
+    except (OSError, ValueError):
+        return False
 
 
 #: the plugins a command uses when none is named
@@ -249,6 +287,15 @@ def fraction(text: str) -> float:
 
 def positive_float(text: str) -> float:
     return _number(text, float, lambda v: math.isfinite(v) and v > 0, "a positive number")
+
+
+def number_in(low: float, high: float):
+    """An option type: a number from ``low`` to ``high`` (NaN and inf refused)."""
+    def number(text: str) -> float:
+        return _number(text, float, lambda v: low <= v <= high, f"a number from {low:g} to {high:g}")
+
+    number.__name__ = f"number from {low:g} to {high:g}"  # argparse's name for it
+    return number
 
 
 def positive_int(text: str) -> int:

@@ -10,6 +10,7 @@ import sys
 import numpy as np
 
 from ..fitting.calibrate import calibrate, self_calibrate, to_toml
+from ..datasets.points import check_millimetres
 from ..datasets.skeletons import dataset_model_config, fit_settings, skeleton
 from ..errors import HybridfitError
 from ..io import atomic_path, frame_slice, load_proposals
@@ -112,6 +113,7 @@ def run_self(args) -> int:
         raise HybridfitError("--holdout: with --proposals nothing is held out (there is no ground truth to measure "
                              "it against)")
     data = load_proposals(args.proposals)
+    check_millimetres(data["proposals"], data["confidences"], args.proposals)
     dataset = args.dataset or (str(data["dataset"]) if "dataset" in data else None)
     frames = np.arange(len(data["proposals"]))[frame_slice(args.frames, len(data["proposals"]))]
     args.model, config = load_model_toml(args.model_config, args.model)

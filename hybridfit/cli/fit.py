@@ -10,6 +10,7 @@ import numpy as np
 
 from .. import fit as fit_frames
 from .. import registry
+from ..datasets.points import check_millimetres
 from ..datasets.skeletons import fit_settings, skeleton
 from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK, HybridfitError, PluginError
 from ..io import load_proposals, save_npz
@@ -19,6 +20,7 @@ from ..objective import dataset_observations
 from ..fitting.calibrate import CONFIDENT_POINTS, self_calibrate, top_proposals
 from ..fitting.setup_check import check_setup
 from ..fitting.tracking import track
+from ..keys import frame_indices
 from ._common import add_fit_options, add_plugin_options, check_plugin, declare_paths, plugin_kwargs
 from .calibrate import CALIBRATED_MODEL
 
@@ -56,14 +58,17 @@ def schedule_line(schedule: str) -> str:
 
 def register(sub) -> None:
     p = sub.add_parser("fit", help="fit the hand model to joint proposals (.npz)", description=SCHEDULE_HELP)
-    p.add_argument("proposals", help="npz with proposals (F,J,K,3) mm, confidences (F,J,K), optional joint_names, ground_truth")
+    p.add_argument("proposals", help="npz with proposals (F,J,K,3) mm, confidences (F,J,K), optional joint_names, "
+                   "ground_truth, frames (the frames' indices in their data set, which key their random numbers, as "
+                   "propose writes them)")
     p.add_argument("--out", required=True, help="output npz: params, joints, objective (the loss), evaluations, "
                    "joint_names, failed, inliers (points within inlier_distance_mm of a proposal), schedule (the "
-                   "stages that ran, JSON), ground_truth (copied from the input)")
+                   "stages that ran, JSON), ground_truth and frames (copied from the input)")
     add_plugin_options(p)
     add_fit_options(p)
     p.add_argument("--depth", metavar="DIR", help="a data-set folder (hybridfit synth test) holding the proposals' "
-                   "frames: their depth, for objectives that compare with the depth image (rendered-depth, hybrid)")
+                   "frames (those the file's frames names, else its first frames): their depth, for objectives that "
+                   "compare with the depth image (rendered-depth, hybrid)")
     p.add_argument("--track", action="store_true", help="track the frames as a sequence: each starts from the "
                    "previous fit (one process; --jobs is ignored)")
     p.add_argument("--on-lost", choices=["reinit", "continue"], default="reinit",
@@ -93,6 +98,8 @@ def register(sub) -> None:
 
 def run(args) -> int:
     data = load_proposals(args.proposals)
+    check_millimetres(data["proposals"], data["confidences"], args.proposals)
+    indices = frame_indices(data.get("frames"), len(data["proposals"]), f"{args.proposals}: 'frames'")
     if args.objective is None and "objective" in data:  # the objective the file names (other methods' estimates)
         args.objective = str(data["objective"])
     plugins = plugin_kwargs(args)
@@ -108,7 +115,9 @@ def run(args) -> int:
         extra["dataset"] = np.asarray(skeleton(dataset).dataset)
     if "ground_truth" in data:
         extra["ground_truth"] = data["ground_truth"]
-    depth = depth_frames(args, len(data["proposals"]))
+    if "frames" in data:  # the data set's frame indices, as the file records them (export-angles numbers rows by them)
+        extra["frames"] = indices
+    depth = depth_frames(args, indices, "frames" in data)
     if not args.depth:  # the hand and the geometry, on a few frames (hybridfit.fitting.setup_check)
         plugins["model_config"] = check_hand_and_geometry(args, data, names, plugins, dataset)
     if args.self_calibrating:
@@ -118,7 +127,7 @@ def run(args) -> int:
             print("interrupted during the self-calibration: nothing fitted", file=sys.stderr)
             return EXIT_INTERRUPTED
     common = dict(joint_names=names, budget=args.budget, seed=args.seed, search_radius_mm=args.search_radius,
-                  progress=sys.stderr.isatty(), observations=depth.get("observations"), **plugins)
+                  progress=sys.stderr.isatty(), observations=depth.get("observations"), frames=indices, **plugins)
     if args.track:
         result = track(data["proposals"], data["confidences"], first_params=depth.get("first_params"),
                        settings={"on_lost": args.on_lost}, **common)
@@ -231,20 +240,33 @@ def calibrate_skeleton(args, data: dict, names, plugins: dict, dataset: str | No
     return result.settings
 
 
-def depth_frames(args, frames: int) -> dict:
-    """observations (and first_params for --first-frame ground-truth) from --depth."""
+def depth_frames(args, indices: np.ndarray, named: bool) -> dict:
+    """observations (and first_params for --first-frame ground-truth) from --depth: of the
+    frames ``indices`` of the data set (``named``: the proposals file names them; else all of
+    it, frame for frame)."""
     if args.depth is None:
         if args.first_frame == "ground-truth":
             raise HybridfitError("--first-frame ground-truth needs --depth DIR (the data set's model parameters)")
         return {}
-    ds = load_dataset(args.depth)
-    if len(ds) != frames:
-        raise HybridfitError(f"{args.depth}: {len(ds)} frames, but the proposals have {frames}")
-    out = {"observations": dataset_observations(ds, np.arange(frames), args.depth)}
+    what = "the data-set folder the proposals were made from (`hybridfit synth test --out DIR` writes one)"
+    if not Path(args.depth).is_dir():
+        kind = "no such folder" if not Path(args.depth).exists() else "a file, not a folder"
+        raise HybridfitError(f"--depth {args.depth}: {kind}; --depth takes {what}")
+    try:
+        ds = load_dataset(args.depth)
+    except HybridfitError as err:
+        raise HybridfitError(f"--depth {args.depth}: {err}; --depth takes {what}") from None
+    if named and len(indices) and indices.max() >= len(ds):
+        raise HybridfitError(f"--depth {args.depth}: {len(ds)} frames, but the proposals are of its frames "
+                             f"{indices.min()}-{indices.max()} (their file's frames)")
+    if not named and len(ds) != len(indices):
+        raise HybridfitError(f"--depth {args.depth}: {len(ds)} frames, but the proposals have {len(indices)}")
+    out = {"observations": dataset_observations(ds, indices, args.depth)}
     if args.first_frame == "ground-truth":
         if ds.params.shape[1] == 0:
-            raise HybridfitError(f"{args.depth}: labels.npz has no model parameters for --first-frame ground-truth")
-        out["first_params"] = ds.params[0]
+            raise HybridfitError(f"--depth {args.depth}: labels.npz has no model parameters for --first-frame "
+                                 "ground-truth")
+        out["first_params"] = ds.params[indices[0]]
     return out
 
 

@@ -6,8 +6,9 @@ from __future__ import annotations
 import sys
 
 from ..io import save_npz
-from ..synthetic.proposals import synthetic_proposals
-from ._common import DEFAULT_PLUGINS, declare_paths, load_model_toml, load_toml, positive_int, seed_int, validate_settings
+from ..synthetic.proposals import MAX_NOISE_MM, synthetic_proposals
+from ._common import (DEFAULT_PLUGINS, declare_paths, load_model_toml, load_toml, number_in, positive_int, seed_int,
+                      validate_settings)
 
 
 def register(sub) -> None:
@@ -17,7 +18,8 @@ def register(sub) -> None:
     q.add_argument("--out", required=True, help="output npz (a valid `hybridfit fit` input with ground truth)")
     q.add_argument("--frames", type=positive_int, default=100, metavar="N", help="frames to make (default 100)")
     q.add_argument("-k", type=positive_int, default=3, help="proposals per joint (default 3)")
-    q.add_argument("--noise", type=float, default=5.0, help="proposal noise, mm (default 5)")
+    q.add_argument("--noise", type=number_in(0, MAX_NOISE_MM), default=5.0, metavar="MM",
+                   help=f"proposal noise, mm per axis: 0 to {MAX_NOISE_MM:g} (a hand's size; default 5)")
     q.add_argument("--seed", type=seed_int, default=0, help="random seed, >= 0 (default 0)")
     q.add_argument("--model", help="hand model plugin (default: the one --model-config names, else hand26)")
     q.add_argument("--model-config", metavar="TOML", help="hand model settings file (`hybridfit calibrate` writes one "

@@ -432,11 +432,13 @@ class Driver:
     """Fits chunks of frames of one model, objective and optimiser through the driver loop.
 
     point_names: the proposals' Q points; budget: evaluations per frame; seed: stage s of
-    frame i draws from ``stage_key(seed, i, s)``."""
+    frame i draws from ``stage_key(seed, indices[i], s)``, ``indices`` (F,) the frames' indices
+    in their data set (:func:`hybridfit.keys.frame_indices`; None: i itself)."""
 
     def __init__(self, model, objective, optimizer, point_names, budget: int, seed: int,
-                 search_radius_mm: float = 60.0) -> None:
+                 search_radius_mm: float = 60.0, indices=None) -> None:
         self.model, self.objective, self.optimizer = model, objective, optimizer
+        self.indices = indices
         self.names = tuple(point_names)
         self.budget, self.seed, self.search_radius_mm = int(budget), int(seed), float(search_radius_mm)
         self.observed = bool(getattr(objective, "observes_depth", False))
@@ -509,7 +511,8 @@ class Driver:
             groups.setdefault(id(lay) if lay.lockstep else -1 - n, []).append(n)
         for members in groups.values():
             lay, sel = chunk.layouts[members[0]], np.asarray(members)
-            keys = stage_keys(self.seed, [chunk.frames[chunk.kept[n]] for n in members], len(lay.stages))
+            frames = [chunk.frames[chunk.kept[n]] for n in members]
+            keys = stage_keys(self.seed, frames if self.indices is None else self.indices[frames], len(lay.stages))
             out = np.empty((len(sel), P)), np.empty(len(sel)), np.empty(len(sel), dtype=np.int64)
             try:
                 self._run_group(lay, chunk, sel, keys, *out)

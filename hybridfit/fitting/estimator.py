@@ -3,8 +3,9 @@
 The whole method of Poier et al. (BMVC 2015): a random regression forest gives k proposals
 per joint with confidences (``hybridfit.forest``) and ``hybridfit.fit`` fits the hand model
 to them. Frames without foreground pixels cannot be fitted: they come back failed, with the
-error "no foreground pixels", and the other frames go on (each with the random stream of its
-own index, ``[seed, index]``, whichever frames are empty).
+error "no foreground pixels", and the other frames go on. Each frame draws from the random
+streams of its index in the data set (:mod:`hybridfit.keys`), whichever frames are empty and
+whichever range of frames is estimated.
 """
 
 from __future__ import annotations
@@ -79,15 +80,16 @@ class HybridEstimator:
                                          stride=self.stride, bandwidth_mm=self.bandwidth_mm, progress=progress,
                                          jobs=self.jobs)
 
-    def fit_proposals(self, proposals: Proposals, progress: bool = False) -> FitResult:
+    def fit_proposals(self, proposals: Proposals, progress: bool = False,
+                      frames: Sequence[int] | None = None) -> FitResult:
         """Fit every frame; empty frames (all confidences 0) come back failed (``EMPTY_FRAME``).
 
-        Every frame keeps its index in the input, so its random stream (``[seed, index]``)
-        does not depend on which other frames are empty."""
+        ``frames``: the frames' indices in their data set (default 0 .. F - 1), which key their
+        random streams: a frame's fit does not depend on which other frames are fitted or empty."""
         options = dict(model=self.model, objective=self.objective, optimizer=self.optimizer, budget=self.budget,
                        seed=self.seed, joint_names=proposals.joint_names, model_config=self.model_config,
                        objective_config=self.objective_config, optimizer_config=self.optimizer_config,
-                       search_radius_mm=self.search_radius_mm, jobs=self.jobs, progress=progress)
+                       search_radius_mm=self.search_radius_mm, jobs=self.jobs, progress=progress, frames=frames)
         res = fit(proposals.proposals, proposals.confidences, **options)
         for f in np.flatnonzero(proposals.empty):
             res.errors[int(f)] = EMPTY_FRAME
@@ -121,9 +123,11 @@ class HybridEstimator:
 
     def estimate_dataset(self, ds: DepthDataset, indices: Sequence[int] | None = None, foreground: str = "auto",
                          progress: bool = False) -> Estimate:
-        """Proposals and fitted poses (camera coordinates, mm) for frames of a data set. For a
+        """Proposals and fitted poses (camera coordinates, mm) for frames of a data set (``indices``,
+        default all), each fitted with the random streams of its index in ``ds``. For a
         real dataset's derived points, create the estimator with
         ``model_config=hybridfit.datasets.protocol.model_config(ds, model, config)``."""
-        props = self.propose_dataset(ds, indices, foreground, progress)
-        return Estimate(props, self.fit_proposals(props, progress))
+        idx = np.arange(len(ds)) if indices is None else np.asarray(indices, np.int64)
+        props = self.propose_dataset(ds, idx, foreground, progress)
+        return Estimate(props, self.fit_proposals(props, progress, idx))
 

@@ -27,6 +27,7 @@ from .. import registry, workers
 from . import driver, stops
 from ..errors import HybridfitError, PluginError
 from ..io import validate_proposals
+from ..keys import frame_indices
 from ..metrics import inliers
 from ..model.base import ANGLES
 from ..task import Task
@@ -128,12 +129,13 @@ class _Spec:
     seed: int
     point_names: tuple[str, ...]
     search_radius_mm: float
+    indices: Any = None  # (F,) the frames' indices in their data set, which key their streams
 
 
 def _fit_chunk(spec: _Spec, frames: Sequence[int], proposals, confidences, observations=None):
     """A worker's chunk: the same driver, in another process (:meth:`driver.Driver.fit_chunk`)."""
     fitter = driver.Driver(spec.model, spec.objective, spec.optimizer, spec.point_names, spec.budget, spec.seed,
-                           spec.search_radius_mm)
+                           spec.search_radius_mm, spec.indices)
     return fitter.fit_chunk(list(frames), proposals, confidences, observations=observations)
 
 
@@ -210,6 +212,7 @@ def fit(
     jobs: int = 1,
     progress: bool = False,
     observations: Sequence[Any] | None = None,
+    frames: Sequence[int] | None = None,
 ) -> FitResult:
     """Fit the model to each frame's proposals.
 
@@ -220,7 +223,10 @@ def fit(
     :data:`hybridfit.names.ModelName`, ``ObjectiveName`` and ``OptimizerName`` (``hybridfit
     plugins`` lists every installed one). budget: objective evaluations per frame, honoured exactly.
     observations: per frame a ``hybridfit.objective.Observation`` (the depth), needed by
-    objectives that ``observes_depth`` (``rendered-depth``, ``hybrid``).
+    objectives that ``observes_depth`` (``rendered-depth``, ``hybrid``). frames: each frame's
+    index in its data set (default 0 .. F - 1), which keys its random streams
+    (:mod:`hybridfit.keys`): a frame's fit does not depend on which of the data set's frames
+    are fitted with it.
 
     The fit is its schedule: the optimiser's stages (``stepwise-pso``: palm, fingers, then a
     local gradient step), each minimising the objective in force unless the schedule names
@@ -240,7 +246,8 @@ def fit(
                              f"depth image: give the frames' depth (observations)")
     if observations is not None and len(observations) != F:
         raise HybridfitError(f"{len(observations)} observations for {F} frames of proposals")
-    spec = _Spec(model, objective, optimizer, int(budget), int(seed), names, float(search_radius_mm))
+    indices = frame_indices(frames, F)
+    spec = _Spec(model, objective, optimizer, int(budget), int(seed), names, float(search_radius_mm), indices)
     problem = _first_problem(model, objective, proposals, confidences, names, search_radius_mm, observations)
     if problem is not None:  # a budget too small fails every frame: raised at once
         optimizer.check_budget(Task(problem, budget))
@@ -270,7 +277,7 @@ def fit(
 
     # schedules of batch steps run chunks of frames in lockstep, on threads with jobs > 1; others
     # (callback solvers, depth objectives) frame by frame, in worker processes with jobs > 1
-    fitter = driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm)
+    fitter = driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm, indices)
     # the first frame's plan, made once: the driver keeps it for the frames with its observed points
     lockstep = (problem is not None and observations is None and not fitter.observed and fitter.additive
                 and fitter.layout(problem).lockstep)

@@ -29,6 +29,7 @@ from ..errors import HybridfitError
 from .driver import Driver
 from .frames import INLIER_DISTANCE_MM, FitResult, _first_problem, check_fit_options, model_label, schedules
 from ..io import validate_proposals
+from ..keys import frame_indices
 from ..metrics import inliers
 from ..task import Task
 
@@ -87,9 +88,10 @@ def track(
     first_params: np.ndarray | None = None,
     settings: TrackingSettings | Mapping[str, Any] | None = None,
     progress: bool = False,
+    frames: Sequence[int] | None = None,
 ) -> TrackResult:
     """Track a sequence: arguments as ``hybridfit.fit`` (proposals (F, Q, K, 3) mm in frame
-    order), plus
+    order; ``frames``: their indices in the data set, which key their random streams), plus
     first_params (P,) frame 0's initial guess and the tracking ``settings``."""
     check_fit_options(budget, seed, search_radius_mm, 1)
     settings = settings if isinstance(settings, TrackingSettings) else TrackingSettings(**(settings or {}))
@@ -116,7 +118,7 @@ def track(
     problem = _first_problem(model, objective, proposals, confidences, names, search_radius_mm, observations)
     if problem is not None:  # a budget too small would fail every frame: raised at once
         optimizer.check_budget(Task(problem, budget))
-    fitter = Driver(model, objective, optimizer, names, budget, seed, search_radius_mm)
+    fitter = Driver(model, objective, optimizer, names, budget, seed, search_radius_mm, frame_indices(frames, F))
     start = first_params
     t = 0
     try:

@@ -23,7 +23,7 @@ DEFAULT_VIEWPOINTS = [(0, 0, 0), (35, 0, 0), (-35, 0, 0), (0, 35, 0), (0, -35, 0
 
 
 class _Common(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, protected_namespaces=())
+    model_config = ConfigDict(extra="forbid", frozen=True, protected_namespaces=(), allow_inf_nan=False)
 
     model: str = Field("hand26", description="hand model plugin")
     model_settings: dict[str, Any] = Field(default_factory=dict, description="hand model settings")

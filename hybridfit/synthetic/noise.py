@@ -18,7 +18,7 @@ from ..datasets.camera import Intrinsics
 class SensorNoise(BaseModel):
     """Sensor noise settings; the defaults resemble a short-range depth camera."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     sigma_mm: float = Field(1.0, ge=0, description="depth noise standard deviation at zero depth, mm")
     sigma_per_m2: float = Field(

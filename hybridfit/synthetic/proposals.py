@@ -19,6 +19,10 @@ from .. import registry
 from ..errors import HybridfitError
 from ..io import check_memory
 from ..model.rotations import axis_angle_matrix, matrix_to_quaternion
+from ..plausible import DEPTH_MM
+
+#: the largest proposal noise (mm, per axis): a hand's size; noisier proposals locate no hand
+MAX_NOISE_MM = 200.0
 
 #: camera looking along +z, x right, y down: a palm facing the camera, fingers up
 PALM_TO_CAMERA = np.diag([1.0, -1.0, -1.0])
@@ -90,9 +94,15 @@ def synthetic_proposals(
 ) -> dict[str, np.ndarray]:
     """Synthetic frames: a dict with ``proposals`` (F, J, k, 3) mm, ``confidences`` (F, J, k),
     ``joint_names`` (J,), ``ground_truth`` (F, J, 3) mm and ``params`` (F, P), ready for
-    ``np.savez(path, **d)`` and ``hybridfit fit``."""
+    ``np.savez(path, **d)`` and ``hybridfit fit``. noise_mm: 0 to ``MAX_NOISE_MM``;
+    distance_mm: a hand's distance from a depth camera (``hybridfit.plausible.DEPTH_MM``)."""
     if int(seed) < 0:
         raise HybridfitError(f"synthetic_proposals: seed must be a non-negative integer, got {seed}")
+    if not 0 <= noise_mm <= MAX_NOISE_MM:  # NaN too
+        raise HybridfitError(f"synthetic_proposals: noise_mm must be 0 to {MAX_NOISE_MM:g} mm, got {noise_mm}")
+    if not DEPTH_MM[0] <= distance_mm <= DEPTH_MM[1]:
+        raise HybridfitError(f"synthetic_proposals: distance_mm must be {DEPTH_MM[0]:g} to {DEPTH_MM[1]:g} mm (a "
+                             f"hand before a depth camera), got {distance_mm}")
     if frames < 0 or k < 1 or noise_mm < 0 or not (0 <= p_missing <= 1) or not (0 <= p_true_top <= 1):
         raise HybridfitError(
             f"synthetic_proposals: need frames >= 0, k >= 1, noise_mm >= 0 and probabilities in [0, 1] "

@@ -76,7 +76,7 @@ def _near_points(points: np.ndarray, radius_mm: float) -> list[list[int]]:
 class StressSettings(BaseModel):
     """How stress frames differ from the model's own (lengths in mm)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     noise_mm: float = Field(1.0, ge=0, description="proposal noise per axis at the root")
     noise_per_depth_mm: float = Field(1.5, ge=0, description="added per joint along a finger")

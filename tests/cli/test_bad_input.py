@@ -248,13 +248,14 @@ def test_a_corrupt_forest_is_refused_at_load(tmp_path, key, change, message):
         Forest.load(path)
 
 
-def test_proposals_in_metres_are_warned_about(tmp_path, capsys):
+def test_proposals_in_metres_are_refused(tmp_path, capsys):
+    """(Warned about and fitted before issue 39: tests/cli/test_bad_input_round4.py.)"""
     d = hybridfit.synthetic_proposals(2, seed=2)
     d["proposals"] = d["proposals"] / 1000.0
     path = tmp_path / "metres.npz"
     np.savez(path, **d)
-    with pytest.warns(UserWarning, match=r"spread over 0.04.* are the proposals in millimetres\?"):
-        main(["fit", str(path), "--out", str(tmp_path / "o.npz"), "--budget", "300"])
+    assert main(["fit", str(path), "--out", str(tmp_path / "o.npz"), "--budget", "300"]) == 2
+    assert "spread over 0.04" in capsys.readouterr().err and not (tmp_path / "o.npz").exists()
 
 
 def test_fit_copies_the_ground_truth_so_evaluate_works(frames_file, good_output, capsys):
