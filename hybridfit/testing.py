@@ -49,7 +49,15 @@ from .task import StagePlan, Task
 
 __all__ = [
     "RecordingTask", "ToyClamped", "ToyHand", "ToyLeastSquares", "ToySquared", "check_config_round_trip", "check_model",
-    "check_objective", "check_optimizer", "check_pickle", "check_plugin", "check_unknown_setting", "checks",
+    "check_model_bone_lengths", "check_model_deterministic", "check_model_joint_names", "check_model_keeps_input",
+    "check_model_parameter_names", "check_model_shapes", "check_model_stages", "check_objective",
+    "check_objective_casadi_agrees", "check_objective_deterministic", "check_objective_forms",
+    "check_objective_keeps_input", "check_objective_lower_bound", "check_objective_observed",
+    "check_objective_point_loss", "check_objective_point_loss_agrees", "check_objective_shapes",
+    "check_objective_sum_over_points", "check_optimizer", "check_optimizer_batch_steps", "check_optimizer_bounds",
+    "check_optimizer_budget", "check_optimizer_deterministic", "check_optimizer_forms", "check_optimizer_improves",
+    "check_optimizer_subset", "check_pickle", "check_plugin", "check_problem", "check_unknown_setting", "checks",
+    "not_applicable",
 ]
 
 #: evaluations per optimiser check (raised to the optimiser's min_budget when that is larger)
@@ -218,9 +226,42 @@ def check_pickle(plugin) -> None:
 
 
 # ------------------------------------------------------------------ models
+def _bounds(model: HandModel) -> tuple[np.ndarray, np.ndarray]:
+    """The model's bounds, failing the check (not with numpy's error) unless they are two (P,)
+    arrays with lower <= upper."""
+    P = model.n_params
+    lower, upper = (np.asarray(b, dtype=float) for b in model.bounds())
+    _require(lower.shape == (P,) and upper.shape == (P,),
+             f"{_label(model)}: bounds must be two ({P},) arrays, got {lower.shape} and {upper.shape}")
+    crossed = [model.parameter_names[i] for i in np.flatnonzero(~(lower <= upper))]
+    _require(not crossed, f"{_label(model)}: bounds have lower > upper for {crossed[:5]} (or NaN)")
+    return lower, upper
+
+
+def _forward(model: HandModel, X: np.ndarray) -> np.ndarray:
+    """``model.forward`` of a copy of X, failing the check with its own message: a PluginError (the
+    core's shape and dtype check), X changed, another result for the same X, or not float64
+    (N, J, 3) (a model overriding ``forward`` itself)."""
+    given = np.array(X, dtype=np.float64)
+    try:
+        out = model.forward(given)
+        again = model.forward(np.array(X, dtype=np.float64))
+    except PluginError as err:
+        raise AssertionError(f"{_label(model)}: {err}") from err
+    _require(np.array_equal(given, X, equal_nan=True), f"{_label(model)}: forward changed the parameters it was given "
+             "(it must not write to its input)")
+    shape = (*np.shape(X)[:-1], model.n_joints, 3)
+    _require(isinstance(out, np.ndarray) and out.dtype == np.float64, f"{_label(model)}: forward returned "
+             f"{getattr(out, 'dtype', type(out).__name__)} joints, expected float64")
+    _require(out.shape == shape, f"{_label(model)}: forward of {np.shape(X)} returned shape {out.shape}, expected {shape}")
+    _require(np.array_equal(out, again, equal_nan=True), f"{_label(model)}: forward is not deterministic: the same "
+             "parameters gave other joints on a second call")
+    return out
+
+
 def _random_params(model: HandModel, rng: np.random.Generator, n: int) -> np.ndarray:
     """(n, P) parameters within the model's bounds (infinite bounds: +-100 around the default)."""
-    lower, upper = model.bounds()
+    lower, upper = _bounds(model)
     x0 = model.default_params()
     lower = np.where(np.isfinite(lower), lower, x0 - 100.0)
     upper = np.where(np.isfinite(upper), upper, x0 + 100.0)
@@ -239,21 +280,50 @@ def check_model_shapes(model: HandModel) -> None:
     _require(parents.shape == (J,), f"{_label(model)}: parents has shape {parents.shape}, expected ({J},)")
     _require(int((parents < 0).sum()) == 1 and all(p < j for j, p in enumerate(parents)),
              f"{_label(model)}: parents must have one root (-1) and list parents before children")
-    lower, upper = model.bounds()
-    _require(lower.shape == (P,) and upper.shape == (P,), f"{_label(model)}: bounds must be two ({P},) arrays")
-    _require(bool((lower <= upper).all()), f"{_label(model)}: some lower bounds exceed the upper bounds")
+    lower, upper = _bounds(model)
     x0 = model.default_params()
     _require(x0.shape == (P,), f"{_label(model)}: default_params has shape {x0.shape}")
     _require(bool(((x0 >= lower) & (x0 <= upper)).all()), f"{_label(model)}: the default pose violates the bounds")
-    _require(bool(np.isfinite(model.forward(x0)).all()), f"{_label(model)}: the default pose has non-finite joints")
+    _require(bool(np.isfinite(_forward(model, x0)).all()), f"{_label(model)}: the default pose has non-finite joints")
     X = _random_params(model, np.random.default_rng(1), 8)
-    out = model.forward(X)
-    _require(out.shape == (8, J, 3) and out.dtype == np.float64, f"{_label(model)}: forward((8, P)) gave {out.shape}")
-    _require(model.forward(X[0]).shape == (J, 3), f"{_label(model)}: forward((P,)) must give (J, 3)")
-    _require(model.forward(X[:0]).shape == (0, J, 3), f"{_label(model)}: forward((0, P)) must give (0, J, 3)")
-    rows = np.stack([model.forward(X[i : i + 1])[0] for i in range(len(X))])
+    out = _forward(model, X)
+    _forward(model, X[0])
+    _forward(model, X[:0])
+    rows = np.stack([_forward(model, X[i : i + 1])[0] for i in range(len(X))])
     np.testing.assert_allclose(out, rows, rtol=1e-12, atol=1e-9, err_msg=f"{_label(model)}: batch != rows")
     _refuses(model, lambda: model.forward(np.zeros((2, P + 1))), "forward of parameters of the wrong length", "")
+
+
+def check_model_deterministic(model: HandModel) -> None:
+    """forward gives bit-identical joints for the same parameters, whatever ran in between and
+    whatever the global numpy random state is."""
+    X = _random_params(model, np.random.default_rng(7), 8)
+    state = np.random.get_state()
+    try:
+        np.random.seed(1)
+        first = model.forward(X.copy())
+        model.forward(_random_params(model, np.random.default_rng(8), 5))
+        np.random.seed(2)
+        again = model.forward(X.copy())
+    except PluginError as err:
+        raise AssertionError(f"{_label(model)}: {err}") from err
+    finally:
+        np.random.set_state(state)
+    _require(np.array_equal(first, again, equal_nan=True), f"{_label(model)}: forward is not deterministic: the same "
+             "parameters gave other joints on a second call")
+
+
+def check_model_keeps_input(model: HandModel) -> None:
+    """forward leaves the parameters it is given as they were (the core hands it views of its
+    own arrays), one hypothesis or a batch."""
+    for X in (_random_params(model, np.random.default_rng(9), 6), model.default_params().astype(np.float64)):
+        given = X.copy()
+        try:
+            model.forward(given)
+        except PluginError as err:
+            raise AssertionError(f"{_label(model)}: {err}") from err
+        _require(np.array_equal(given, X, equal_nan=True), f"{_label(model)}: forward changed the parameters it was "
+                 "given (it must not write to its input)")
 
 
 def check_model_parameter_names(model: HandModel) -> None:
@@ -264,10 +334,24 @@ def check_model_parameter_names(model: HandModel) -> None:
     _require(not bad, f"{_label(model)}: parameter names must be strings without whitespace, commas or quotes: {bad}")
     repeated = sorted({n for n in names if names.count(n) > 1})
     _require(not repeated, f"{_label(model)}: parameter names repeat: {repeated}")
-    lower, upper = (np.asarray(b, dtype=float)[ANGLES] for b in model.bounds())
+    lower, upper = (b[ANGLES] for b in _bounds(model))
     limits = np.abs(np.concatenate([lower[np.isfinite(lower)], upper[np.isfinite(upper)]]))
     _require(bool((limits <= 2 * np.pi).all()), f"{_label(model)}: joint angle bounds beyond +-2 pi "
              f"(largest {limits.max() if len(limits) else 0:.4g}): angles must be radians")
+
+
+def check_model_joint_names(model: HandModel) -> None:
+    """The J joint names and the derived points' names are unique, printable strings (they name
+    the proposals' points, the fits' columns and the exports' joints), and a derived point
+    takes no joint's name."""
+    joints = tuple(model.joint_names)
+    derived = tuple(model.derived_points)
+    bad = [n for n in joints + derived if not (isinstance(n, str) and n and n.isprintable())]
+    _require(not bad, f"{_label(model)}: joint and derived point names must be non-empty printable strings: {bad}")
+    repeated = sorted({n for n in joints if joints.count(n) > 1})
+    _require(not repeated, f"{_label(model)}: joint names repeat: {repeated}")
+    taken = sorted(set(joints) & set(derived))
+    _require(not taken, f"{_label(model)}: derived points take joint names: {taken}")
 
 
 def check_model_bone_lengths(model: HandModel) -> None:
@@ -275,7 +359,7 @@ def check_model_bone_lengths(model: HandModel) -> None:
     parents = np.asarray(model.parents)
     child = np.flatnonzero(parents >= 0)
     X = np.vstack([model.default_params()[None], _random_params(model, np.random.default_rng(2), 32)])
-    joints = model.forward(X)
+    joints = _forward(model, X)
     lengths = np.linalg.norm(joints[:, child] - joints[:, parents[child]], axis=-1)
     worst = np.abs(lengths - lengths[0]).max(axis=0)
     bad = np.flatnonzero(worst > 1e-6 * max(1.0, float(lengths[0].max())))
@@ -294,16 +378,16 @@ def check_model_stages(model: HandModel) -> None:
     _require(params == list(range(model.n_params)), f"{_label(model)}: stage parameters do not partition 0..P-1")
     _require(joints == list(range(model.n_joints)), f"{_label(model)}: stage joints do not partition 0..J-1")
     _require(set(range(7)) <= set(stages[0].parameters), f"{_label(model)}: the first stage must hold parameters 0..6")
-    lower, upper = model.bounds()
+    lower, upper = _bounds(model)
     step = np.where(np.isfinite(upper - lower), 0.25 * (upper - lower), 10.0)  # (P,)
     X = _random_params(model, np.random.default_rng(5), 4)
-    base = model.forward(X)
+    base = _forward(model, X)
     earlier: list[int] = []
     for stage in stages:
         for p in stage.parameters:
             moved = X.copy()
             moved[:, p] = np.where(X[:, p] + step[p] <= upper[p], X[:, p] + step[p], X[:, p] - step[p])
-            delta = np.abs(model.forward(moved) - base).max(axis=(0, 2))  # (J,)
+            delta = np.abs(_forward(model, moved) - base).max(axis=(0, 2))  # (J,)
             which = f"{_label(model)}: parameter {model.parameter_names[p]!r} of stage {stage.name!r}"
             _require(bool((delta[earlier] < 1e-9).all()), f"{which} moves joints of an earlier stage")
             _require(bool(delta[list(stage.joints)].max() > 1e-6), f"{which} moves none of the stage's joints")
@@ -311,12 +395,13 @@ def check_model_stages(model: HandModel) -> None:
 
 
 # ------------------------------------------------------------------ objectives
-def _frame(seed: int, objective: Objective | None = None, K: int = 3):
+def _frame(seed: int, objective: Objective | None = None, K: int = 3, bound_to: list | None = None):
     """(proposals (Q, K, 3), weights (Q, K), points (5, Q, 3), loss) of a check frame, point 1 without
     proposals and a proposal of point 2 at weight 0: random points (Q = 6) or, when ``objective``
     observes depth, ToyHand's joints (Q = 7) at a pose rendered 400 mm in front of the camera (row 0)
     and perturbed. loss(points, subset=every point) -> (N,) is ``objective`` bound (None without one);
-    an objective observing depth scores the points as the model's joints."""
+    an objective observing depth scores the points as the model's joints. With ``bound_to`` (a list)
+    the loss is bound to copies of the proposals and weights, appended to it."""
     rng = np.random.default_rng(seed)
     observed = objective is not None and objective.observes_depth
     if observed:
@@ -343,12 +428,15 @@ def _frame(seed: int, objective: Objective | None = None, K: int = 3):
     weights, every = normalise_confidences(conf), np.arange(len(proposals), dtype=np.int64)
     if objective is None:
         return proposals, weights, points, None
+    given = (proposals, weights) if bound_to is None else (proposals.copy(), weights.copy())
+    if bound_to is not None:
+        bound_to += given
     if not observed:
-        bound = objective.bind(proposals, weights)
+        bound = objective.bind(*given)
         return proposals, weights, points, lambda points, subset=every: bound(points, subset)
     intrinsics = Intrinsics(width=160, height=120, cx=80.0, cy=60.0, fx=120.0, fy=120.0)
     observation = Observation.from_depth(Renderer(model, intrinsics).render(pose)[0][0], intrinsics)
-    bound = objective.bind_observed(proposals, weights, observation, model)
+    bound = objective.bind_observed(*given, observation, model)
     return proposals, weights, points, lambda points, subset=every: bound(points, subset, points)
 
 
@@ -411,10 +499,23 @@ def check_objective_lower_bound(objective: Objective) -> None:
 
 
 def check_objective_deterministic(objective: Objective) -> None:
-    """Binding twice and scoring twice gives bit-identical losses."""
+    """Binding twice and scoring twice (each on its own copy of the points) gives bit-identical losses."""
     _, _, points, loss = _frame(4, objective)
-    np.testing.assert_array_equal(loss(points), _frame(4, objective)[3](points.copy()),
+    np.testing.assert_array_equal(loss(points.copy()), _frame(4, objective)[3](points.copy()),
                                   err_msg=f"{_label(objective)}: not deterministic")
+
+
+def check_objective_keeps_input(objective: Objective) -> None:
+    """Binding and scoring leave what they are given as it was: the proposals and weights, the
+    points scored and the subset (the core hands them its own arrays, reused for every batch)."""
+    bound_to: list[np.ndarray] = []
+    proposals, weights, points, loss = _frame(8, objective, bound_to=bound_to)
+    scored, subset = points.copy(), np.arange(len(proposals), dtype=np.int64)
+    loss(scored, subset)
+    for name, before, after in (("proposals", proposals, bound_to[0]), ("weights", weights, bound_to[1]),
+                                ("points", points, scored), ("subset", np.arange(len(proposals)), subset)):
+        _require(np.array_equal(before, after), f"{_label(objective)}: its {'bind' if name in ('proposals', 'weights') else 'loss'} "
+                 f"changed the {name} it was given (it must not write to its input)")
 
 
 def _unused(objective: Objective, name: str) -> str:
@@ -719,10 +820,12 @@ def check_optimizer_batch_steps(optimizer: Optimizer) -> None:
 # ------------------------------------------------------------------ registry of checks
 _COMMON = (check_config_round_trip, check_unknown_setting, check_pickle)
 _CHECKS: dict[str, tuple[Callable, ...]] = {
-    "model": _COMMON + (check_model_shapes, check_model_parameter_names, check_model_bone_lengths,
+    "model": _COMMON + (check_model_shapes, check_model_deterministic, check_model_keeps_input,
+                        check_model_parameter_names, check_model_joint_names, check_model_bone_lengths,
                         check_model_stages),
     "objective": _COMMON + (check_objective_forms, check_objective_shapes, check_objective_sum_over_points,
-                            check_objective_lower_bound, check_objective_deterministic, check_objective_point_loss,
+                            check_objective_lower_bound, check_objective_deterministic, check_objective_keeps_input,
+                            check_objective_point_loss,
                             check_objective_point_loss_agrees, check_objective_casadi_agrees,
                             check_objective_observed),
     "optimizer": _COMMON + (check_optimizer_forms, check_optimizer_budget, check_optimizer_deterministic,

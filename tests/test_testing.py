@@ -437,3 +437,119 @@ def test_the_driver_check_runs_for_the_papers_optimizer():
     """stepwise-pso has no batch steps of its own, but the driver runs its plan (pso's steps):
     the check runs (it passed trivially for every built-in before)."""
     testing.check_optimizer_batch_steps(registry.create("optimizer", "stepwise-pso"))
+
+
+# ------------------------------------------------------------------ each fault its own check and message (issue 39)
+class RepeatedJoint(testing.ToyHand):
+    joint_names = ("wrist", "a1", "a2", "a3", "a1", "b2", "b3")
+
+
+class JointNamedLikeADerivedPoint(testing.ToyHand):
+    @property
+    def derived_points(self):
+        return {"a2": {"a1": 0.5, "a3": 0.5}}
+
+
+class SinglePrecision(testing.ToyHand):
+    def _forward(self, params):
+        return super()._forward(params).astype(np.float32)
+
+
+class Transposed(testing.ToyHand):
+    def _forward(self, params):
+        return np.ascontiguousarray(super()._forward(params).transpose(0, 2, 1))
+
+
+class Noisy(testing.ToyHand):
+    """Joints jitter by a micrometre from call to call."""
+
+    def _forward(self, params):
+        return super()._forward(params) + np.random.default_rng().normal(0.0, 1e-3, (len(params), 7, 3))
+
+
+class WritesItsInput(testing.ToyHand):
+    def _forward(self, params):
+        out = super()._forward(params)
+        params[:, 0] += 1.0
+        return out
+
+
+class CrossedBounds(testing.ToyHand):
+    def bounds(self):
+        lower, upper = (b.copy() for b in super().bounds())
+        lower[8], upper[8] = upper[8], lower[8]
+        return lower, upper
+
+
+class ShortBounds(testing.ToyHand):
+    def bounds(self):
+        return tuple(b[:-1] for b in super().bounds())
+
+
+@pytest.mark.parametrize("model, check, match", [
+    (RepeatedJoint(), testing.check_model_joint_names, r"joint names repeat: \['a1'\]"),
+    (JointNamedLikeADerivedPoint(), testing.check_model_joint_names, r"derived points take joint names: \['a2'\]"),
+    (SinglePrecision(), testing.check_model_shapes, r"forward.* returned float32 .*expected float64"),
+    (Transposed(), testing.check_model_shapes, r"returned float64 \(1, 3, 7\), expected float64 \(1, 7, 3\)"),
+    (Noisy(), testing.check_model_deterministic, "forward is not deterministic"),
+    (Noisy(), testing.check_model_shapes, "forward is not deterministic"),
+    (WritesItsInput(), testing.check_model_keeps_input, "forward changed the parameters it was given"),
+    (WritesItsInput(), testing.check_model_shapes, "forward changed the parameters it was given"),
+    (CrossedBounds(), testing.check_model_shapes, r"bounds have lower > upper for \['a_flex1'\]"),
+    (ShortBounds(), testing.check_model_shapes, r"bounds must be two \(13,\) arrays, got \(12,\) and \(12,\)"),
+], ids=lambda v: getattr(v, "__name__", type(v).__name__))
+def test_each_model_fault_has_its_own_check_and_message(model, check, match):
+    with pytest.raises(AssertionError, match=match):
+        check(model)
+
+
+@pytest.mark.parametrize("model", [SinglePrecision(), Transposed(), Noisy(), WritesItsInput(), CrossedBounds(),
+                                   ShortBounds()], ids=lambda m: type(m).__name__)
+def test_a_broken_model_fails_every_check_with_an_assertion_never_a_numpy_error(model):
+    """Checks that read the bounds or the joints fail naming the fault (the bone-length and stage
+    checks gave "ValueError: high - low < 0", an IndexError or a broadcast error)."""
+    for check in testing.checks("model")[3:]:
+        try:
+            check(model)
+        except AssertionError:
+            pass
+
+
+class WritesItsPoints(testing.ToyLeastSquares):
+    def bind(self, proposals, weights):
+        loss = super().bind(proposals, weights)
+
+        def writing(points, subset):
+            out = loss(points, subset)
+            points[:, 0] += 1.0  # moves the hypotheses it was given
+            return out
+
+        return writing
+
+
+class NoisyLoss(testing.ToyLeastSquares):
+    def bind(self, proposals, weights):
+        loss = super().bind(proposals, weights)
+        return lambda points, subset: loss(points, subset) + np.random.default_rng().random(len(points))
+
+
+def test_each_objective_fault_has_its_own_check_and_message():
+    with pytest.raises(AssertionError, match="its loss changed the points it was given"):
+        testing.check_objective_keeps_input(WritesItsPoints())
+    testing.check_objective_deterministic(WritesItsPoints())  # was "not deterministic": it is, on its input
+    with pytest.raises(AssertionError, match="not deterministic"):
+        testing.check_objective_deterministic(NoisyLoss())
+    testing.check_objective_keeps_input(NoisyLoss())
+    testing.check_objective_keeps_input(testing.ToyClamped())
+
+
+def test_every_check_is_public_and_in_the_contracts_table():
+    from pathlib import Path
+
+    page = (Path(__file__).parents[1] / "docs" / "plugins.md").read_text()
+    table = [line for line in page.splitlines() if line.startswith("| `check_")]
+    for kind in ("model", "objective", "optimizer"):
+        for check in testing.checks(kind):
+            assert check.__name__ in testing.__all__, check.__name__
+            assert any(line.startswith(f"| `{check.__name__}`") for line in table), check.__name__
+    assert "check_optimizer_improves" in testing.__all__
