@@ -29,6 +29,7 @@ Ctrl-C at any moment exits 130 without a traceback.
 from __future__ import annotations
 
 import argparse
+import codecs
 import importlib
 import os
 import pkgutil
@@ -110,13 +111,30 @@ def main(argv: list[str] | None = None) -> int:
         return _interrupted(stop)
 
 
+def _raw_or_escaped(err: UnicodeError):
+    """An encoding error handler: a file name's undecodable bytes (surrogate escapes) written
+    back as they were, as ``surrogateescape`` does; any other character as a backslash escape."""
+    if not isinstance(err, UnicodeEncodeError):
+        raise err
+    out = [bytes([ord(c) - 0xDC00]) if 0xDC80 <= ord(c) <= 0xDCFF else c.encode("ascii", "backslashreplace")
+           for c in err.object[err.start:err.end]]
+    return b"".join(out), err.end
+
+
+codecs.register_error("hybridfit-escape", _raw_or_escaped)
+
+
 def _tolerant_streams() -> None:
     """Closed standard streams opened on os.devnull, and stdout and stderr set to write what
-    they cannot encode as backslash escapes (``\\udcff``, ``\\xe9``) instead of raising."""
+    they cannot encode as backslash escapes (``\\udcff``, ``\\xe9``) instead of raising; a
+    stream that writes surrogate escapes back as bytes (the C locale's) keeps doing so."""
     _environment.open_closed_streams()
     for stream in (sys.stdout, sys.stderr):
+        errors = getattr(stream, "errors", None)
+        if errors not in ("strict", "surrogateescape"):  # backslashreplace (stderr's) already, or no text stream
+            continue
         try:
-            stream.reconfigure(errors="backslashreplace")
+            stream.reconfigure(errors="backslashreplace" if errors == "strict" else "hybridfit-escape")
         except (AttributeError, ValueError, OSError):  # not a text file of the io module (tests' stand-ins)
             pass
 

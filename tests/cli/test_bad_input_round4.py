@@ -116,14 +116,14 @@ def test_a_damaged_numba_cache_file_is_dropped_and_recompiled(tmp_path, damage):
     assert third.twice(4) == 8 and third.twice.stats.cache_hits
 
 
-def _strict(encoding: str) -> io.TextIOWrapper:
-    return io.TextIOWrapper(io.BytesIO(), encoding=encoding, errors="strict")
+def _stream(encoding: str, errors: str = "strict") -> io.TextIOWrapper:
+    return io.TextIOWrapper(io.BytesIO(), encoding=encoding, errors=errors)
 
 
 def test_unencodable_names_are_printed_escaped(tmp_path, monkeypatch):
     """A non-ASCII name on an ASCII stdout (``LC_ALL=C`` without UTF-8 mode), a surrogate escape
-    (a name whose bytes are not UTF-8) on a strict UTF-8 stderr: UnicodeEncodeError."""
-    out, err = _strict("ascii"), _strict("utf-8")
+    (a name whose bytes are not UTF-8) on a strict UTF-8 stderr (a UTF-8 locale's): UnicodeEncodeError."""
+    out, err = _stream("ascii"), _stream("utf-8")
     monkeypatch.setattr(sys, "stdout", out)
     monkeypatch.setattr(sys, "stderr", err)
     assert main(["synth", "proposals", "--frames", "1", "--out", str(tmp_path / "qé.npz")]) == 0
@@ -132,6 +132,17 @@ def test_unencodable_names_are_printed_escaped(tmp_path, monkeypatch):
     out.flush(), err.flush()
     assert b"q\\xe9.npz" in out.buffer.getvalue()
     assert b"f\\udcff.npz" in err.buffer.getvalue() and b"Traceback" not in err.buffer.getvalue()
+
+
+def test_the_c_locale_keeps_a_names_bytes_and_escapes_the_rest(tmp_path, monkeypatch):
+    """The C locale's stdout (ASCII, surrogate escapes written back as bytes): a name's bytes that
+    are not UTF-8 come out as they were, a non-ASCII character escaped (it raised)."""
+    out = _stream("ascii", "surrogateescape")
+    monkeypatch.setattr(sys, "stdout", out)
+    name = "qé\udcff.npz"
+    assert main(["synth", "proposals", "--frames", "1", "--out", str(tmp_path / name)]) == 0
+    out.flush()
+    assert b"q\\xe9\xff.npz" in out.buffer.getvalue()
 
 
 # ====================================================================== the data
