@@ -249,15 +249,17 @@ def unregistered(kind: str, name: str) -> type:
     found = sys.modules.get(module)
     for part in qualname.split(".") if found is not None else ():
         found = getattr(found, part, None)
-    if found is None and "<locals>" in qualname:
-        raise UnknownPluginError(f"{kind} {name!r} is a class defined inside a function, which nothing can find "
-                                 f"again: define it at the top level of a module, or register it in the "
-                                 f"entry-point group {_group(kind)} (docs/plugins.md, 'The entry point')")
+    register = f"register it in the entry-point group {_group(kind)} (docs/plugins.md, 'The entry point')"
+    if found is None and ("<locals>" in qualname or module == "__main__"):
+        where = "inside a function" if "<locals>" in qualname else "in a script (__main__)"
+        raise UnknownPluginError(f"{kind} {name!r} is a class defined {where}, not registered as a plugin, which "
+                                 f"nothing can find again: define it at the top level of an importable module, or "
+                                 f"{register} and fit with its name")
     if found is None:
         raise UnknownPluginError(
             f"{kind} {name!r} is a class that is not registered as a plugin (a {kind} instance passed to hybridfit "
-            f"without an entry point): import {module} first to rebuild it in Python, or register it in the "
-            f"entry-point group {_group(kind)} (docs/plugins.md, 'The entry point') and fit with its name")
+            f"without an entry point): import {module} first to rebuild it in Python, or {register} and fit with "
+            f"its name")
     if not (isinstance(found, type) and issubclass(found, _base(kind))):
         raise UnknownPluginError(f"{kind} {name!r} names no {_base(kind).__name__} class")
     return found

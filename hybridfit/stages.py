@@ -53,6 +53,8 @@ class _Structure:
         check_model(model)
         owner = model.stage_of_joint()
         M = np.eye(model.n_joints) if point_matrix is None else point_matrix
+        if not np.isfinite(M).all():
+            raise PluginError(f"model {_name(model)}: its derived points have NaN or inf joint weights")
         point_stage = np.array([owner[np.flatnonzero(row)].max() for row in M])
         self.stages = [
             (st.name, np.asarray(st.parameters, dtype=np.int64), np.flatnonzero(point_stage == s).astype(np.int64))

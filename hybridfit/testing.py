@@ -253,7 +253,8 @@ def _forward(model: HandModel, X: np.ndarray) -> np.ndarray:
     shape = (*np.shape(X)[:-1], model.n_joints, 3)
     _require(isinstance(out, np.ndarray) and out.dtype == np.float64, f"{_label(model)}: forward returned "
              f"{getattr(out, 'dtype', type(out).__name__)} joints, expected float64")
-    _require(out.shape == shape, f"{_label(model)}: forward of {np.shape(X)} returned shape {out.shape}, expected {shape}")
+    _require(out.shape == shape, f"{_label(model)}: forward of {np.shape(X)} returned shape {out.shape}, "
+             f"expected {shape}")
     _require(np.array_equal(out, again, equal_nan=True), f"{_label(model)}: forward is not deterministic: the same "
              "parameters gave other joints on a second call")
     return out
@@ -514,8 +515,9 @@ def check_objective_keeps_input(objective: Objective) -> None:
     loss(scored, subset)
     for name, before, after in (("proposals", proposals, bound_to[0]), ("weights", weights, bound_to[1]),
                                 ("points", points, scored), ("subset", np.arange(len(proposals)), subset)):
-        _require(np.array_equal(before, after), f"{_label(objective)}: its {'bind' if name in ('proposals', 'weights') else 'loss'} "
-                 f"changed the {name} it was given (it must not write to its input)")
+        which = "bind" if name in ("proposals", "weights") else "loss"
+        _require(np.array_equal(before, after), f"{_label(objective)}: its {which} changed the {name} it was given "
+                 "(it must not write to its input)")
 
 
 def _unused(objective: Objective, name: str) -> str:

@@ -211,11 +211,11 @@ def _outside(X, lo, hi, st, parameter_names) -> str:
         f, i, k = np.argwhere(~finite)[0]
         return (f"NaN or inf ({int((~finite).sum())} of {X.size} values; the first: row {i} of frame {f} of the "
                 f"group, parameter {_parameter(st, k, parameter_names)})")
-    low, high = X < lo[:, None], X > hi[:, None]
-    bad = low | high
+    bad = (X < lo[:, None]) | (X > hi[:, None])
     names = list(dict.fromkeys(_parameter(st, k, parameter_names) for k in np.flatnonzero(bad.any(axis=(0, 1)))))
     f, i, k = np.argwhere(bad)[0]
-    return (f"hypotheses outside the bounds of the stage (its search box): {', '.join(names[:5])}{' ...' if len(names) > 5 else ''} "
+    more = " ..." if len(names) > 5 else ""
+    return (f"hypotheses outside the bounds of the stage (its search box): {', '.join(names[:5])}{more} "
             f"({int(bad.sum())} of {X.size} values; the first: {X[f, i, k]:.6g} not in [{lo[f, k]:.6g}, "
             f"{hi[f, k]:.6g}], row {i} of frame {f} of the group): an optimiser keeps within the bounds it is given")
 

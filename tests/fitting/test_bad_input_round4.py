@@ -211,3 +211,27 @@ def test_an_unregistered_model_whose_module_is_not_imported_says_how_to_rebuild_
         registry.create("model", "some_lab.hands:LabHand", {})
     with pytest.raises(HybridfitError, match=r"names no HandModel"):
         registry.create("model", "json:JSONDecoder", {})
+
+
+class _NanDerived(testing.ToyHand):
+    @property
+    def derived_points(self):
+        return {"middle": {"a1": float("nan"), "b1": 0.5}}
+
+
+def test_a_models_non_finite_derived_point_weight_is_a_plugin_error_naming_it():
+    """(A user's NaN weight in hand26's settings is refused by the settings: tests/model/test_bad_settings.py.)"""
+    data = hybridfit.synthetic_proposals(2, k=2, seed=1, model=testing.ToyHand())
+    names = testing.ToyHand.joint_names[:-1] + ("middle",)
+    with pytest.raises(PluginError, match="model _NanDerived: its derived points have NaN or inf joint weights"):
+        hybridfit.fit(data["proposals"], data["confidences"], model=_NanDerived(), objective=testing.ToyClamped(),
+                      optimizer="pso", budget=100, joint_names=names)
+
+
+def test_an_unregistered_class_defined_in_a_script_or_a_function_says_it_cannot_be_found_again():
+    for name, where in (("__main__:LabHand", r"in a script \(__main__\)"),
+                        (f"{__name__}:f.<locals>.Hand", "inside a function")):
+        with pytest.raises(HybridfitError, match=f"is a class defined {where}, not registered as a plugin, which "
+                                                 "nothing can find again: define it at the top level of an importable "
+                                                 "module"):
+            registry.create("model", name, {})
