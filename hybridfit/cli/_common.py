@@ -141,6 +141,21 @@ def add_plugin_options(parser: argparse.ArgumentParser) -> None:
                    "such as 'local_share = 0' (the paper's schedule)")
 
 
+def add_keypoint_options(parser: argparse.ArgumentParser) -> None:
+    """--mirrored/--labels/--unit: how MediaPipe results and OpenPose keypoints are read
+    (``hybridfit.datasets.results.read_keypoints``)."""
+    parser.add_argument("--mirrored", action="store_true",
+                        help="MediaPipe results: the images MediaPipe saw were flipped horizontally (a selfie view); "
+                        "x is negated, so the points are the real hand's")
+    parser.add_argument("--labels", choices=("subject", "selfie"), default="subject",
+                        help="MediaPipe results: its handedness convention, subject (default; the Tasks API: Left is "
+                        "the subject's left hand in an un-mirrored image) or selfie (MediaPipe Hands before the Tasks "
+                        "API: the labels assume a mirrored image)")
+    parser.add_argument("--unit", choices=("mm", "cm", "m"),
+                        help="OpenPose keypoints: the unit of its 3-D keypoints, that of its camera calibration (its "
+                        "calibration toolbox writes metres); required for OpenPose input")
+
+
 def add_fit_options(parser: argparse.ArgumentParser) -> None:
     """--budget/--seed/--jobs/--search-radius: how every frame is fitted."""
     parser.add_argument("--budget", type=budget_int, default=3400, help="objective evaluations per frame (default 3400)")

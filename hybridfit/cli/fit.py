@@ -15,13 +15,14 @@ from ..datasets.skeletons import fit_settings, skeleton
 from ..errors import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK, HybridfitError, PluginError
 from ..io import load_proposals, save_npz
 from ..datasets.folder import load_dataset
+from ..datasets.results import is_keypoints, read_keypoints
 from ..metrics import summary
 from ..objective import dataset_observations
 from ..fitting.calibrate import CONFIDENT_POINTS, self_calibrate, top_proposals
 from ..fitting.setup_check import check_setup
 from ..fitting.tracking import track
 from ..keys import frame_indices
-from ._common import add_fit_options, add_plugin_options, check_plugin, declare_paths, plugin_kwargs
+from ._common import add_fit_options, add_keypoint_options, add_plugin_options, check_plugin, declare_paths, plugin_kwargs
 from .calibrate import CALIBRATED_MODEL
 
 #: ``--calibrate auto`` self-calibrates only with at least this many frames with proposals for most points
@@ -66,6 +67,7 @@ def register(sub) -> None:
                    "stages that ran, JSON), ground_truth and frames (copied from the input)")
     add_plugin_options(p)
     add_fit_options(p)
+    add_keypoint_options(p)
     p.add_argument("--depth", metavar="DIR", help="a data-set folder (hybridfit synth test) holding the proposals' "
                    "frames (those the file's frames names, else its first frames): their depth, for objectives that "
                    "compare with the depth image (rendered-depth, hybrid)")
@@ -96,8 +98,28 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def load_input(args) -> dict:
+    """The proposals to fit: an npz, or MediaPipe/OpenPose keypoints (--hand picks the hand in them)."""
+    if is_keypoints(args.proposals):
+        return read_keypoints(args.proposals, hand=None if args.hand == "auto" else args.hand,
+                              mirrored=args.mirrored, labels=args.labels, unit=args.unit)
+    for option, given in (("--mirrored", args.mirrored), ("--unit", args.unit is not None),
+                          ("--labels", args.labels != "subject")):
+        if given:
+            raise HybridfitError(f"{option} applies to MediaPipe and OpenPose keypoints, not to {args.proposals}")
+    return load_proposals(args.proposals)
+
+
+def frame_reasons(data) -> dict[int, str]:
+    """Why the input's frames without a hand have none (keypoints: "no hand detected", ...)."""
+    if "frame_errors" not in data:
+        return {}
+    errors = np.asarray(data["frame_errors"])
+    return {int(f): str(errors[f]) for f in np.flatnonzero(errors != "")}
+
+
 def run(args) -> int:
-    data = load_proposals(args.proposals)
+    data = load_input(args)
     check_millimetres(data["proposals"], data["confidences"], args.proposals)
     indices = frame_indices(data.get("frames"), len(data["proposals"]), f"{args.proposals}: 'frames'")
     if args.objective is None and "objective" in data:  # the objective the file names (other methods' estimates)
@@ -109,6 +131,9 @@ def run(args) -> int:
     if args.self_calibrating and args.model is None and args.model_config is None:
         plugins["model"] = CALIBRATED_MODEL  # what `hybridfit calibrate` calibrates
         check_plugin("model", plugins["model"], plugins["model_config"], None)
+    key = registry.get("model", plugins["model"]).mirror_setting
+    if "hand" in data and args.hand == "auto" and key is not None and key not in plugins["model_config"]:
+        plugins["model_config"] = {**plugins["model_config"], key: str(data["hand"]) == "left"}  # the file's hand, checked below
     names, plugins["model_config"] = fit_settings(data.get("joint_names"), data["proposals"].shape[1], dataset,
                                                   plugins["model"], plugins["model_config"], args.proposals)
     if dataset:
@@ -132,9 +157,11 @@ def run(args) -> int:
         result = track(data["proposals"], data["confidences"], first_params=depth.get("first_params"),
                        settings={"on_lost": args.on_lost}, **common)
         extra["lost"] = result.lost
+        result.errors.update({f: m for f, m in frame_reasons(data).items() if result.failed[f]})
     else:
         try:
             result = fit_frames(data["proposals"], data["confidences"], jobs=args.jobs, **common)
+            result.errors.update({f: m for f, m in frame_reasons(data).items() if result.failed[f]})
         except PluginError as err:  # a bug, not the user's: keep the finished frames, then let it propagate
             if err.result is not None and (~err.result.failed).any():
                 save_npz(args.out, **err.result.to_npz(), **extra)

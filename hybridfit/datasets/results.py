@@ -19,6 +19,8 @@ from ..agreement import agreement_confidences
 from ..io import require_file
 from ..plausible import check_uvd
 from .conventions import CONVENTIONS
+from .mediapipe import read_mediapipe
+from .openpose import read_openpose
 from .skeletons import convention
 from .skeletons import skeleton
 
@@ -151,6 +153,33 @@ def read_proposals(files, dataset: str, confidences=None, ground_truth=None,
 
 
 def frames_of(proposals: dict[str, np.ndarray], frames: slice) -> dict[str, np.ndarray]:
-    """The frames ``frames`` of :func:`read_proposals`' per-frame arrays, the rest unchanged."""
-    return {key: value[frames] if key in ("proposals", "confidences", "ground_truth") else value
-            for key, value in proposals.items()}
+    """The frames ``frames`` of :func:`read_proposals`' (or :func:`read_keypoints`') per-frame arrays, the rest unchanged."""
+    per_frame = ("proposals", "confidences", "ground_truth", "frame_errors", "frames")
+    return {key: value[frames] if key in per_frame else value for key, value in proposals.items()}
+
+
+def is_keypoints(path: str | os.PathLike) -> bool:
+    """Whether ``path`` holds another tool's hand keypoints, for :func:`read_keypoints`: a folder
+    (OpenPose's) or a .json file (MediaPipe results, or one OpenPose NAME_<frame>_keypoints.json)."""
+    p = Path(path)
+    return p.is_dir() or p.suffix.lower() == ".json"
+
+
+def read_keypoints(path: str | os.PathLike, *, hand: str | None = None, mirrored: bool = False,
+                   labels: str = "subject", unit: str | None = None) -> dict[str, np.ndarray]:
+    """MediaPipe results (a JSON list, ``hybridfit.datasets.mediapipe``) or OpenPose keypoints (a
+    folder or a NAME_<frame>_keypoints.json, ``hybridfit.datasets.openpose``) -> their proposals
+    (k = 1; ``hybridfit.datasets.keypoints.keypoint_proposals``) with ``objective``, as
+    :func:`proposals_from_results` names it. ``mirrored``/``labels`` apply to MediaPipe,
+    ``unit`` to OpenPose (MediaPipe's is metres)."""
+    p = Path(path)
+    if p.is_dir() or p.name.endswith("_keypoints.json"):
+        if mirrored:
+            raise HybridfitError(f"{p}: mirrored applies to MediaPipe results, not to OpenPose keypoints")
+        out = read_openpose(p, unit=unit, hand=hand)
+    else:
+        if unit not in (None, "m"):
+            raise HybridfitError(f"{p}: MediaPipe's world landmarks are in metres; unit {unit!r} applies to OpenPose keypoints")
+        out = read_mediapipe(p, hand=hand, mirrored=mirrored, labels=labels)
+    out["objective"] = np.asarray(ESTIMATES_OBJECTIVE)
+    return out
