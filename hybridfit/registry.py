@@ -255,6 +255,9 @@ def unregistered(kind: str, name: str) -> type:
         raise UnknownPluginError(f"{kind} {name!r} is a class defined {where}, not registered as a plugin, which "
                                  f"nothing can find again: define it at the top level of an importable module, or "
                                  f"{register} and fit with its name")
+    if found is None and module in sys.modules:
+        raise UnknownPluginError(f"{kind} {name!r}: module {module} has no class {qualname} (renamed or removed since "
+                                 f"the fit?); {register} and fit with its name")
     if found is None:
         raise UnknownPluginError(
             f"{kind} {name!r} is a class that is not registered as a plugin (a {kind} instance passed to hybridfit "

@@ -235,3 +235,8 @@ def test_an_unregistered_class_defined_in_a_script_or_a_function_says_it_cannot_
                                                  "nothing can find again: define it at the top level of an importable "
                                                  "module"):
             registry.create("model", name, {})
+
+
+def test_an_unregistered_class_its_imported_module_lacks_is_named():
+    with pytest.raises(HybridfitError, match=f"module {__name__} has no class Renamed \\(renamed or removed"):
+        registry.create("model", f"{__name__}:Renamed", {})
