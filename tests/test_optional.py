@@ -22,8 +22,7 @@ from hybridfit.optional import MissingLibrary
 from hybridfit.plugin import Plugin
 
 #: optional plugin -> (the library it imports, the extra that installs it)
-OPTIONAL_PLUGINS = {"nlopt": ("nlopt", "nlopt"), "cmaes": ("cma", "cma"), "casadi-ik": ("casadi", "casadi"),
-                    "pymoo": ("pymoo", "pymoo")}
+OPTIONAL_PLUGINS = {"nlopt": ("nlopt", "nlopt"), "casadi-ik": ("casadi", "casadi"), "pymoo": ("pymoo", "pymoo")}
 OPTIONAL_LIBRARIES = ("casadi", "nlopt", "pymoo", "cma", "dask", "distributed")
 
 

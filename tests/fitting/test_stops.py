@@ -59,7 +59,7 @@ def test_a_stop_does_not_wait_for_the_worker_processes(monkeypatch):
     d = hybridfit.synthetic_proposals(4, k=2, seed=1)
     threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
     start = time.monotonic()
-    result = hybridfit.fit(d["proposals"], d["confidences"], optimizer="cmaes", budget=200, jobs=2, seed=0)
+    result = hybridfit.fit(d["proposals"], d["confidences"], optimizer="nlopt", budget=200, jobs=2, seed=0)
     assert result.interrupted and result.failed.all()
     assert time.monotonic() - start < 20
 
