@@ -10,6 +10,11 @@ named; the first titled TITLE): ``benchmarks/results/NAME.json`` of a benchmark,
 and the command that measured it; a record not yet measured becomes "not yet measured: run
 `COMMAND`". ``{{ others }}`` lists the jobs whose records the page does not show. ``--check`` exits 1
 if docs/results.md is not what the records give (or is longer than 400 lines).
+
+A record's table cells, titles and notes are Markdown as the page shows it (a benchmark's bold
+figure, a study's names as its report escaped them: :func:`hybridfit.text.markdown`), but never
+HTML: ``<`` and ``>`` become entities, so no tag from a record reaches the page. The version,
+date and machine are plain text (escaped), the command an inline code span.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from hybridfit.text import markdown  # noqa: E402
 from _util import REPO, RESULTS  # noqa: E402
 from run_all import JOBS, STUDY_RESULTS, command, record_path  # noqa: E402
 
@@ -44,14 +50,32 @@ def caption(record: dict, path: Path, title: str | None = None) -> str:
     """The line above a table: its title, and the version, machine, date and command of its record."""
     if not record.get("version") or not record.get("machine"):
         raise ValueError(f"{path}: a record names the hybridfit version and the machine it was measured on")
-    how = (f"written down by hand: {record['hand_written']}" if record.get("hand_written")
-           else f"`{record['command']}`")
-    head = f"**{title}.** " if title else ""
-    return f"{head}*hybridfit {record['version']} on {describe(record['machine'])}, {record.get('date', '?')}:* {how}"
+    how = (f"written down by hand: {no_html(record['hand_written'])}" if record.get("hand_written")
+           else code(record["command"]))
+    head = f"**{no_html(title)}.** " if title else ""
+    return (f"{head}*hybridfit {markdown(record['version'])} on {markdown(describe(record['machine']))}, "
+            f"{markdown(record.get('date', '?'))}:* {how}")
+
+
+def no_html(text) -> str:
+    """A record's Markdown with no HTML in it: ``<`` and ``>`` as entities (its ``&`` kept, so
+    the entities of a study's escaped names stay what they show)."""
+    return str(text).replace("<", "&lt;").replace(">", "&gt;")
+
+
+def code(text) -> str:
+    """``text`` on one line as an inline code span, shown as written (HTML in it is text): its
+    fence has more backticks than any run of them in it."""
+    text = " ".join(str(text).splitlines())
+    fence = "`" * (1 + max(map(len, re.findall("`+", text)), default=0))
+    pad = " " if text.startswith("`") or text.endswith("`") else ""
+    return f"{fence}{pad}{text}{pad}{fence}"
 
 
 def cell(value) -> str:
-    return str(value).replace("|", "\\|").replace("\n", " ")
+    """A table cell: one line, no HTML, its ``|`` escaped (one already escaped, as a study's
+    report writes it, is kept as it is)."""
+    return re.sub(r"(?<!\\)\|", r"\\|", no_html(value)).replace("\r", " ").replace("\n", " ")
 
 
 def block(record: dict, path: Path, names: list[str], title: str | None = None) -> list[str]:
@@ -69,7 +93,7 @@ def block(record: dict, path: Path, names: list[str], title: str | None = None) 
         lines += ["| " + " | ".join(map(cell, row)) + " |" for row in t["rows"]]
         lines.append("")
     if record.get("note"):
-        lines += [record["note"], ""]
+        lines += [no_html(record["note"]), ""]
     return lines[:-1]
 
 
@@ -106,7 +130,7 @@ def others(jobs: list, benchmarks: Path, studies: Path) -> str:
         path = record_path(job, benchmarks, studies)
         if path.is_file():
             record = json.loads(path.read_text())
-            said.append(f"`{job.name}` (hybridfit {record.get('version')}, {record.get('date')})")
+            said.append(f"`{job.name}` (hybridfit {markdown(record.get('version'))}, {markdown(record.get('date'))})")
         else:
             said.append(f"`{job.name}` (not yet measured)")
     return ", ".join(said) + "."

@@ -30,11 +30,11 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..study import load_spec, run_study, write_report
-    from ..study.runner import check_size
+    from ..study.expand import check_size
 
     if args.scheduler and args.executor != "dask":
         raise HybridfitError("--scheduler needs --executor dask")
-    study = load_spec(args.file, quick=args.quick)
+    study = load_spec(args.file, quick=args.quick, allow_large=args.allow_large)  # a huge sweep: before expanding
     out = Path(args.out or Path("study_out") / (Path(args.file).stem + ("_quick" if args.quick else "")))
     if out.exists() and not out.is_dir():
         raise HybridfitError(f"--out {out}: is a file; a study writes a folder")

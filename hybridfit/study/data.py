@@ -36,8 +36,13 @@ def _skeleton_file(data) -> bool:
 
 def file_hash(path: Path) -> str:
     """sha256 of a file, or of every file in a folder (names and contents: the depth images
-    too). A cache entry is named by its key, which already hashes what made it."""
+    too; a FIFO or device in it is not a file and is left out). A cache entry is named by its
+    key, which already hashes what made it. A path that is neither a regular file nor a folder
+    (a FIFO or a device, read forever) is a one-line HybridfitError."""
     path = Path(path)
+    if path.exists() and not path.is_dir() and not path.is_file():
+        raise HybridfitError(f"{path}: not a regular file (a FIFO, device or socket, which would be read forever); "
+                             "give a file or a folder")
     if (path.parent / f"{path.name.split('.')[0]}.payload.json").is_file():
         return f"cache:{path.name}"
     h = hashlib.sha256()

@@ -4,6 +4,10 @@ success: success-rate curves per variant; k: error vs k, Oracle / top-1 / Optimi
 paper's Fig. 3b); proposal_set: error vs |P~| (Fig. 3a); budget: error and time per frame vs
 budget; variants: mean error per variant (e.g. stepwise vs joint at equal budget);
 per_joint: mean error per joint. Error bars: standard deviation over seeds.
+
+Every name a figure draws (variants, joints) goes through :func:`_text`
+(:func:`hybridfit.text.plain`): a ``$`` or TeX in a name is drawn as written, never parsed
+as mathtext.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from matplotlib.figure import Figure
 
 from ..io import atomic_open
 from ..metrics import SUCCESS_THRESHOLDS_MM as THRESHOLDS
+from ..text import plain
 
 SWEEP_AXES = {"k": "proposals per joint k", "proposal_set": "|P~|: votes per joint into mean-shift",
               "budget": "budget (objective evaluations per frame)"}
@@ -100,6 +105,11 @@ def _series(rows: list[dict], x: str) -> dict[str, list[dict]]:
     return groups
 
 
+def _text(name) -> str:
+    """A name as matplotlib text: literal (no mathtext), characters UTF-8 cannot hold as escapes."""
+    return plain(name, "utf-8")
+
+
 def _subplots(*grid, figsize, **kwargs):
     """(figure, axes) of a standalone Figure: no pyplot state, and matplotlib's backend for
     the rest of the process is left alone (PNGs are written by the Agg canvas savefig picks)."""
@@ -120,7 +130,8 @@ def plot_success(out: Path, rows: list[dict]) -> str:
     colors = matplotlib.colormaps["tab20" if len(rows) > 10 else "tab10"].colors
     for i, r in enumerate(rows):
         style = {"oracle": "--", "top1": ":"}.get(r["method"], "-")
-        ax.plot(THRESHOLDS, r["curve"], style, color=colors[i % len(colors)], lw=1.8, label=legend_label(r["variant"]))
+        ax.plot(THRESHOLDS, r["curve"], style, color=colors[i % len(colors)], lw=1.8,
+                label=_text(legend_label(r["variant"])))
     ax.set(xlabel="distance threshold (mm)", ylabel="share of frames with all joints within threshold",
            title="Success rate (worst joint within threshold; dashed: Oracle, dotted: top-1)", xlim=(0, 80),
            ylim=(0, 1.01))
@@ -154,7 +165,7 @@ def sweep_figure(rows: list[dict], x: str, metric: str = "mean_error_mm") -> Fig
         rs = sorted(rs, key=lambda r: r["settings"][x])
         xs = [r["settings"][x] for r in rs]
         ax.errorbar(xs, [r[f"{metric}_mean"] for r in rs], yerr=[r[f"{metric}_std"] for r in rs], fmt="o-",
-                    capsize=4, label=label)
+                    capsize=4, label=_text(label))
     ax.set(xlabel=SWEEP_AXES[x], ylabel="mean joint error (mm)", title=f"Mean joint error vs {SWEEP_AXES[x]}")
     ticks = sorted({r["settings"][x] for r in fits})
     for a in axes[0]:
@@ -171,7 +182,7 @@ def sweep_figure(rows: list[dict], x: str, metric: str = "mean_error_mm") -> Fig
             ms = np.array([1000 * r["time_per_frame_s_mean"] for r in rs])
             std = np.array([1000 * r["time_per_frame_s_std"] for r in rs])
             ax2.errorbar([r["settings"][x] for r in rs], ms, yerr=[np.minimum(std, ms), std], fmt="o-", capsize=4,
-                         label=label)  # a time is never below 0 ms
+                         label=_text(label))  # a time is never below 0 ms
         ax2.set(xlabel=SWEEP_AXES[x], ylabel="time per frame (ms, one core)", title="Fitting time vs budget")
         ax2.grid(alpha=0.3)
         ax2.legend(fontsize=8)
@@ -216,7 +227,7 @@ def plot_variants(out: Path, rows: list[dict]) -> str:
     ax.barh(y, means, xerr=[r["mean_error_mm_std"] for r in rows], color=colors, capsize=3)
     labels = [ax.text(m + max(means) * 0.02 + r["mean_error_mm_std"], yi, f"{m:.1f} mm, success@40 "
                       f"{r['success_40mm_mean']:.2f}", va="center", fontsize=7) for yi, r, m in zip(y, rows, means)]
-    ax.set_yticks(y, [legend_label(r["variant"]) for r in rows], fontsize=7)
+    ax.set_yticks(y, [_text(legend_label(r["variant"])) for r in rows], fontsize=7)
     ax.set(xlabel="mean joint error (mm)", title="Mean joint error per variant (bars: std over seeds)",
            xlim=(0, max(means) * 1.45))
     ax.grid(axis="x", alpha=0.3)
@@ -248,8 +259,8 @@ def plot_per_joint(out: Path, rows: list[dict], limit: int) -> str:
     width = 0.8 / len(shown)
     for i, r in enumerate(shown):
         ax.bar(np.arange(len(names)) + (i - (len(shown) - 1) / 2) * width, r["per_joint"], width,
-               label=legend_label(r["variant"]))
-    ax.set_xticks(np.arange(len(names)), names, rotation=60, ha="right", fontsize=8)
+               label=_text(legend_label(r["variant"])))
+    ax.set_xticks(np.arange(len(names)), [_text(n) for n in names], rotation=60, ha="right", fontsize=8)
     ax.set(ylabel="mean error (mm)", title="Mean error per joint")
     ax.grid(axis="y", alpha=0.3)
     ax.legend(fontsize=7)

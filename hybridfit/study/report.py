@@ -9,8 +9,12 @@ objective, evaluations and time per frame. Per variant: the mean and standard de
 
 ``results.json`` is the study's record, the one a results page is rendered from: the
 hybridfit version, machine, date and command of the run that measured the trials, the
-report's table as shown (``tables``) and every variant's settings and metrics (``variants``,
-as in ``results.csv``).
+report's table as shown (``tables``: Markdown, names escaped) and every variant's settings
+and metrics (``variants``, as in ``results.csv``, names as written).
+
+Names (the study's, variants', grid values, errors) are the user's text: report.md shows them
+inert (:func:`hybridfit.text.markdown`: no tag, link, heading or table break), results.csv
+holds no formula (:func:`hybridfit.text.csv_cell`), the plots draw them as plain text.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import numpy as np
 from ..io import atomic_open
 from ..metrics import SUCCESS_THRESHOLDS_MM as THRESHOLDS
 from ..metrics import fingertips, success_rate
+from ..text import csv_cell, markdown
 from .spec import METRICS, Study
 from . import plots
 from .store import DB_NAME, Store, storage_error
@@ -110,12 +115,12 @@ CSV_SETTINGS = ("k", "proposal_set", "budget", "model", "objective", "optimizer"
 def write_csv(path: Path, rows: list[dict]) -> None:
     header = ["variant", "method", *CSV_SETTINGS, "seeds", "frames"] + [f"{m}_{s}" for m in METRICS
                                                                          for s in ("mean", "std")]
-    with atomic_open(path, "w", newline="") as fh:
+    with atomic_open(path, "w", newline="", encoding="utf-8", errors="backslashreplace") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         for r in rows:
-            w.writerow([r["variant"], r["method"], *(_setting(r, k) for k in CSV_SETTINGS), r["seeds"], r["frames"]]
-                       + [f"{r[f'{m}_{s}']:.6g}" for m in METRICS for s in ("mean", "std")])
+            w.writerow([csv_cell(r["variant"]), r["method"], *(csv_cell(_setting(r, k)) for k in CSV_SETTINGS),
+                        r["seeds"], r["frames"]] + [f"{r[f'{m}_{s}']:.6g}" for m in METRICS for s in ("mean", "std")])
 
 
 def _cell(r: dict, m: str) -> str:
@@ -156,27 +161,28 @@ def write_report(out: str | os.PathLike, study: Study | None = None) -> Path:
     figures = plots.make_plots(out, rows, spec)
     metrics = spec.metrics if spec is not None else ["mean_error_mm", "fingertip_error_mm", "success_20mm",
                                                      "success_40mm", "success_80mm", "time_per_frame_s"]
-    lines = [f"# Study: {meta.get('name', '?')}", ""]
+    lines = [f"# Study: {markdown(meta.get('name', '?'))}", ""]
     if meta.get("description"):
-        lines += [meta["description"].strip(), ""]
+        lines += [*(markdown(line) for line in str(meta["description"]).strip().splitlines()), ""]
     data = (meta.get("spec") or {}).get("data", {})
     lines += [f"Data: `{data.get('kind', '?')}`; {rows[0]['frames'] if rows else 0} frames per trial. "
               "Values are means over seeds ± their standard deviation; errors in mm over all frames and joints; "
               "success @t = share of frames whose worst joint is within t mm. Oracle = the proposal closest to "
               "the truth per joint; top-1 proposal = the most confident proposal (plain regression).", ""]
     head = ["variant", "seeds", *[LABELS.get(m, m) for m in metrics]]
-    cells = [[r["variant"], str(r["seeds"]), *(_cell(r, m) for m in metrics)] for r in rows]
+    cells = [[markdown(r["variant"]), str(r["seeds"]), *(_cell(r, m) for m in metrics)] for r in rows]
     lines += ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
-    lines += ["| " + " | ".join([c[0].replace("|", "\\|"), *c[1:]]) + " |" for c in cells]
+    lines += ["| " + " | ".join(c) + " |" for c in cells]
     lines += ["", "All metrics (mean and std per variant): [results.csv](results.csv)", ""]
     if failed:
         lines += ["## Failed or unfinished trials", ""]
-        lines += [f"- {t['variant']}, seed {t['seed']}: {t['state']}: {t['error'] or ''}" for t in failed]
+        lines += [f"- {markdown(t['variant'])}, seed {t['seed']}: {t['state']}: {markdown(t['error'] or '')}"
+                  for t in failed]
         lines.append("")
     for title, name in figures:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     path = out / "report.md"
-    with atomic_open(path, "w") as fh:
+    with atomic_open(path, "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines))
     write_record(out / "results.json", meta, measured, {"columns": head, "rows": cells}, rows)
     return path

@@ -11,6 +11,10 @@ The output folder is a study's or a new one (:func:`check_folder`): a missing or
 starts a study, a folder with a ``study.db`` written by hybridfit resumes it, and any other
 folder (the user's own ``results.csv``, ``report.md`` or figures, say) is refused before
 anything is written to it, since the report would replace those files.
+
+A run stopped by a user error (a ``HybridfitError``) before it stored a trial or built a cache
+entry removes what it created itself (its ``study.db``, the cache folder, the folders it made),
+never what was there before; a dask scheduler is reached before any such work.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shlex
+import shutil
 import socket
 import sqlite3
 import sys
@@ -39,7 +44,7 @@ from ..fitting.tracking import TrackingSettings, track
 from .cache import Cache, process_alive
 from .data import StudyData, baseline_errors
 from .executors import check_process_limit, make_executor
-from .expand import Trial, digest, expand, trials
+from .expand import MAX_TRIALS, Trial, check_size, count_trials, digest, expand, trials  # noqa: F401 (re-exported)
 from .spec import Study
 from .store import COMPANIONS, DB_NAME, Store, check_database, check_writable, storage_error
 
@@ -232,27 +237,6 @@ class RunSummary:
     out: Path
 
 
-#: a study of more trials than this runs only when asked (``allow_large``): its database grows by
-#: hundreds of MB, and a grid that large is usually a mistake (a list where a range was meant)
-MAX_TRIALS = 10_000
-
-
-def count_trials(study: Study) -> int:
-    """The number of trials (variants x seeds) the study plans, computed without expanding it."""
-    variants = max(1, len(study.sweep.variants or []))
-    for values in study.sweep.grid.values():
-        variants *= max(1, len(values))
-    return variants * (len(study.seeds) if isinstance(study.seeds, list) else int(study.seeds))
-
-
-def check_size(study: Study, allow_large: bool, where: str = "study") -> None:
-    """Refuse a study above MAX_TRIALS trials unless ``allow_large``."""
-    n = count_trials(study)
-    if n > MAX_TRIALS and not allow_large:
-        raise HybridfitError(f"{where}: {n:,} trials planned (variants x seeds), more than {MAX_TRIALS:,}: check the "
-                             "sweep, or pass --allow-large to run them all")
-
-
 def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: str = "processes",
               scheduler: str | None = None, cache_dir: str | os.PathLike | None = None, progress: bool = True,
               report: bool = True, dask_processes: bool = True, log=None, allow_large: bool = False,
@@ -285,38 +269,91 @@ def _run_study(study: Study, out: Path, *, jobs, executor, scheduler, cache_dir,
     check_folder(out)
     if executor == "processes" and jobs > 1:  # before any work: the workers fit in ulimit -u
         check_process_limit(jobs)
-    with study_lock(out):
-        store = Store(out / DB_NAME)
-        try:
-            cache = Cache(Path(cache_dir) if cache_dir else out / "cache")
-            data = StudyData(study.data, cache, jobs=jobs, log=log, progress=progress)
-            variants = expand(study)
-            todo = trials(study, variants, data.key)
-            store.set_meta("study", {"name": study.name, "description": study.description,
-                                     "spec": study.model_dump(mode="json", by_alias=True)})
-            store.set_meta("variant_order", [v.name for v in variants])
-            # labels come from this study file, also for trials an earlier study in this folder ran
-            store.set_meta("trial_labels", {t.key: [t.variant.name, t.variant.index] for t in todo})
-            stale = store.mark_interrupted()
-            if stale:
-                log(f"{stale} trial(s) of an interrupted run will run again")
-            keys = _baselines(study, data, variants, store) + [t.key for t in todo]
-            store.set_meta("trial_keys", keys)  # the report shows this study's trials only
-            states = store.states()
-            pending = [t for t in todo if states.get(t.key) != "complete"]
-            summary = RunSummary(len(todo), len(todo) - len(pending), 0, 0, out)
-            if pending:
-                store.set_meta("measured", {"version": __version__, "machine": machine(),
-                                            "date": time.strftime("%Y-%m-%d"), "command": command})
-                _run_trials(pending, data, store, executor, jobs, scheduler, progress, dask_processes, summary,
-                            keep_going)
-        finally:
-            store.close()
-        if report:
-            from .report import write_report
+    cache_root = Path(cache_dir) if cache_dir else out / "cache"
+    folders = sorted({*_missing(out), *_missing(cache_root)}, key=lambda p: -len(p.parts))  # what this run makes
+    store = cache = None
+    locked = False
+    try:
+        with study_lock(out):
+            locked = True
+            store = Store(out / DB_NAME)
+            try:
+                cache = Cache(cache_root)
+                summary = _record_and_run(study, out, store, cache, jobs=jobs, executor=executor, scheduler=scheduler,
+                                          progress=progress, dask_processes=dask_processes, log=log,
+                                          keep_going=keep_going, command=command)
+            finally:
+                store.close()
+            if report:
+                from .report import write_report
 
-            write_report(out, study)
+                write_report(out, study)
+    except HybridfitError:  # a user error: what this run made and never used goes (nothing the user had)
+        if locked and (store is None or not store.written) and not (cache is not None and cache.made):
+            _remove_unused(store, cache_root if cache_root in folders else None, folders)
+        raise
     return summary
+
+
+def _record_and_run(study: Study, out: Path, store: Store, cache: Cache, *, jobs, executor, scheduler, progress,
+                    dask_processes, log, keep_going, command) -> RunSummary:
+    """Record the study in its store, compute the baselines and run the pending trials."""
+    data = StudyData(study.data, cache, jobs=jobs, log=log, progress=progress)
+    variants = expand(study)
+    todo = trials(study, variants, data.key)
+    store.set_meta("study", {"name": study.name, "description": study.description,
+                             "spec": study.model_dump(mode="json", by_alias=True)})
+    store.set_meta("variant_order", [v.name for v in variants])
+    # labels come from this study file, also for trials an earlier study in this folder ran
+    store.set_meta("trial_labels", {t.key: [t.variant.name, t.variant.index] for t in todo})
+    stale = store.mark_interrupted()
+    if stale:
+        log(f"{stale} trial(s) of an interrupted run will run again")
+    states = store.states()
+    pending = [t for t in todo if states.get(t.key) != "complete"]
+    # a dask scheduler is reached before any work: one that does not answer costs nothing
+    ex = make_executor(executor, jobs, scheduler, processes=dask_processes) if pending and scheduler else None
+    try:
+        keys = _baselines(study, data, variants, store) + [t.key for t in todo]
+        store.set_meta("trial_keys", keys)  # the report shows this study's trials only
+        summary = RunSummary(len(todo), len(todo) - len(pending), 0, 0, out)
+        if pending:
+            store.set_meta("measured", {"version": __version__, "machine": machine(),
+                                        "date": time.strftime("%Y-%m-%d"), "command": command})
+            given, ex = ex, None  # _run_trials closes it
+            _run_trials(pending, data, store, executor, jobs, scheduler, progress, dask_processes, summary,
+                        keep_going, ex=given)
+    finally:
+        if ex is not None:
+            ex.close()
+    return summary
+
+
+def _missing(folder: Path) -> list[Path]:
+    """``folder`` and those of its parents that do not exist yet, deepest first."""
+    out = []
+    while not folder.exists() and not folder.is_symlink() and folder != folder.parent:
+        out.append(folder)
+        folder = folder.parent
+    return out
+
+
+def _remove_unused(store: Store | None, cache_root: Path | None, folders: list[Path]) -> None:
+    """Remove what a run that stopped on a user error before any work made: the study.db it
+    created (and SQLite's files beside it), the cache folder it created if no entry is in it,
+    and the folders it created (deepest first), once empty. A file or folder that was there
+    before is kept."""
+    if store is not None and store.created:
+        for p in (store.path, *(store.path.with_name(store.path.name + c) for c in COMPANIONS)):
+            with contextlib.suppress(OSError):
+                p.unlink(missing_ok=True)
+    if cache_root is not None and cache_root.is_dir() and not cache_root.is_symlink():
+        entries = [p for kind in cache_root.iterdir() if kind.is_dir() for p in kind.rglob("*") if not p.is_dir()]
+        if not entries:  # (a run sharing the folder may have built some meanwhile: kept)
+            shutil.rmtree(cache_root, ignore_errors=True)
+    for folder in folders:
+        with contextlib.suppress(OSError):
+            folder.rmdir()  # only an empty one
 
 
 def _baselines(study: Study, data: StudyData, variants, store: Store) -> list[str]:
@@ -387,16 +424,25 @@ def _needs_depth(settings) -> bool:
 
 def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: str, jobs: int,
                 scheduler: str | None, progress: bool, dask_processes: bool, summary: RunSummary,
-                keep_going: bool = False) -> None:
-    sets = {}
-    for t in pending:  # shared steps first, once each, in this process
-        s = t.variant.settings
-        if (s.k, s.proposal_set, s.skeleton, _needs_depth(s)) not in sets:
-            z = data.proposals(s.k, s.proposal_set, s.skeleton)
-            sets[(s.k, s.proposal_set, s.skeleton, _needs_depth(s))] = {**z, **data.depth_frames()} if _needs_depth(s) else z
-    check_budgets(pending, sets, data)
-    kwargs = {"processes": dask_processes} if executor == "dask" else {}
-    ex = make_executor(executor, jobs, scheduler, **kwargs)
+                keep_going: bool = False, ex=None) -> None:
+    """Run the pending trials on ``ex`` (closed here), or on an executor made once the shared
+    steps are done and every budget is checked."""
+    try:
+        sets = {}
+        for t in pending:  # shared steps first, once each, in this process
+            s = t.variant.settings
+            if (s.k, s.proposal_set, s.skeleton, _needs_depth(s)) not in sets:
+                z = data.proposals(s.k, s.proposal_set, s.skeleton)
+                sets[(s.k, s.proposal_set, s.skeleton, _needs_depth(s))] = \
+                    {**z, **data.depth_frames()} if _needs_depth(s) else z
+        check_budgets(pending, sets, data)
+    except BaseException:
+        if ex is not None:
+            ex.close()
+        raise
+    if ex is None:
+        kwargs = {"processes": dask_processes} if executor == "dask" else {}
+        ex = make_executor(executor, jobs, scheduler, **kwargs)
     try:
         shared = {key: ex.share(z) for key, z in sets.items()}
         tasks = []

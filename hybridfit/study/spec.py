@@ -96,6 +96,29 @@ class TrialSettings(_Strict):
         return out
 
 
+def _kind(value) -> str:
+    """A TOML value's kind, for messages: 'a list', 'a table', 'a number', 'true/false'."""
+    if isinstance(value, bool):
+        return "true/false"
+    return {list: "a list", dict: "a table", int: "a number", float: "a number"}.get(type(value),
+                                                                                    type(value).__name__)
+
+
+def _path(value, info):
+    """A path field's value as given: a string (``file``: or a list of strings); anything else
+    is one line saying what was expected (pydantic's own message names its internals)."""
+    if value is None or isinstance(value, (str, Path)):
+        return value
+    if info.field_name == "file":
+        if isinstance(value, list):
+            bad = next((v for v in value if not isinstance(v, (str, Path))), None)
+            if bad is None:
+                return value
+            raise ValueError(f"expected a path (a string) or a list of paths, got a list holding {_kind(bad)}")
+        raise ValueError(f"expected a path (a string) or a list of paths, got {_kind(value)}")
+    raise ValueError(f"expected a path (a string), got {_kind(value)}")
+
+
 class SyntheticProposalsData(_Strict):
     """Proposals generated from the model (``hybridfit.synthetic_proposals``); trials use the top k."""
 
@@ -134,6 +157,8 @@ class DatasetData(_Strict):
     stride: int = Field(2, ge=1)
     bandwidth_mm: float = Field(10.0, gt=0)
 
+    _paths = field_validator("test", "train", "forest_file", mode="before")(_path)
+
     @model_validator(mode="after")
     def _source(self):
         if (self.train is None) == (self.forest_file is None):
@@ -162,6 +187,17 @@ class ProposalsData(_Strict):
     ground_truth: Path | None = Field(None, description="ground truth in the results format (else from the npz)")
     frames: str | None = Field(None, description="START:STOP of the frames to fit (default: all)")
     calibrate: Calibration | None = Field(None, description="calibrate the model on the ground truth first")
+
+    _paths = field_validator("file", "ground_truth", mode="before")(_path)
+
+    @field_validator("file")
+    @classmethod
+    def _one_npz(cls, file):
+        if isinstance(file, list) and len(file) > 1 and any(f.suffix == ".npz" for f in file):
+            npz = next(f for f in file if f.suffix == ".npz")
+            raise ValueError("a list is for results files (one file per proposal rank, with dataset); an .npz holds "
+                             f"every proposal: give one, file = \"{npz}\"")
+        return file
 
     @model_validator(mode="after")
     def _needs(self):

@@ -1,8 +1,9 @@
 """The study database: SQLite in WAL mode with a versioned schema (Optuna-like).
 
 ``trials``: one row per trial (unique ``key`` = hash of data, settings and seed), its
-variant, settings JSON, seed and state (running, complete, failed) with the error of a
-failed trial. ``frames``: one row per trial and frame (errors per joint as a JSON list,
+variant, settings JSON, seed (0 to 2**64 - 1; those from 2**63 stored below 0, as SQLite's
+integers are signed, and read back as given) and state (running, complete, failed) with the
+error of a failed trial. ``frames``: one row per trial and frame (errors per joint as a JSON list,
 mean and worst joint error, objective, evaluations, time, the frame's own error).
 Only the study's main process writes; each finished trial is one transaction, so a run
 killed at any moment keeps every finished trial and never a half-written one.
@@ -91,6 +92,12 @@ def storage_error(path: Path, err: sqlite3.Error) -> HybridfitError | None:
     if not any(m in low for m in _ENVIRONMENT):
         return None
     return WriteError(28 if "full" in msg else 30, f"{path}: cannot write the study database: {msg}")
+
+
+def _text(value) -> str:
+    """``value`` as text SQLite can store (UTF-8): what UTF-8 cannot hold (a lone surrogate, from
+    a file name that is not UTF-8, say) as ``\\udcff``-style escapes."""
+    return str(value).encode("utf-8", "backslashreplace").decode("utf-8")
 
 
 def _json(text, path: Path, what: str):
@@ -189,14 +196,17 @@ def check_database(path: str | Path) -> int | None:
 
 class Store:
     """The SQLite study database at ``path`` (created with the current schema if new; an
-    existing one is checked by :func:`check_database` before anything is written to it)."""
+    existing one is checked by :func:`check_database` before anything is written to it).
+    ``created``: whether this object created the file; ``written``: how many trial rows it wrote."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         check_writable(self.path.parent)
-        found = check_database(self.path) if self.path.exists() or self.path.is_symlink() else None
+        existed = self.path.exists() or self.path.is_symlink()
+        found = check_database(self.path) if existed else None
         _refuse_links(self.path)
+        self.created, self.written = not existed, 0
         self.db = None
         try:
             self.db = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT_S, isolation_level=None)
@@ -241,12 +251,14 @@ class Store:
 
     def start(self, key: str, variant: str, variant_index: int, method: str, settings: dict, seed: int) -> None:
         """Record a trial as running (a re-run of an unfinished trial replaces its row's state)."""
+        self.written += 1
         self.db.execute(
             "INSERT INTO trials (key, variant, variant_index, method, settings, seed, state, started) "
             "VALUES (?, ?, ?, ?, ?, ?, 'running', ?) ON CONFLICT(key) DO UPDATE SET state = 'running', "
             "error = NULL, started = excluded.started, finished = NULL, variant = excluded.variant, "
             "variant_index = excluded.variant_index",
-            (key, variant, variant_index, method, json.dumps(settings, sort_keys=True), seed, time.time()))
+            (key, _text(variant), variant_index, method, json.dumps(settings, sort_keys=True), _seed_in(seed),
+             time.time()))
 
     def complete(self, key: str, result: dict) -> None:
         """Store a finished trial's frames and mark it complete, in one transaction.
@@ -273,7 +285,7 @@ class Store:
     def fail(self, key: str, error: str) -> None:
         """Mark a trial failed with its error."""
         self.db.execute("UPDATE trials SET state = 'failed', error = ?, finished = ? WHERE key = ?",
-                        (error, time.time(), key))
+                        (_text(error), time.time(), key))
 
     def mark_interrupted(self) -> int:
         """Trials left 'running' by a run that died: failed ("interrupted"); returns how many."""
@@ -284,12 +296,14 @@ class Store:
 
     def trials(self, state: str | None = None) -> list[dict]:
         """Trial rows as dicts (settings and joint_names decoded), by variant and seed."""
-        sql = "SELECT * FROM trials" + (" WHERE state = ?" if state else "") + " ORDER BY variant_index, seed, id"
+        sql = ("SELECT * FROM trials" + (" WHERE state = ?" if state else "") +
+               " ORDER BY variant_index, seed < 0, seed, id")  # seeds from 2**63 are stored below 0
         cur = self.db.execute(sql, (state,) if state else ())
         cols = [c[0] for c in cur.description]
         out = []
         for row in cur:
             d = dict(zip(cols, row))
+            d["seed"] = _seed_out(d["seed"])
             d["settings"] = _json(d["settings"], self.path, f"the settings of trial {d.get('id')}")
             d["joint_names"] = (_json(d["joint_names"], self.path, f"the joint names of trial {d.get('id')}")
                                 if d["joint_names"] else None)
@@ -311,6 +325,17 @@ class Store:
                 "evaluations": np.array([r[2] for r in rows], float),
                 "time_s": np.array([r[3] for r in rows], float),
                 "failed": np.array([bool(r[4]) for r in rows])}
+
+
+def _seed_in(seed: int) -> int:
+    """A seed (0 to 2**64 - 1) as SQLite's signed 64-bit INTEGER: seeds from 2**63 wrap below 0
+    (two's complement), which no seed is, so :func:`_seed_out` reads every seed back as given."""
+    seed = int(seed)
+    return seed - 2**64 if seed >= 2**63 else seed
+
+
+def _seed_out(stored: int) -> int:
+    return stored + 2**64 if isinstance(stored, int) and stored < 0 else stored
 
 
 def _num(x) -> float | None:

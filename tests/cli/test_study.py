@@ -9,6 +9,7 @@ import shutil
 import pytest
 
 from hybridfit.cli import main
+from hybridfit.text import markdown
 from tests.study.conftest import TINY, old_database
 
 
@@ -19,7 +20,7 @@ def test_quick_study_end_to_end_and_report_only(tmp_path, capsys):
     assert main(["study", str(study), "--quick", "--out", str(out), "--jobs", "2"]) == 0
     assert "4 trials: 0 already complete, 4 run, 0 failed" in capsys.readouterr().out
     report = (out / "report.md").read_text()
-    assert "k=3, optimizer_config.schedule=joint" in report and "success_rate.png" in report
+    assert markdown("k=3, optimizer_config.schedule=joint") in report and "success_rate.png" in report
     (out / "report.md").unlink()
     assert main(["study", str(study), "--quick", "--out", str(out), "--report-only"]) == 0
     assert (out / "report.md").is_file() and (out / "results.csv").is_file()
@@ -52,7 +53,7 @@ def test_no_progress_bar_is_written_into_logs_and_times_are_in_ms(tmp_path, caps
     err = capsys.readouterr().err
     assert "\r" not in err and "trial/s" not in err and "it/s" not in err  # stderr is not a terminal here
     with open(out / "results.csv") as fh:
-        seconds = {r["variant"]: float(r["time_per_frame_s_mean"]) for r in csv.DictReader(fh)}
+        seconds = {markdown(r["variant"]): float(r["time_per_frame_s_mean"]) for r in csv.DictReader(fh)}  # as shown
     table = [[c.strip() for c in ln.strip("|").split("|")] for ln in (out / "report.md").read_text().splitlines()
              if ln.startswith("| ")]  # (no variant name of this study holds a "|")
     column = table[0].index("time per frame (ms)")
