@@ -96,3 +96,17 @@ def test_the_anchors_other_pages_use_are_headings_of_the_page():
     for path in [root / "README.md", *(root / "docs").glob("*.md")]:
         links |= set(re.findall(r"results\.md#([\w-]+)", path.read_text()))
     assert links and links <= slugs, links - slugs
+
+
+def test_no_html_from_a_record_reaches_the_page_and_a_studys_escaped_cells_stay_as_they_are(tmp_path):
+    record = {**RECORD, "command": "hybridfit study <i>x</i>`.toml", "note": "<script>alert(1)</script>",
+              "machine": {**RECORD["machine"], "cpu": "<b>CPU</b>"},
+              "tables": {"a": {"title": "<img src=x onerror=alert(1)>", "columns": ["<th>"],
+                               "rows": [["<script>alert(1)</script> | x"], ["a \\| b &lt;i&gt;"]]}}}
+    (tmp_path / "core.json").write_text(json.dumps(record))
+    page = render("{{ core }}\n", tmp_path, tmp_path)
+    code = "``hybridfit study <i>x</i>`.toml``"  # the command as written, in a code span (shown, not run)
+    assert code in page and "<" not in page.replace(code, "")
+    assert "| &lt;script&gt;alert(1)&lt;/script&gt; \\| x |" in page  # a raw cell: its HTML inert, its | escaped
+    assert "| a \\| b &lt;i&gt; |" in page  # a study's report escaped it already: not escaped twice
+    assert "&lt;b&gt;CPU&lt;/b&gt;" in page and "**&lt;img src=x onerror=alert(1)&gt;.**" in page
