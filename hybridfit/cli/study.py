@@ -22,6 +22,9 @@ def register(sub) -> None:
     p.add_argument("--report-only", action="store_true", help="rewrite the report from the database only")
     p.add_argument("--allow-large", action="store_true", help="run a study of more than 10,000 trials "
                    "(refused without it: such a sweep is usually a mistake, and its database grows by hundreds of MB)")
+    p.add_argument("--optuna-storage", metavar="URL",
+                   help="also record each trial in this Optuna storage as it finishes (e.g. sqlite:///live.db), so "
+                   "`optuna-dashboard URL` shows the study while it runs; study.db stays the source of truth")
     p.add_argument("--keep-going", action="store_true",
                    help="record a trial that fails on a bug and go on (default: stop; bad input never stops)")
     declare_paths(p, inputs=("file",))  # --out and --cache: folders it adds files to
@@ -47,7 +50,7 @@ def run(args) -> int:
     executor = args.executor or ("processes" if args.jobs > 1 else "serial")
     s = run_study(study, out, jobs=args.jobs, executor=executor, scheduler=args.scheduler, cache_dir=args.cache,
                   progress=sys.stderr.isatty(), allow_large=args.allow_large,
-                  keep_going=args.keep_going,  # bars on a terminal only, never written into logs
+                  keep_going=args.keep_going, optuna_storage=args.optuna_storage,  # bars on a terminal only
                   command=f"hybridfit study {args.file}" + (" --quick" if args.quick else ""))
     print(f"{s.total} trials: {s.skipped} already complete, {s.ran} run, {s.failed} failed -> {out}/report.md")
     return EXIT_INCOMPLETE if s.failed else EXIT_OK

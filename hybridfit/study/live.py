@@ -12,8 +12,11 @@ runs. ``study.db`` stays the source of truth (resume, the report); the mirror on
 - user attrs: the other metrics of the report (median, fingertip and success rates,
   objective, evaluations, time per frame, failed frames), the trial key and the method.
 
-A resumed run adds only trials the storage does not hold yet (matched by their key), so the
-mirror of a study run in several goes holds each trial once.
+A run first adds the trials ``study.db`` holds as finished and the storage does not (an
+earlier run's, or one without the mirror), then each trial as it finishes; trials are matched
+by their key, so the mirror of a study run in several goes holds each trial once. A storage
+that fails during the run (a database server gone) is reported once and the study goes on:
+the mirror is a view, never where results are kept.
 """
 
 from __future__ import annotations
@@ -83,7 +86,8 @@ def distributions_of(trials: Iterable[Trial], optuna) -> dict[str, Any]:
 class OptunaMirror:
     """Records finished trials of a study in the Optuna storage at ``url`` (see the module docstring)."""
 
-    def __init__(self, url: str, study_name: str, trials: list[Trial]):
+    def __init__(self, url: str, study_name: str, trials: list[Trial], log=None):
+        self.url, self.log, self.broken = url, log or (lambda message: None), False
         self.optuna = optuna = import_library("optuna", REQUIREMENT, "--optuna-storage")
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         try:
@@ -117,6 +121,34 @@ class OptunaMirror:
             state=optuna.trial.TrialState.COMPLETE if ok else optuna.trial.TrialState.FAIL)
         self.study.add_trial(frozen)
         self.recorded.add(trial.key)
+
+
+    def backfill(self, trials: list[Trial], store) -> int:
+        """Add the ``trials`` that ``store`` (a study.db) holds as complete and this storage
+        does not; returns how many."""
+        from .report import trial_metrics
+
+        done = {row["key"]: row for row in store.trials("complete")}
+        added = 0
+        for t in trials:
+            row = done.get(t.key)
+            if row is not None and t.key not in self.recorded:
+                self.add(t, trial_metrics(store.frames(row["id"]), row["joint_names"] or []))
+                added += 1
+        return added
+
+    def finished(self, trial: Trial, result: dict | None, error) -> None:
+        """Record a trial the run just stored (its ``result``, or the ``error`` it failed
+        with); a storage error is logged once and ends the mirror, never the study."""
+        if self.broken:
+            return
+        try:
+            self.add(trial, metrics_of(result) if error is None else None,
+                     None if error is None else str(error))
+        except Exception as err:  # the storage, not the study: the run goes on
+            self.broken = True
+            self.log(f"--optuna-storage {self.url}: recording trials stopped ({type(err).__name__}: "
+                     f"{str(err).splitlines()[0] if str(err) else ''}); study.db holds every result")
 
 
 def metrics_of(result: dict) -> dict[str, float]:

@@ -240,7 +240,7 @@ class RunSummary:
 def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: str = "processes",
               scheduler: str | None = None, cache_dir: str | os.PathLike | None = None, progress: bool = True,
               report: bool = True, dask_processes: bool = True, log=None, allow_large: bool = False,
-              keep_going: bool = False, command: str | None = None) -> RunSummary:
+              keep_going: bool = False, command: str | None = None, optuna_storage: str | None = None) -> RunSummary:
     """Run the study's unfinished trials into ``out`` and write the report (see the module doc).
 
     A study of more than MAX_TRIALS trials needs ``allow_large``; a budget too small for a
@@ -250,12 +250,14 @@ def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: 
     died) is recorded and stops the study with a ``PluginError``, the finished trials kept,
     unless ``keep_going``. A run that runs trials records the hybridfit version, the machine
     (:func:`hybridfit._environment.machine`), the date and ``command`` (what ran it, as the
-    report's ``results.json`` names it)."""
+    report's ``results.json`` names it). ``optuna_storage``: an Optuna storage URL that also
+    gets each trial as it finishes (:mod:`hybridfit.study.live`; study.db stays the source of
+    truth)."""
     check_size(study, allow_large)
     try:
         return _run_study(study, Path(out), jobs=jobs, executor=executor, scheduler=scheduler, cache_dir=cache_dir,
                           progress=progress, report=report, dask_processes=dask_processes, log=log,
-                          keep_going=keep_going, command=command)
+                          keep_going=keep_going, command=command, optuna_storage=optuna_storage)
     except sqlite3.Error as err:  # a full disk or read-only folder: one line naming the database
         failure = storage_error(Path(out) / DB_NAME, err)
         if failure is None:
@@ -264,7 +266,7 @@ def run_study(study: Study, out: str | os.PathLike, *, jobs: int = 1, executor: 
 
 
 def _run_study(study: Study, out: Path, *, jobs, executor, scheduler, cache_dir, progress, report, dask_processes,
-               log, keep_going, command) -> RunSummary:
+               log, keep_going, command, optuna_storage=None) -> RunSummary:
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     check_folder(out)
     if executor == "processes" and jobs > 1:  # before any work: the workers fit in ulimit -u
@@ -281,7 +283,7 @@ def _run_study(study: Study, out: Path, *, jobs, executor, scheduler, cache_dir,
                 cache = Cache(cache_root)
                 summary = _record_and_run(study, out, store, cache, jobs=jobs, executor=executor, scheduler=scheduler,
                                           progress=progress, dask_processes=dask_processes, log=log,
-                                          keep_going=keep_going, command=command)
+                                          keep_going=keep_going, command=command, optuna_storage=optuna_storage)
             finally:
                 store.close()
             if report:
@@ -296,11 +298,17 @@ def _run_study(study: Study, out: Path, *, jobs, executor, scheduler, cache_dir,
 
 
 def _record_and_run(study: Study, out: Path, store: Store, cache: Cache, *, jobs, executor, scheduler, progress,
-                    dask_processes, log, keep_going, command) -> RunSummary:
+                    dask_processes, log, keep_going, command, optuna_storage=None) -> RunSummary:
     """Record the study in its store, compute the baselines and run the pending trials."""
     data = StudyData(study.data, cache, jobs=jobs, log=log, progress=progress)
     variants = expand(study)
     todo = trials(study, variants, data.key)
+    mirror = None
+    if optuna_storage:  # reached before any work; it gets what an earlier run finished, then each trial
+        from .live import OptunaMirror
+
+        mirror = OptunaMirror(optuna_storage, study.name, todo, log=log)
+        mirror.backfill(todo, store)
     store.set_meta("study", {"name": study.name, "description": study.description,
                              "spec": study.model_dump(mode="json", by_alias=True)})
     store.set_meta("variant_order", [v.name for v in variants])
@@ -322,7 +330,7 @@ def _record_and_run(study: Study, out: Path, store: Store, cache: Cache, *, jobs
                                         "date": time.strftime("%Y-%m-%d"), "command": command})
             given, ex = ex, None  # _run_trials closes it
             _run_trials(pending, data, store, executor, jobs, scheduler, progress, dask_processes, summary,
-                        keep_going, ex=given)
+                        keep_going, ex=given, mirror=mirror)
     finally:
         if ex is not None:
             ex.close()
@@ -424,9 +432,10 @@ def _needs_depth(settings) -> bool:
 
 def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: str, jobs: int,
                 scheduler: str | None, progress: bool, dask_processes: bool, summary: RunSummary,
-                keep_going: bool = False, ex=None) -> None:
+                keep_going: bool = False, ex=None, mirror=None) -> None:
     """Run the pending trials on ``ex`` (closed here), or on an executor made once the shared
-    steps are done and every budget is checked."""
+    steps are done and every budget is checked; each finished trial also goes to ``mirror``
+    (an Optuna storage: :mod:`.live`) once it is stored."""
     try:
         sets = {}
         for t in pending:  # shared steps first, once each, in this process
@@ -459,6 +468,9 @@ def _run_trials(pending: list[Trial], data: StudyData, store: Store, executor: s
                     store.complete(t.key, result)
                 else:
                     store.fail(t.key, error)
+                if mirror is not None:
+                    mirror.finished(t, result, error)
+                if error is not None:
                     summary.failed += 1
                     bar.write(f"trial {t.variant.name}, seed {t.seed} failed: {error}")
                     if not keep_going and not getattr(error, "user", False):

@@ -128,3 +128,49 @@ def test_a_real_optuna_dashboard_serves_the_study_while_it_runs(tmp_path):
     finally:
         server.terminate()
         server.wait(10)
+
+
+def test_a_study_run_with_optuna_storage_records_every_trial_and_a_resume_adds_none(tmp_path, tiny_file, capsys):
+    from hybridfit.cli import main
+    from hybridfit.study.report import aggregate
+    from hybridfit.study.store import Store
+
+    url = f"sqlite:///{tmp_path / 'live.db'}"
+    args = ["study", str(tiny_file), "--quick", "--out", str(tmp_path / "o")]
+    assert main([*args, "--optuna-storage", url]) == 0
+    back = optuna.load_study(study_name="tiny", storage=url)
+    store = Store(tmp_path / "o" / "study.db")
+    stored = {row["key"]: row for row in store.trials("complete") if row["variant_index"] >= 0}  # baselines aside
+    assert len(back.trials) == len(stored) == 4  # 2 k x 2 schedules x 1 seed (--quick)
+    rows = {r["variant"]: r for r in aggregate(store)}
+    for t in back.trials:
+        assert t.user_attrs["hybridfit_key"] in stored
+        assert t.value == pytest.approx(rows[t.params["variant"]]["mean_error_mm_mean"])  # one seed: the report's mean
+    store.close()
+    assert main([*args, "--optuna-storage", url]) == 0  # nothing left to run, nothing added twice
+    assert len(optuna.load_study(study_name="tiny", storage=url).trials) == 4
+
+
+def test_an_earlier_runs_trials_are_added_when_the_mirror_starts(tmp_path, tiny_file):
+    from hybridfit.cli import main
+
+    args = ["study", str(tiny_file), "--quick", "--out", str(tmp_path / "o")]
+    assert main(args) == 0  # run without a mirror
+    url = f"sqlite:///{tmp_path / 'live.db'}"
+    assert main([*args, "--optuna-storage", url]) == 0
+    assert len(optuna.load_study(study_name="tiny", storage=url).get_trials(
+        states=(optuna.trial.TrialState.COMPLETE,))) == 4
+
+
+def test_a_storage_that_fails_mid_run_is_reported_once_and_the_study_finishes(tmp_path):
+    study, ts = study_trials(tmp_path)
+    logged = []
+    mirror = OptunaMirror(f"sqlite:///{tmp_path / 'optuna.db'}", study.name, ts, log=logged.append)
+
+    def gone(*a, **k):
+        raise RuntimeError("database is locked")
+
+    mirror.study.add_trial = gone
+    for t in ts[:3]:
+        mirror.finished(t, result(5.0), None)
+    assert len(logged) == 1 and "recording trials stopped (RuntimeError: database is locked)" in logged[0]
