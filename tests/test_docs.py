@@ -160,3 +160,22 @@ def test_the_blender_import_gives_the_camera_view_axes_and_frame_rate():
     assert (R @ [1, 0, 0]).tolist() == [1, 0, 0]  # camera right = Blender X (right in the front view)
     assert (R @ [0, -1, 0]).tolist() == [0, 0, 1]  # image up = Blender Z
     assert (R @ [0, 0, 1]).tolist() == [0, 1, 0]  # into the scene = Blender Y (away, in the front view)
+
+
+@pytest.mark.parametrize("image", ["stepwise_vs_joint_quick_success.png", "stepwise_vs_joint_quick_per_joint.png"])
+def test_the_study_figures_show_the_studys_variants_as_they_are_named_now(image):
+    """The docs' study figures are the README's quick study's: each variant it runs, by its
+    current name, is in the figure (stale copies showed 7 rows and an old variant name)."""
+    import json
+
+    from PIL import Image
+
+    from hybridfit.study import load_spec
+    from hybridfit.study.expand import expand
+    from hybridfit.study.plots import VARIANTS_KEY
+
+    text = Image.open(ROOT / "docs" / "images" / image).text
+    assert VARIANTS_KEY in text, f"{image} was not written by this hybridfit's study plots: re-run the quick study"
+    drawn = json.loads(text[VARIANTS_KEY])
+    variants = [v.name for v in expand(load_spec(ROOT / "studies" / "stepwise_vs_joint.toml", quick=True))]
+    assert [d for d in drawn if d in variants] == variants, (drawn, variants)

@@ -5,6 +5,10 @@ paper's Fig. 3b); proposal_set: error vs |P~| (Fig. 3a); budget: error and time 
 budget; variants: mean error per variant (e.g. stepwise vs joint at equal budget);
 per_joint: mean error per joint. Error bars: standard deviation over seeds.
 
+A variant has one colour in every figure of a study (:func:`variant_colours`, by its place in
+the report's rows). The per-joint plot shows every variant but the Oracle, up to
+``per_joint_variants`` (12 by default); any left out are named in its title.
+
 Every name a figure draws (variants, joints) goes through :func:`_text`
 (:func:`hybridfit.text.plain`): a ``$`` or TeX in a name is drawn as written, never parsed
 as mathtext.
@@ -117,27 +121,44 @@ def _subplots(*grid, figsize, **kwargs):
     return fig, fig.subplots(*grid, **kwargs)
 
 
-def _save(fig, out: Path, name: str) -> str:
-    """Write the figure as ``out/name`` (PNG) atomically (:func:`hybridfit.io.atomic_open`)."""
+#: the PNG text key listing the variants a figure draws (JSON), so a copy of it can be checked
+#: against its study (``tests/test_docs.py`` does, for the docs' figures)
+VARIANTS_KEY = "hybridfit variants"
+
+
+def _save(fig, out: Path, name: str, rows: list[dict] | None = None) -> str:
+    """Write the figure as ``out/name`` (PNG) atomically (:func:`hybridfit.io.atomic_open`),
+    with the names of the variants it draws (``rows``) in its :data:`VARIANTS_KEY` text chunk."""
+    from .. import __version__
+
     fig.tight_layout()
+    metadata = {"Software": f"hybridfit {__version__}"}
+    if rows is not None:
+        metadata[VARIANTS_KEY] = json.dumps([str(r["variant"]) for r in rows], ensure_ascii=True)
     with atomic_open(out / name, "wb") as fh:
-        fig.savefig(fh, format="png", dpi=110)
+        fig.savefig(fh, format="png", dpi=110, metadata=metadata)
     return name
+
+
+def variant_colours(rows: list[dict]) -> dict[str, tuple]:
+    """{variant: colour}: one colour per variant for all of a study's figures, by its place in ``rows``."""
+    palette = matplotlib.colormaps["tab20" if len(rows) > 10 else "tab10"].colors
+    return {r["variant"]: palette[i % len(palette)] for i, r in enumerate(rows)}
 
 
 def plot_success(out: Path, rows: list[dict]) -> str:
     fig, ax = _subplots(figsize=(10, 5))
-    colors = matplotlib.colormaps["tab20" if len(rows) > 10 else "tab10"].colors
-    for i, r in enumerate(rows):
+    colours = variant_colours(rows)
+    for r in rows:
         style = {"oracle": "--", "top1": ":"}.get(r["method"], "-")
-        ax.plot(THRESHOLDS, r["curve"], style, color=colors[i % len(colors)], lw=1.8,
+        ax.plot(THRESHOLDS, r["curve"], style, color=colours[r["variant"]], lw=1.8,
                 label=_text(legend_label(r["variant"])))
     ax.set(xlabel="distance threshold (mm)", ylabel="share of frames with all joints within threshold",
            title="Success rate (worst joint within threshold; dashed: Oracle, dotted: top-1)", xlim=(0, 80),
            ylim=(0, 1.01))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    return _save(fig, out, "success_rate.png")
+    return _save(fig, out, "success_rate.png", rows)
 
 
 def plot_sweep(out: Path, rows: list[dict], x: str, metric: str = "mean_error_mm") -> str:
@@ -222,18 +243,20 @@ def plot_variants(out: Path, rows: list[dict]) -> str:
     """Horizontal bars: mean error per variant, success @40 mm written beside each bar."""
     fig, ax = _subplots(figsize=(8, 0.45 * len(rows) + 1.6))
     y = np.arange(len(rows))[::-1]
-    colors = ["tab:blue" if r["method"] == "fit" else "tab:grey" for r in rows]
+    colours = variant_colours(rows)
     means = [r["mean_error_mm_mean"] for r in rows]
-    ax.barh(y, means, xerr=[r["mean_error_mm_std"] for r in rows], color=colors, capsize=3)
+    ax.barh(y, means, xerr=[r["mean_error_mm_std"] for r in rows], color=[colours[r["variant"]] for r in rows],
+            hatch=["//" if r["method"] != "fit" else "" for r in rows], edgecolor="white", capsize=3)
     labels = [ax.text(m + max(means) * 0.02 + r["mean_error_mm_std"], yi, f"{m:.1f} mm, success@40 "
                       f"{r['success_40mm_mean']:.2f}", va="center", fontsize=7) for yi, r, m in zip(y, rows, means)]
     ax.set_yticks(y, [_text(legend_label(r["variant"])) for r in rows], fontsize=7)
-    ax.set(xlabel="mean joint error (mm)", title="Mean joint error per variant (bars: std over seeds)",
+    ax.set(xlabel="mean joint error (mm)", title="Mean joint error per variant (error bars: std over seeds; "
+           "hatched: baselines)",
            xlim=(0, max(means) * 1.45))
     ax.grid(axis="x", alpha=0.3)
     fig.tight_layout()
     _fit_labels(fig, ax, labels)
-    return _save(fig, out, "variants.png")
+    return _save(fig, out, "variants.png", rows)
 
 
 def _fit_labels(fig, ax, labels) -> None:
@@ -253,18 +276,25 @@ def _fit_labels(fig, ax, labels) -> None:
 
 
 def plot_per_joint(out: Path, rows: list[dict], limit: int) -> str:
-    shown = [r for r in rows if r["method"] != "oracle"][:limit]
+    """Bars per joint for every variant but the Oracle, up to ``limit``; the title names any left out."""
+    candidates = [r for r in rows if r["method"] != "oracle"]
+    shown, left_out = candidates[:limit], candidates[limit:]
     names = shown[0]["joint_names"]
-    fig, ax = _subplots(figsize=(max(8, 0.45 * len(names) + 2), 4.8))
+    colours = variant_colours(rows)
+    fig, ax = _subplots(figsize=(min(16.0, max(8.0, 0.1 * len(names) * len(shown) + 4)), 5.2))
     width = 0.8 / len(shown)
     for i, r in enumerate(shown):
         ax.bar(np.arange(len(names)) + (i - (len(shown) - 1) / 2) * width, r["per_joint"], width,
-               label=_text(legend_label(r["variant"])))
+               color=colours[r["variant"]], label=_text(legend_label(r["variant"])))
     ax.set_xticks(np.arange(len(names)), [_text(n) for n in names], rotation=60, ha="right", fontsize=8)
-    ax.set(ylabel="mean error (mm)", title="Mean error per joint")
+    title = "Mean error per joint"
+    if left_out:
+        title += (f"\n(not shown, per_joint_variants = {limit}: "
+                  + "; ".join(_text(legend_label(r["variant"])) for r in left_out) + ")")
+    ax.set(ylabel="mean error (mm)", title=title)
     ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=7)
-    return _save(fig, out, "per_joint.png")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return _save(fig, out, "per_joint.png", shown)
 
 
 def make_plots(out: Path, rows: list[dict], spec=None) -> list[tuple[str, str]]:
@@ -273,7 +303,7 @@ def make_plots(out: Path, rows: list[dict], spec=None) -> list[tuple[str, str]]:
     if not fits:
         return []
     wanted = "auto" if spec is None else spec.plots
-    limit = 6 if spec is None else spec.per_joint_variants
+    limit = 12 if spec is None else spec.per_joint_variants
     distinct = {x: len({r["settings"].get(x) for r in fits}) for x in SWEEP_AXES}
     if wanted == "auto":
         wanted = ["success", *[x for x in SWEEP_AXES if distinct[x] > 1], "variants", "per_joint"]

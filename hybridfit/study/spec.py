@@ -244,7 +244,8 @@ class Report(_Strict):
     metrics: list[Literal[METRICS]] = Field(  # type: ignore[valid-type]
         default_factory=lambda: ["mean_error_mm", "fingertip_error_mm", "success_20mm", "success_40mm",
                                  "success_80mm", "time_per_frame_s"], description="columns of the report's table")
-    per_joint_variants: int = Field(6, ge=1, description="at most this many variants in the per-joint plot")
+    per_joint_variants: int = Field(12, ge=1, description="at most this many variants in the per-joint plot "
+                                    "(the Oracle aside; any left out are named in its title)")
 
 
 class Study(_Strict):

@@ -104,3 +104,63 @@ def test_close_budgets_share_one_tick_label_and_no_labels_overlap():
     wide = [_row(f"budget={b}", b, "joint") for b in (300, 600, 1200, 2400, 3400, 6800, 13600)]
     ax = plots.sweep_figure(wide, "budget").axes[0]
     assert [t.get_text() for t in ax.get_xticklabels()] == ["300", "600", "1200", "2400", "3400", "6800", "13600"]
+
+
+def _study_rows(n_fits=8, joints=("wrist", "thumb_tip", "index_tip")):
+    """Report rows as aggregate gives them: Oracle and top-1 baselines, then n_fits variants."""
+    import numpy as np
+
+    from hybridfit.metrics import SUCCESS_THRESHOLDS_MM as THRESHOLDS
+
+    def row(name, method, i):
+        return {"variant": name, "method": method, "settings": {"budget": 400}, "curve": np.linspace(0, 1, len(THRESHOLDS)),
+                "per_joint": np.full(len(joints), 5.0 + i), "joint_names": list(joints),
+                "mean_error_mm_mean": 5.0 + i, "mean_error_mm_std": 0.1, "success_40mm_mean": 0.5}
+
+    return ([row("Oracle (k=3)", "oracle", 0), row("top-1 (k=3)", "top1", 1)]
+            + [row(f"variant {i}", "fit", i) for i in range(n_fits)])
+
+
+def _figures(monkeypatch, tmp_path, rows, limit=12):
+    """{file: figure} of the success, variants and per-joint plots of ``rows``."""
+    from hybridfit.study import plots
+
+    made = {}
+    monkeypatch.setattr(plots, "_save", lambda fig, out, name, rows=None: made.setdefault(name, fig) and name)
+    plots.plot_success(tmp_path, rows)
+    plots.plot_variants(tmp_path, rows)
+    plots.plot_per_joint(tmp_path, rows, limit)
+    return made
+
+
+def test_the_per_joint_plot_shows_every_variant_or_names_those_left_out(monkeypatch, tmp_path):
+    """The stepwise-vs-joint study has 8 variants; the per-joint plot dropped two of them, the
+    CLI's default among them, without a word (issue 40)."""
+    rows = _study_rows(8)
+    ax = _figures(monkeypatch, tmp_path, rows)["per_joint.png"].axes[0]
+    assert _legend(ax) == ["top-1 (k=3)", *(f"variant {i}" for i in range(8))]  # all but the Oracle
+    assert "not shown" not in ax.get_title()
+    ax = _figures(monkeypatch, tmp_path, rows, limit=6)["per_joint.png"].axes[0]
+    assert len(_legend(ax)) == 6 and ax.get_title().endswith("variant 5; variant 6; variant 7)")
+    assert "not shown, per_joint_variants = 6" in ax.get_title()
+
+
+def test_a_variant_keeps_its_colour_in_every_plot(monkeypatch, tmp_path):
+    from matplotlib.colors import to_rgb
+
+    rows = _study_rows(8)
+    figs = _figures(monkeypatch, tmp_path, rows)
+    success = {line.get_label(): to_rgb(line.get_color()) for line in figs["success_rate.png"].axes[0].get_lines()}
+    per_joint = figs["per_joint.png"].axes[0]
+    bars = {c.get_label(): to_rgb(c.patches[0].get_facecolor()) for c in per_joint.containers}
+    variants = figs["variants.png"].axes[0]
+    labels = [t.get_text() for t in variants.get_yticklabels()]
+    ys = list(variants.get_yticks())
+    barh = {labels[ys.index(round(p.get_y() + p.get_height() / 2))]: to_rgb(p.get_facecolor())
+            for p in variants.patches}
+    for r in rows:
+        name = r["variant"]
+        assert barh[name] == success[name], name
+        if r["method"] != "oracle":
+            assert bars[name] == success[name], name
+    assert len(set(success.values())) == len(rows)  # and no two variants share one
