@@ -51,7 +51,8 @@ def keypoint_files(path: str | os.PathLike) -> list[tuple[int, Path]]:
         return [(_frame_number(p) if FILE_NAME.match(p.name) else 0, p)]
     files = sorted(q for q in p.iterdir() if q.name.endswith("_keypoints.json"))
     if not files:
-        raise HybridfitError(f"{p}: no OpenPose keypoints files (NAME_<frame>_keypoints.json) in the folder")
+        raise HybridfitError(f"{p}: is a folder, not a proposals file, and holds no OpenPose keypoints files "
+                             "(NAME_<frame>_keypoints.json)")
     numbered: dict[int, Path] = {}
     for q in files:
         n = _frame_number(q)

@@ -170,7 +170,7 @@ def test_files_without_any_hand_or_3d_keypoints_are_refused(tmp_path):
 
 def test_folders_without_keypoints_files_or_frames_are_refused(tmp_path):
     (tmp_path / "empty").mkdir()
-    with pytest.raises(HybridfitError, match="empty: no OpenPose keypoints files"):
+    with pytest.raises(HybridfitError, match="empty: is a folder, not a proposals file, and holds no OpenPose keypoints files"):
         read_openpose(tmp_path / "empty", unit="mm")
     with pytest.raises(HybridfitError, match="none: no such file or folder"):
         read_openpose(tmp_path / "none", unit="mm")
