@@ -85,6 +85,7 @@ JOBS: list[Job] = [
          (*FOREST, "--config", '{"n_trees": 1, "max_depth": 8}', "--budget", "300"))),
     bench("render", env={"NUMBA_NUM_THREADS": "1"}, quick=("--frames", "20")),
     bench("depth_objective", pin=True),
+    bench("alternatives", pin=True, quick=("--quick",)),
     bench("predictors", quick=("--frames", "0:20")),
     bench("calibrate", "--jobs", "2", quick=("--frames", "20", "--fresh", "10", "--skeletons", "icvl", "--jobs", "1")),
     bench("robust", "--jobs", "2", quick=("--skeletons", "icvl", "--frames", "10")),

@@ -366,5 +366,5 @@ class CMAESSteps(CMAES):
 
     def batch_settings(self, budget: int) -> tuple[int, np.ndarray]:
         s = self.settings
-        n = s.popsize or 4
+        n = s.popsize  # set by CMAES.plan for the stage's dimension
         return n, np.array([s.sigma, s.popsize_factor, n], dtype=np.float64)
