@@ -1,57 +1,77 @@
-"""``casadi-ik``: gradient-based inverse kinematics with CasADi and IPOPT.
+"""``casadi-ik``: gradient-based inverse kinematics with CasADi's SQP method, no Python in its loop.
 
-The forward kinematics of the task's free parameters (the others frozen at ``task.base``),
-scaled to the unit cube, are built symbolically from ``model.kinematic_tree()`` (see
-:mod:`hybridfit.model.casadi`). IPOPT (limited-memory BFGS Hessian, the box as bounds)
-minimises the task's own objective when it offers ``casadi_loss(points, proposals, weights,
-subset)``: its loss as a CasADi scalar for ``points`` a (Q, 3) CasADi matrix of the problem's
-points, summed over the point indices ``subset``. Otherwise it minimises a surrogate, with a
-warning (:func:`optimised_loss`): the negative log-likelihood of each point under a Gaussian
-mixture of its proposals (standard deviation ``sigma_mm``, confidences as weights; the
-``gaussian-mixture`` objective up to a constant). Either way it adds ``(|q|^2 - 1)^2`` when the
-quaternion is free (the model normalises it), and every hypothesis is scored, and the best
-kept, by the task's own objective.
+The problem: the task's free parameters, scaled to the unit cube (the others frozen at ``task.base``),
+through the symbolic forward kinematics of ``model.kinematic_tree()`` (:mod:`hybridfit.model.casadi`).
+It minimises the task's own objective when that offers ``casadi_loss(points, proposals, weights,
+subset)`` (its loss as a CasADi scalar of ``points``, a (Q, 3) CasADi matrix of the problem's points,
+summed over the point indices ``subset``). Otherwise it minimises a surrogate, with a warning
+(:func:`optimised_loss`): the negative log-likelihood of each point under a Gaussian mixture of its
+proposals (standard deviation ``sigma_mm``, confidences as weights; the ``gaussian-mixture``
+objective up to a constant). Either way it adds ``(|q|^2 - 1)^2`` when the quaternion is free (the
+model normalises it), and the best is kept by the task's own objective.
 
-It starts from the best of ``candidates`` hypotheses (the initial guess and perturbations of
-it, one batch) and restarts from the best point so far plus noise while budget is left.
+Built once, reused for every frame: the surrogate's problem is one CasADi function per model
+structure, free parameters and proposals per point (cached), and a frame's data are its parameters:
+the frozen parameters, the box, and the proposals and weights of the points the free parameters move,
+with which of them the stage scores. What depends on the data only (the frozen kinematics) is computed
+once per frame and stage (``casadi.extract_parametric``). An objective's own ``casadi_loss`` takes one
+frame's proposals as numbers, so its problem is built for each frame and stage (tens of ms each).
 
-Accounting (every evaluation goes through ``task.evaluate``): an objective value at a new
-point costs 1 evaluation (the task's objective at that point), a gradient ``gradient_cost``
-more, charged as evaluations of the same point; repeated requests at a point are cached. The
-default, 2, is conservative: reverse mode costs at most about 4 functions (Griewank's bound);
-the docs' results page, section "casadi-ik's gradient cost", measures it on hand26. An
-iteration callback stops IPOPT while the evaluations left still cover an iteration; a request
-that would overrun the budget anyway is answered without computing or charge and ends the
-run. So the evaluations reported are exact and never exceed the budget.
+Solver: CasADi's ``sqpmethod`` with the QP solver ``daqp``, the box as bounds, exact gradients by
+CasADi's AD, a BFGS Hessian and a backtracking line search (up to ``LINE_SEARCH`` values per
+iteration, each step ``BACKTRACK`` times the last). No Python runs during a solve. Chosen by
+measurement on hand26's stages: a solve takes 0.16-0.56 ms, IPOPT's 1.6-2.5 ms (exact Hessian)
+or 14-20 ms (limited-memory); an exact (convexified) or Gauss-Newton Hessian converges in fewer
+or as many iterations to worse finger poses, and fits less accurately at equal budget; the QP
+solver ``qrqp`` writes out of bounds on this problem (valgrind), ``daqp`` does not.
 
-Failures: an IPOPT failure status (e.g. ``Invalid_Number_Detected``, ``Restoration_Failed``)
-raises a HybridfitError naming it with ``on_failure="raise"``; with ``"restart"`` (the default)
-the next run restarts, and after 3 failed runs in a row the optimiser stops (raising if no run
-of the task succeeded).
+Search: the best of ``candidates`` hypotheses (the initial guess and perturbations of it, one
+batch), then up to ``runs`` solver runs, the first from that best, each next from the best point so
+far plus noise, while the evaluations left cover a run of one iteration.
+
+Accounting, from the solver's own counts (``solver.stats()``) after each run: an objective value costs
+1 evaluation, a value with its gradient ``1 + gradient_cost`` (3 by default; measured on hand26,
+hand27 and hand29's stages: at most 2.0 values in CasADi instructions and 2.4 in time, the docs'
+results page, section "casadi-ik's gradient cost"). A run's iterations are bounded (``max_iter``, or less from a short ladder of limits) so that
+its worst case, a value with gradient and then per iteration ``LINE_SEARCH`` values and a value with
+gradient, fits the evaluations left. Its evaluations are charged to the task as its final point scored
+by the task's objective (``task.evaluate``, the point repeated), so the best kept is the task
+objective's, and the evaluations reported are exact and never exceed the budget. A run whose solver
+raised (its counts unknown) is charged its worst case.
+
+Failures: a solver failure (e.g. a NaN in the loss: ``Non_Regular_Sensitivities``) raises a
+HybridfitError naming its status with ``on_failure="raise"``; with ``"restart"`` (the default) the next
+run restarts, and after 3 failed runs in a row the optimiser stops (raising if no run of the task
+succeeded).
 """
 
 from __future__ import annotations
 
-import functools
+import threading
 import warnings
+import weakref
 from typing import Literal
 
 import numpy as np
 from pydantic import Field
 
-from hybridfit.errors import HybridfitError
+from hybridfit.errors import HybridfitError, PluginError
 from hybridfit.objective import capability
 from hybridfit.optimizer import Optimizer, Task
 from hybridfit.plugin import Settings
+from hybridfit.stages import structure_of
 
-#: IPOPT statuses after which the run's points are trusted (stopped by us or converged)
-OK_STATUSES = {
-    "Solve_Succeeded", "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded", "User_Requested_Stop",
-    "Search_Direction_Becomes_Too_Small", "Feasible_Point_Found",
-}
+#: sqpmethod's statuses after which the run's point is trusted
+OK_STATUSES = {"Solve_Succeeded", "Maximum_Iterations_Exceeded", "Search_Direction_Becomes_Too_Small"}
 FAILURES_IN_A_ROW = 3
-#: the answer to a request that would overrun the budget (IPOPT rejects the step)
-_EXHAUSTED = 1e20
+#: line-search values per SQP iteration at most (sqpmethod's ``max_iter_ls``)
+LINE_SEARCH = 5
+#: the line search's step factor per trial (sqpmethod's ``beta``; its default, 0.8, reaches only 0.41
+#: of a step in 5 trials and then accepts a worse point)
+BACKTRACK = 0.5
+#: the evaluations each of the solver's counts costs: "value" 1, "gradient" a value with its gradient
+COSTS = {"n_call_nlp_fg": "value", "n_call_nlp_f": "value", "n_call_nlp_jac_fg": "gradient",
+         "n_call_nlp_grad": "gradient", "n_call_nlp_grad_f": "gradient"}
 
 
 class CasadiIKSettings(Settings):
@@ -59,198 +79,240 @@ class CasadiIKSettings(Settings):
     candidates: int = Field(8, ge=1, description="start candidates: the initial guess and perturbations of it")
     candidate_sigma: float = Field(0.1, gt=0, description="spread of the candidates, fraction of each range")
     restart_sigma: float = Field(0.1, gt=0, description="spread of restarts around the best so far, fraction of range")
-    max_iter: int = Field(500, ge=1, description="IPOPT iterations per run")
-    lbfgs_history: int = Field(30, ge=1,
-                               description="IPOPT's limited-memory BFGS history (its default 6 converges slowly)")
-    tol: float = Field(1e-6, gt=0, description="IPOPT convergence tolerance")
+    runs: int = Field(3, ge=1, description="solver runs per stage at most (the first from the best candidate)")
+    max_iter: int = Field(100, ge=1, description="SQP iterations per run at most")
+    tol: float = Field(1e-4, gt=0, description="a run ends when its step is below this, fraction of each range")
     gradient_cost: int = Field(2, ge=0, description="evaluations charged per gradient (see the module doc)")
-    on_failure: Literal["restart", "raise"] = Field("restart", description="after an IPOPT failure: restart or raise")
+    on_failure: Literal["restart", "raise"] = Field("restart", description="after a solver failure: restart or raise")
 
 
 def optimised_loss(objective, sigma_mm: float) -> str | None:
-    """None when IPOPT minimises the objective itself (it offers ``casadi_loss``), else a
+    """None when the solver minimises the objective itself (it offers ``casadi_loss``), else a
     sentence naming the surrogate it minimises instead."""
     if capability(objective, "casadi_loss") is not None:
         return None
     name = objective.name or type(objective).__name__
-    return (f"casadi-ik: objective {name!r} offers no CasADi symbols (casadi_loss), so IPOPT minimises a "
+    return (f"casadi-ik: objective {name!r} offers no CasADi symbols (casadi_loss), so the solver minimises a "
             f"surrogate: the Gaussian-mixture negative log-likelihood of the proposals (sigma_mm={sigma_mm:g}); "
             f"every hypothesis is still scored, and the best kept, by {name!r}")
 
 
-def surrogate(task: Task, sigma_mm: float, span: np.ndarray):
-    """CasADi SX (z, f): z (dim,) in the unit cube, f the loss over the task's points (the
-    objective's own ``casadi_loss`` when it has one, else the Gaussian-mixture surrogate)."""
+class SymbolicProblem:
+    """One stage's CasADi problem: the loss ``f`` of the unit-cube variables ``z`` and the frame's
+    ``data`` (see :func:`frame_data`). ``prep`` maps the data to the problem's parameters (the data
+    and its hoisted parts); ``solver(max_iter, tol)`` is the sqpmethod solver of at most
+    ``max_iter`` iterations (built on first use, then kept); ``moving``: the point indices the free
+    parameters move (the surrogate's data, None for an objective's own loss)."""
+
+    def __init__(self, z, data, f, moving: np.ndarray | None) -> None:
+        import casadi as ca
+
+        hoisted, values = [], []
+        extract = getattr(ca, "extract_parametric", None)  # without it (older CasADi) nothing is hoisted
+        if extract is not None:
+            [f], hoisted, values = extract([f], data)
+        self.prep = ca.Function("ik_prep", [data], [ca.vertcat(data, *values)])
+        self.nlp = {"x": z, "p": ca.vertcat(data, *hoisted), "f": f}
+        self.moving = moving
+        self.lock = threading.Lock()  # one solve (and its stats) at a time: frames may run on threads
+        self._solvers: dict = {}
+
+    def solver(self, max_iter: int, tol: float):
+        import casadi as ca
+
+        key = (max_iter, tol)
+        if key not in self._solvers:
+            if not ca.has_conic("daqp"):
+                raise HybridfitError(f"casadi-ik: needs CasADi's QP solver daqp, which casadi {ca.__version__} lacks: "
+                                     f"pip install -U casadi")
+            self._solvers[key] = ca.nlpsol("ik", "sqpmethod", self.nlp, {
+                "qpsol": "daqp", "qpsol_options": {"error_on_fail": False}, "hessian_approximation": "limited-memory",
+                "lbfgs_memory": max_iter + 1, "max_iter": max_iter, "max_iter_ls": LINE_SEARCH, "beta": BACKTRACK,
+                "min_step_size": tol, "tol_pr": 1e-9, "tol_du": 1e-9, "calc_f": False, "calc_g": False,
+                "calc_lam_x": False, "calc_lam_p": False, "print_header": False, "print_iteration": False,
+                "print_status": False, "print_time": False, "show_eval_warnings": False, "error_on_fail": False,
+            })
+        return self._solvers[key]
+
+
+#: the surrogate's problems: per model structure (:func:`hybridfit.stages.structure_of`, shared by
+#: equal models), by free parameters, proposals per point and sigma
+_PROBLEMS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_PROBLEMS_LOCK = threading.Lock()
+
+
+def _tree(problem):
+    if not callable(getattr(problem.model, "kinematic_tree", None)):
+        raise HybridfitError(f"casadi-ik: model {problem.model.name!r} has no kinematic_tree(), "
+                             f"needed for symbolic kinematics")
+    return problem.model.kinematic_tree()
+
+
+def _symbols(task: Task):
+    """(z, base, lo, span, points, quaternion): the unit-cube variables (dim,), the frozen
+    parameters (P,) and the box (dim,) as symbols, the problem's points (Q, 3) of them and the
+    quaternion (4,) when it is free (else None)."""
     import casadi as ca
 
     from hybridfit.model.casadi import casadi_forward
 
     problem = task.problem
-    if not hasattr(problem.model, "kinematic_tree"):
-        raise HybridfitError(f"casadi-ik: model {problem.model.name!r} has no kinematic_tree(), "
-                             f"needed for symbolic kinematics")
-    z = ca.SX.sym("z", task.dim)
-    full: list = task.base.tolist()
+    tree = _tree(problem)
+    z, base = ca.SX.sym("z", task.dim), ca.SX.sym("base", problem.model.n_params)
+    lo, span = ca.SX.sym("lo", task.dim), ca.SX.sym("span", task.dim)
+    full = [base[i] for i in range(base.numel())]
     for k, i in enumerate(task.parameters):
-        full[int(i)] = task.lower[k] + z[k] * span[k]
-    points = casadi_forward(problem.model.kinematic_tree(), full)
+        full[int(i)] = lo[k] + z[k] * span[k]
+    points = casadi_forward(tree, full)
     if problem.point_matrix is not None:
         points = ca.mtimes(ca.DM(problem.point_matrix), points)
-    own = capability(problem.objective, "casadi_loss")
-    if own is not None:
-        f = own(points, problem.proposals, problem.weights, task.points)
-    else:  # the mixture's negative log-likelihood, constants dropped
-        f, inv_two_var = ca.SX(0.0), 0.5 / sigma_mm**2
-        for q in task.points:
-            w = problem.weights[q]
-            use = np.flatnonzero(w > 0)
-            if len(use):
-                d2 = [ca.sumsqr(points[int(q), :] - ca.DM(problem.proposals[q, r]).T) for r in use]
-                smallest = functools.reduce(ca.fmin, d2)
-                mix = sum(float(w[r]) * ca.exp(-(d - smallest) * inv_two_var) for r, d in zip(use, d2))
-                f += smallest * inv_two_var - ca.log(mix)
-    if {3, 4, 5, 6} <= set(task.parameters.tolist()):
-        f += (ca.sumsqr(ca.vertcat(*full[3:7])) - 1.0) ** 2
-    return z, f
+    quaternion = ca.vertcat(*full[3:7]) if {3, 4, 5, 6} <= set(task.parameters.tolist()) else None
+    return z, base, lo, span, points, quaternion
 
 
-class _Oracle:
-    """IPOPT's objective and gradient at z (a (dim, 1) CasADi DM), charged to the task (see the module doc)."""
-
-    def __init__(self, task: Task, z, f, span: np.ndarray, gradient_cost: int) -> None:
-        import casadi as ca
-
-        self.task, self.span, self.gradient_cost = task, span, gradient_cost
-        self.F = ca.Function("f", [z], [f])
-        self.G = ca.Function("g", [z], [f, ca.gradient(f, z)])
-        self.f_at = self.g_at = (None, None)  # (z.tobytes(), the value or gradient there)
-        self.exhausted = False
-
-    def _charge(self, z: np.ndarray, n: int) -> None:
-        x = np.clip(self.task.lower + z * self.span, self.task.lower, self.task.upper)
-        self.task.evaluate(np.repeat(x[None], n, axis=0))
-
-    def value(self, z) -> float:
-        z = np.asarray(z, dtype=float).ravel()
-        if self.f_at[0] != z.tobytes():
-            if self.task.remaining < 1:
-                self.exhausted = True
-                return _EXHAUSTED
-            self._charge(z, 1)
-            self.f_at = (z.tobytes(), float(self.F(z)))
-        return self.f_at[1]
-
-    def gradient(self, z, f) -> np.ndarray:
-        """The (1, dim) gradient (``f``, the value there, is CasADi's argument, unused)."""
-        z = np.asarray(z, dtype=float).ravel()
-        key = z.tobytes()
-        if self.g_at[0] != key:
-            cost = self.gradient_cost + int(self.f_at[0] != key)
-            if self.task.remaining < cost:
-                self.exhausted = True
-                return np.zeros((1, len(z)))
-            if cost:
-                self._charge(z, cost)
-            f, g = self.G(z)
-            self.f_at, self.g_at = (key, float(f)), (key, np.asarray(g, dtype=float).ravel())
-        return self.g_at[1][None]
+def surrogate_problem(task: Task, sigma_mm: float) -> SymbolicProblem:
+    """The surrogate's problem of the task's structure (built on first use, then cached)."""
+    problem = task.problem
+    structure = structure_of(problem.model, problem.point_names)
+    K = problem.proposals.shape[1]
+    key = (task.parameters.tobytes(), K, float(sigma_mm))
+    with _PROBLEMS_LOCK:
+        found = _PROBLEMS.setdefault(structure, {}).get(key)
+    if found is None:
+        found = _surrogate(task, K, sigma_mm)
+        with _PROBLEMS_LOCK:
+            found = _PROBLEMS.setdefault(structure, {}).setdefault(key, found)
+    return found
 
 
-@functools.cache
-def _callback_class():
-    """The CasADi Callback class (defined on first use: casadi is imported lazily)."""
+def _surrogate(task: Task, K: int, sigma_mm: float) -> SymbolicProblem:
     import casadi as ca
 
-    class Call(ca.Callback):
-        """CasADi function ``name``: inputs of sparsities ``ins``, the output (of sparsity ``out``)
-        ``fun(*inputs)``; ``jacobian``, a Call, its Jacobian (held here: CasADi holds no Python reference)."""
+    z, base, lo, span, points, quaternion = _symbols(task)
+    moving = np.array([q for q in range(points.shape[0]) if ca.depends_on(points[q, :], z)], dtype=np.int64)
+    m = len(moving)
+    proposals, weights, on = ca.SX.sym("proposals", m * K * 3), ca.SX.sym("weights", m * K), ca.SX.sym("on", m)
+    f, inv_two_var = ca.SX(0.0), 0.5 / sigma_mm**2
+    for a, q in enumerate(moving):  # the mixture's negative log-likelihood, constants dropped
+        x = points[int(q), :].T
+        d2 = [ca.sumsqr(x - proposals[3 * (a * K + r):3 * (a * K + r) + 3]) for r in range(K)]
+        smallest = d2[0]
+        for d in d2[1:]:
+            smallest = ca.fmin(smallest, d)
+        mix = sum(weights[a * K + r] * ca.exp(-(d2[r] - smallest) * inv_two_var) for r in range(K))
+        f += on[a] * (smallest * inv_two_var - ca.log(mix + 1.0 - on[a]))  # 0 where the stage does not score
+    if quaternion is not None:
+        f += (ca.sumsqr(quaternion) - 1.0) ** 2
+    return SymbolicProblem(z, ca.vertcat(base, lo, span, proposals, weights, on), f, moving)
 
-        def __init__(self, name, fun, ins, out, jacobian=None):
-            ca.Callback.__init__(self)
-            self.fun, self.ins, self.out, self.jacobian = fun, ins, out, jacobian
-            self.construct(name, {})
 
-        def get_n_in(self):
-            return len(self.ins)
+def own_problem(task: Task, own) -> SymbolicProblem:
+    """The problem of an objective's own ``casadi_loss`` on this task's frame (not cached)."""
+    import casadi as ca
 
-        def get_sparsity_in(self, i):
-            return self.ins[i]
+    problem = task.problem
+    z, base, lo, span, points, quaternion = _symbols(task)
+    f = own(points, problem.proposals, problem.weights, task.points)
+    if quaternion is not None:
+        f += (ca.sumsqr(quaternion) - 1.0) ** 2
+    return SymbolicProblem(z, ca.vertcat(base, lo, span), f, None)
 
-        def get_sparsity_out(self, i):
-            return self.out
 
-        def eval(self, arg):
-            return [self.fun(*arg)]
+def frame_data(task: Task, symbolic: SymbolicProblem, span: np.ndarray) -> np.ndarray:
+    """The task's frame as the problem's data: the frozen parameters, the box (lower, span) and, for
+    the surrogate, the moving points' proposals (one of weight 0 replaced by the point's heaviest,
+    so the nearest is always one that counts; all 0 at points the stage does not score), weights
+    and whether the stage scores each (it has proposals and is among the task's points)."""
+    parts = [task.base, task.lower, span]
+    if symbolic.moving is not None:
+        problem, moving = task.problem, symbolic.moving
+        weights, proposals = problem.weights[moving], problem.proposals[moving]
+        heaviest = proposals[np.arange(len(moving)), np.argmax(weights, axis=1)]
+        proposals = np.where((weights > 0)[..., None], proposals, heaviest[:, None])
+        scored = np.zeros(len(problem.weights), dtype=bool)
+        scored[task.points] = True
+        on = scored[moving] & (weights.sum(axis=1) > 0)
+        proposals[~on] = 0.0
+        parts += [proposals.ravel(), weights.ravel(), on.astype(float)]
+    return np.concatenate(parts)
 
-        def has_jacobian(self):
-            return self.jacobian is not None
 
-        def get_jacobian(self, name, inames, onames, opts):
-            return self.jacobian
-
-    return Call
+def ladder(max_iter: int) -> list[int]:
+    """The iteration limits a run may get, largest first: ``max_iter`` divided by powers of
+    sqrt(2) (a solver is built per limit, so there are few)."""
+    return sorted({max(1, int(max_iter / 2 ** (k / 2))) for k in range(2 * max_iter.bit_length() + 1)}, reverse=True)
 
 
 class CasadiIK(Optimizer):
-    """Inverse kinematics: IPOPT on a smooth Gaussian-mixture surrogate, symbolic FK from the model's tree."""
+    """Inverse kinematics: CasADi's SQP method on a Gaussian-mixture surrogate, symbolic kinematics of the tree."""
 
     Settings = CasadiIKSettings
     requires = {"casadi": "hybridfit[casadi]"}
 
-    def _reserve(self) -> int:
-        """Evaluations an IPOPT iteration needs: a new point's value and gradient, twice."""
-        return 2 * (1 + self.settings.gradient_cost)
+    def _worst(self, iterations: int) -> int:
+        """The most evaluations a run of this many iterations can make."""
+        gradient = 1 + self.settings.gradient_cost
+        return gradient + iterations * (LINE_SEARCH + gradient)
 
     def min_budget(self, task: Task) -> int:
-        return self.settings.candidates + 2 * self._reserve()
+        return self.settings.candidates + self._worst(1)
+
+    def charge(self, stats: dict) -> int:
+        """The evaluations of a run, from the solver's counts (see the module doc)."""
+        unknown = [k for k, v in stats.items() if k.startswith("n_call_nlp") and v and k not in COSTS]
+        if unknown:
+            raise PluginError(f"{self.name}: the solver made evaluations it has no cost for: {', '.join(unknown)}")
+        cost = {"value": 1, "gradient": 1 + self.settings.gradient_cost}
+        return sum(cost[kind] * int(stats.get(k, 0)) for k, kind in COSTS.items())
 
     def minimize(self, task: Task, rng: np.random.Generator) -> None:
-        import casadi as ca
-
         s = self.settings
         lower, upper = task.lower, task.upper
         if not (np.isfinite(lower).all() and np.isfinite(upper).all()):
             raise HybridfitError(f"{self.name}: needs finite bounds on every parameter of task {task.name}")
         span = np.where(upper > lower, upper - lower, 1.0)
-        if note := optimised_loss(task.problem.objective, s.sigma_mm):
-            warnings.warn(note, stacklevel=2)
-        oracle = _Oracle(task, *surrogate(task, s.sigma_mm, span), span, s.gradient_cost)
-        reserve, Call, dense, one = self._reserve(), _callback_class(), ca.Sparsity.dense, ca.Sparsity.dense(1, 1)
-        gradient = Call("ik_gradient", oracle.gradient, [dense(task.dim, 1), one], dense(1, task.dim))
-        objective = Call("ik_objective", oracle.value, [dense(task.dim, 1)], one, gradient)
-        stop = Call("ik_stop", lambda *_: int(oracle.exhausted or task.remaining < reserve),  # IPOPT's outputs in
-                    [one if o == "f" else dense(task.dim, 1) if o in ("x", "lam_x") else ca.Sparsity(0, 0)
-                     for o in ca.nlpsol_out()], one)
-        zs = ca.MX.sym("z", task.dim)
-        solver = ca.nlpsol("ik", "ipopt", {"x": zs, "f": objective(zs)}, {
-            "ipopt.hessian_approximation": "limited-memory", "ipopt.print_level": 0, "ipopt.sb": "yes",
-            "ipopt.max_iter": s.max_iter, "ipopt.tol": s.tol, "ipopt.limited_memory_max_history": s.lbfgs_history,
-            "print_time": False, "iteration_callback": stop,
-            "error_on_fail": False, "show_eval_warnings": False,
-        })
+        own = capability(task.problem.objective, "casadi_loss")
+        if own is None:
+            warnings.warn(optimised_loss(task.problem.objective, s.sigma_mm), stacklevel=2)
+            symbolic = surrogate_problem(task, s.sigma_mm)
+        else:
+            symbolic = own_problem(task, own)
+        parameters = symbolic.prep(frame_data(task, symbolic, span))
 
         n = min(s.candidates, task.remaining)
         X = np.clip(task.x0 + rng.normal(0.0, s.candidate_sigma, (n, task.dim)) * span, lower, upper)
         X[0] = task.x0
         start = X[int(np.argmin(task.evaluate(X)))]
         succeeded, failures = False, []  # failures: the statuses of the failed runs in a row
-        while task.remaining >= reserve:
-            oracle.exhausted = False
-            used = task.used
-            solver(x0=(start - lower) / span, lbx=0.0, ubx=1.0)
-            stats = solver.stats()
-            if stats["return_status"] in OK_STATUSES or oracle.exhausted:
+        limits = ladder(s.max_iter)
+        for _ in range(s.runs):
+            fits = [k for k in limits if self._worst(k) <= task.remaining]
+            if not fits:
+                return
+            with symbolic.lock:
+                solver = symbolic.solver(fits[0], s.tol)
+                try:
+                    z = solver(x0=(start - lower) / span, p=parameters, lbx=0.0, ubx=1.0)["x"]
+                    stats = solver.stats()
+                    status, charge = stats["return_status"], self.charge(stats)
+                except RuntimeError as err:  # the solver raised: its counts are unknown, charged at worst
+                    z, status, charge = None, str(err).strip().splitlines()[-1], self._worst(fits[0])
+            x = None if z is None else np.clip(lower + np.asarray(z).ravel() * span, lower, upper)
+            if x is None or not np.isfinite(x).all():
+                x = start
+            if charge:
+                task.evaluate(np.repeat(x[None], charge, axis=0))
+            if status in OK_STATUSES:
                 succeeded, failures = True, []
             else:
-                failures.append(stats["return_status"])
-                message = (f"{self.name}: IPOPT failed on task {task.name}: {failures[-1]} after "
-                           f"{stats['iter_count']} iterations")
+                failures.append(status)
+                message = f"{self.name}: sqpmethod failed on task {task.name}: {failures[-1]}"
                 if s.on_failure == "raise":
                     raise HybridfitError(message)
                 if len(failures) >= FAILURES_IN_A_ROW:
                     if succeeded:
                         return
                     raise HybridfitError(f"{message} ({len(failures)} runs in a row failed: {', '.join(failures)})")
-            if task.used == used:
-                return  # IPOPT made no evaluation: no progress possible
+            if not charge:
+                return  # the solver evaluated nothing: no progress possible
             start = np.clip(task.best_x + rng.normal(0.0, s.restart_sigma, task.dim) * span, lower, upper)
