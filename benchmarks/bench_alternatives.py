@@ -207,11 +207,16 @@ def measure(runs: dict, repeat: int) -> dict:
     return out
 
 
+def _figure(value: float) -> str:
+    """Three significant digits, a large value whole (3,190, not 3.19e+03)."""
+    return f"{value:,.0f}" if value >= 100 else f"{value:.3g}"
+
+
 def rows(figures: dict, missing: dict) -> list[list]:
     """The table's rows: the measured ones, then those whose plugin is not installed."""
     what = {**{label: text for label, (_, text) in SEARCH.items()},
             HYBRID: "the hybrid objective (proposals + depth), its default schedule, on the rendered sequence"}
-    out = [[label, f"{f['ms']:.3g}", f"{f['ratio']:.3g}x" if math.isfinite(f["ratio"]) else "",
+    out = [[label, _figure(f["ms"]), f"{_figure(f['ratio'])}x" if math.isfinite(f["ratio"]) else "",
             f"{f['error']:.2f}", what[label]] for label, f in figures.items()]
     return out + [[label, "", "", "", f"not measured: {why}"] for label, why in missing.items()]
 
