@@ -117,14 +117,16 @@ def test_the_wheel_is_what_is_imported(env):
         "for module in (hybridfit, hybridfit_plugins, rr): print(module.__file__)\n"
         "print(hybridfit.__version__, m.version('hybridfit'))\n"
         "print(*(len(skeleton(name)) for name in ('icvl', 'nyu', 'msra')))\n"
-        "print(*sorted(p.name for p in m.distribution('hybridfit').files if p.name.startswith('LICENSE')))"
+        "print(*sorted(p.as_posix() for p in m.distribution('hybridfit').files if p.name.startswith('LICENSE')))"
     )], work, variables).splitlines()
     venv = python.parents[1]
     for path in out[:3]:
         assert Path(path).is_relative_to(venv), f"{path} is not the installed wheel's (outside {venv})"
     assert out[3].split() == [_checkout_version()] * 2  # one version: the package's and the wheel's metadata
     assert out[4].split() == ["16", "14", "21"]  # package data: the built-in skeleton files
-    assert out[5] == "LICENSE"
+    licences = out[5].split()  # the project's, and the vendored three.js's beside its files
+    assert len(licences) == 2 and licences[1] == "hybridfit/exports/three/LICENSE", licences
+    assert licences[0].endswith(".dist-info/LICENSE") or licences[0].endswith(".dist-info/licenses/LICENSE"), licences
 
 
 def test_the_wheel_is_typed_and_knows_its_version(env):

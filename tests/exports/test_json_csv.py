@@ -110,5 +110,5 @@ def test_a_fits_file_whose_joints_are_not_its_models_is_refused(tmp_path):
 
 
 def test_an_unknown_extension_is_refused_before_reading(tmp_path):
-    with pytest.raises(HybridfitError, match=r"use \.json, \.bvh, \.csv"):
+    with pytest.raises(HybridfitError, match=r"use \.json, \.bvh, \.glb, \.gltf, \.csv"):
         export(tmp_path / "missing.npz", tmp_path / "hand.fbx")

@@ -238,9 +238,9 @@ def test_every_text_a_plot_draws_is_plain_text(tmp_path, monkeypatch):
     drawn = []
     real = plots._save
 
-    def save(fig, out, name):
+    def save(fig, out, name, rows=None):
         drawn.extend(t.get_text() for t in fig.findobj(matplotlib.text.Text))
-        return real(fig, out, name)
+        return real(fig, out, name, rows)
 
     monkeypatch.setattr(plots, "_save", save)
     plots.make_plots(tmp_path, _rows([r"$\alpha$", "a $ b"], ["$x$", "y"]))
