@@ -71,6 +71,9 @@ def register(sub) -> None:
     p.add_argument("--depth", metavar="DIR", help="a data-set folder (hybridfit synth test) holding the proposals' "
                    "frames (those the file's frames names, else its first frames): their depth, for objectives that "
                    "compare with the depth image (rendered-depth, hybrid)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="fit the frames on the dask.distributed scheduler at "
+                   "ADDRESS (tcp://HOST:PORT; `dask scheduler` and `dask worker` start one): the same fits bit for "
+                   "bit, a lost worker's chunk run again on another (--jobs is ignored)")
     p.add_argument("--track", action="store_true", help="track the frames as a sequence: each starts from the "
                    "previous fit (one process; --jobs is ignored)")
     p.add_argument("--on-lost", choices=["reinit", "continue"], default="reinit",
@@ -119,6 +122,8 @@ def frame_reasons(data) -> dict[int, str]:
 
 
 def run(args) -> int:
+    if args.scheduler and args.track:
+        raise HybridfitError("--scheduler fits frames apart; --track fits one sequence in order, in one process")
     data = load_input(args)
     check_millimetres(data["proposals"], data["confidences"], args.proposals)
     indices = frame_indices(data.get("frames"), len(data["proposals"]), f"{args.proposals}: 'frames'")
@@ -160,7 +165,8 @@ def run(args) -> int:
         result.errors.update({f: m for f, m in frame_reasons(data).items() if result.failed[f]})
     else:
         try:
-            result = fit_frames(data["proposals"], data["confidences"], jobs=args.jobs, **common)
+            result = fit_frames(data["proposals"], data["confidences"], jobs=args.jobs, scheduler=args.scheduler,
+                                **common)
             result.errors.update({f: m for f, m in frame_reasons(data).items() if result.failed[f]})
         except PluginError as err:  # a bug, not the user's: keep the finished frames, then let it propagate
             if err.result is not None and (~err.result.failed).any():

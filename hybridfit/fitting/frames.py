@@ -213,6 +213,7 @@ def fit(
     progress: bool = False,
     observations: Sequence[Any] | None = None,
     frames: Sequence[int] | None = None,
+    scheduler: str | None = None,
 ) -> FitResult:
     """Fit the model to each frame's proposals.
 
@@ -226,7 +227,10 @@ def fit(
     objectives that ``observes_depth`` (``rendered-depth``, ``hybrid``). frames: each frame's
     index in its data set (default 0 .. F - 1), which keys its random streams
     (:mod:`hybridfit.keys`): a frame's fit does not depend on which of the data set's frames
-    are fitted with it.
+    are fitted with it. scheduler: a dask.distributed scheduler's address (``tcp://HOST:PORT``;
+    the ``dask`` extra): the frames are fitted there in chunks, with the same result bit for
+    bit as in this process; a chunk whose worker is lost is run again on another, and each
+    finished chunk is kept as it arrives (an interrupted or failed run keeps them).
 
     The fit is its schedule: the optimiser's stages (``stepwise-pso``: palm, fingers, then a
     local gradient step), each minimising the objective in force unless the schedule names
@@ -284,7 +288,9 @@ def fit(
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
         with stops.deferred():  # a stop signal is raised between chunks or frames, never inside compiled code
-            if lockstep or jobs <= 1 or F <= 1:
+            if scheduler is not None:
+                _fit_on_cluster(scheduler, spec, F, proposals, confidences, observations, store, bar)
+            elif lockstep or jobs <= 1 or F <= 1:
                 size = min(CHUNK if lockstep else 1, max(1, -(-F // jobs)))  # jobs > 1: >= jobs chunks
                 chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // size)))]
                 for fitted in fitter.fit_chunks(chunks, proposals, confidences, jobs if lockstep else 1,
@@ -328,6 +334,39 @@ def fit(
     result.schedule = json.dumps(schedules(fitter, model, objective, proposals, confidences, names,
                                            search_radius_mm, ~result.failed, observations))
     return _with_inliers(result, objective, proposals, confidences)
+
+
+def _fit_on_cluster(address: str, spec: _Spec, F: int, proposals, confidences, observations, store, bar) -> None:
+    """Fit the F frames on the dask scheduler at ``address`` in chunks of at most ``CHUNK``
+    frames (at least 4 per worker), ``store``-ing each as it arrives; a stop signal cancels
+    the chunks still running."""
+    from .. import cluster
+
+    client = cluster.connect(address)
+    distributed = cluster.distributed()
+    try:
+        workers_n = max(1, len(client.scheduler_info().get("workers", {})))
+        chunks = [c for c in np.array_split(np.arange(F), max(4 * workers_n, -(-F // CHUNK))) if len(c)]
+        futures = [client.submit(_fit_chunk, spec, [int(f) for f in c], proposals[c], confidences[c],
+                                 None if observations is None else [observations[i] for i in c],
+                                 pure=False, retries=cluster.RETRIES) for c in chunks]
+        pending = set(futures)
+        try:
+            while pending:  # wakes every STOP_POLL_S: a stop signal is acted on at once
+                try:
+                    finished = distributed.wait(pending, timeout=STOP_POLL_S, return_when="FIRST_COMPLETED").done
+                except TimeoutError:  # none finished yet
+                    finished = set()
+                for fut in finished:
+                    fitted = fut.result()  # a plugin's error is raised here, as in this process
+                    store(fitted)
+                    bar.update(len(fitted))
+                pending -= finished
+                stops.check()
+        finally:
+            client.cancel(list(pending))
+    finally:
+        client.close()
 
 
 def schedules(fitter, model, objective, proposals, confidences, names, search_radius_mm, fitted,

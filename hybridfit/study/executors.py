@@ -16,7 +16,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterator, Sequence
 
-from .. import workers
+from .. import cluster, workers
 from ..errors import HybridfitError, ResourceError
 from ..optional import import_library
 
@@ -27,8 +27,6 @@ START_TIMEOUT_S = 120.0
 STOP_TIMEOUT_S = 5.0
 
 EXECUTORS = ("serial", "processes", "dask")
-#: how long to wait for a dask scheduler at an address to answer
-CONNECT_TIMEOUT_S = 5
 Outcome = tuple[int, Any, "str | None"]
 
 
@@ -217,11 +215,7 @@ class Dask(Serial):
         Client, LocalCluster = distributed.Client, distributed.LocalCluster
         self.cluster = None
         if address:
-            try:
-                self.client = Client(address, timeout=CONNECT_TIMEOUT_S)
-            except Exception as err:  # nothing there, or something that is not a dask scheduler: the user's address
-                raise HybridfitError(f"--scheduler {address}: no dask scheduler answered within {CONNECT_TIMEOUT_S} s "
-                                     f"({type(err).__name__}: {err})") from None
+            self.client = cluster.connect(address)
         else:
             self.cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=processes,
                                         dashboard_address=None)

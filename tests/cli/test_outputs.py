@@ -246,11 +246,11 @@ def test_an_unreachable_dask_scheduler_is_one_line(tmp_path, capsys, monkeypatch
     pytest.importorskip("distributed")
     import socket
 
-    from hybridfit.study import executors
+    from hybridfit import cluster
 
     from ..study.conftest import TINY
 
-    monkeypatch.setattr(executors, "CONNECT_TIMEOUT_S", 1)
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 1)
     with socket.socket() as s:  # a port nothing listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
