@@ -126,7 +126,9 @@ def run(args) -> int:
         raise HybridfitError("--scheduler fits frames apart; --track fits one sequence in order, in one process")
     data = load_input(args)
     check_millimetres(data["proposals"], data["confidences"], args.proposals)
-    indices = frame_indices(data.get("frames"), len(data["proposals"]), f"{args.proposals}: 'frames'")
+    given = data.get("frames")  # indices key the frames' random streams; names (the paper's ICVL file) do not
+    named = given is not None and np.asarray(given).dtype.kind in "US"
+    indices = frame_indices(None if named else given, len(data["proposals"]), f"{args.proposals}: 'frames'")
     if args.objective is None and "objective" in data:  # the objective the file names (other methods' estimates)
         args.objective = str(data["objective"])
     plugins = plugin_kwargs(args)
