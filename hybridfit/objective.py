@@ -42,7 +42,12 @@ POINT_LOSS_SIGNATURE = nb.types.void(nb.types.float64[::1], nb.types.float64[::1
 #: loss(points (N, Q, 3) mm, subset (m,) int64 point indices) -> (N,) float64 losses; points
 #: may be any strided view (the driver's has the hypothesis innermost in memory)
 Loss = Callable[[np.ndarray, np.ndarray], np.ndarray]
-#: loss(points (N, Q, 3) mm, subset (m,), joints (N, J, 3) mm model joints) -> (N,) float64 losses
+#: loss(points (N, Q, 3) mm, subset (m,), joints (N, J, 3) mm model joints) -> (N,) float64 losses. Of an
+#: objective with ``observed_derivatives``, the loss also has ``loss.derivatives(points, subset, joints) ->
+#: (losses (N,), point_gradients (N, Q, 3), point_curvatures (N, Q, 3, 3), joint_gradients (N, J, 3),
+#: joint_curvatures (N, 3J, 3J))``: its partial derivatives with respect to the points and to the joints taken
+#: apart (the scorer chains both through the kinematics: the points are fixed combinations of the joints), each
+#: curvature a positive semi-definite Gauss-Newton matrix, joint j's coordinate c at row 3 j + c
 ObservedLoss = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
@@ -119,6 +124,9 @@ class Objective(Plugin, abc.ABC):
     observes_depth: ClassVar[bool] = False
     #: capability: the loss is a sum of per-point terms (stage losses add up)
     additive: ClassVar[bool] = True
+    #: capability: bind_observed's loss offers ``derivatives`` (:data:`ObservedLoss`), so a schedule's local
+    #: stage can take gradient steps on it
+    observed_derivatives: ClassVar[bool] = False
 
     def point_loss(self) -> tuple[Callable, np.ndarray] | None:
         """The fast form: (function, constants (c,) float64), the function a ``numba.njit``

@@ -6,7 +6,7 @@ X (F, m, d), points, losses (F, >= m))`` per generation: ``losses[:, :m]`` = eac
 hypotheses (the parameters outside the stage at ``base``) scored over ``points``.
 :class:`PointScorer` scores by the per-point loss on a kinematic tree; :class:`BoundScorer` by
 the objective's bound losses, one frame at a time (plain numpy, a model without a kinematic
-tree, or an objective that observes depth).
+tree, or an objective that observes depth; derivatives where the bound losses offer them).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 from ..model.kinematics import block_kinematics, block_points, block_setup, block_views
 from ..objective import checked_losses, point_loss_of
 from ..point_loss import has_proposals, specialise
-from .derivatives import assemble, compiled_point_derivatives, derivative_setup, pose_jacobians
+from .derivatives import PARAMETER_STEP, assemble, compiled_point_derivatives, derivative_setup, pose_jacobians
 
 #: the objective's per-point loss in the loop below: each specialised copy binds it (:func:`specialise`)
 point_loss = None
@@ -177,6 +177,8 @@ class BoundScorer(_Stages):
         super().__init__(None if observed else tree, point_map)
         self.model, self.point_matrix, self.losses = model, point_matrix, losses
         self.observed, self.objective = observed, objective
+        if observed and losses and all(callable(getattr(loss, "derivatives", None)) for loss in losses):
+            self.prepare_derivatives, self.derivatives = self._prepare_observed, self._observed_derivatives
 
     def prepare(self, base, pidx, subset, owned, n):
         if self.tree is None:
@@ -196,6 +198,42 @@ class BoundScorer(_Stages):
         full[:, :, pidx] = X
         joints = self.model.forward(full.reshape(F * m, -1)).reshape(F, m, -1, 3)
         return (joints if self.point_matrix is None else np.einsum("qj,fnjc->fnqc", self.point_matrix, joints)), joints
+
+    def _prepare_observed(self, base, pidx, subset, n):
+        return base, pidx
+
+    def _observed_derivatives(self, stage, X, subset, frames, gradients, curvatures):
+        """:meth:`PointScorer.derivatives` of bound losses that offer ``derivatives`` (objectives with
+        ``observed_derivatives``): their partial derivatives with respect to the points and the
+        joints, chained through the joints' Jacobians (forward differences of the model's
+        ``forward``, the steps of :mod:`.derivatives`)."""
+        base, pidx = stage
+        m, d, P = X.shape[1], X.shape[2], base.shape[1]
+        every = np.arange(d)
+        for f in np.flatnonzero(frames):
+            poses = np.repeat(base[f][None, None], m, axis=0).repeat(d + 1, axis=1)
+            poses[:, :, pidx] = X[f][:, None]
+            steps = PARAMETER_STEP * np.maximum(1.0, np.abs(X[f]))
+            poses[:, 1 + every, pidx] += steps
+            joints = self.model.forward(poses.reshape(-1, P)).reshape(m, d + 1, -1, 3)
+            jac = (joints[:, 1:] - joints[:, :1]) / steps[:, :, None, None]  # (m, d, J, 3)
+            at = np.ascontiguousarray(joints[:, 0])
+            M = self.point_matrix
+            points = at if M is None else np.einsum("qj,njc->nqc", M, at)
+            _, pg, ph, jg, jc = self.losses[f].derivatives(points, subset, at)
+            J = at.shape[1]
+            grad = jg + (pg if M is None else np.einsum("qj,nqc->njc", M, pg))  # (m, J, 3)
+            curv = np.array(jc, dtype=np.float64).reshape(m, J, 3, J, 3)
+            if M is None:  # the points' 3 x 3 blocks on the joints' diagonal
+                diagonal = np.arange(J)
+                curv.transpose(1, 3, 0, 2, 4)[diagonal, diagonal] += ph.transpose(1, 0, 2, 3)
+            else:  # sum_q M[q, j] M[q, k] H_q
+                pairs = (M[:, :, None] * M[:, None, :]).reshape(len(M), -1)
+                curv += np.tensordot(ph.reshape(m, len(M), 9), pairs, axes=([1], [0])).reshape(
+                    m, 3, 3, J, J).transpose(0, 3, 1, 4, 2)
+            flat = jac.reshape(m, d, -1)
+            gradients[f, :m] = (flat @ grad.reshape(m, -1, 1))[..., 0]
+            curvatures[f, :m] = flat @ curv.reshape(m, 3 * J, 3 * J) @ flat.transpose(0, 2, 1)
 
     def score(self, stage, X, subset, losses):
         points, joints = self._points(stage, X, subset)

@@ -186,7 +186,8 @@ class Stepwise(Optimizer):
 
     def _local(self, task: Task):
         """(optimizer, objective) of the local stage: ``local_optimizer`` where the stage's
-        objective has a per-point loss on a model with a kinematic tree, else the gradient-free
+        objective has a per-point loss on a model with a kinematic tree, or observes depth with
+        ``observed_derivatives``, else the gradient-free
         refiner; the objective ``local_objective``, else the objective in force's own
         ``local_objective`` form (a pair), else None (the objective in force)."""
         s = self.settings
@@ -195,7 +196,8 @@ class Stepwise(Optimizer):
         problem = task.problem
         tree = structure_of(problem.model, problem.point_names).tree() if callable(
             getattr(problem.model, "kinematic_tree", None)) else None
-        gradient = point_loss_of(scored) is not None and tree is not None and not scored.observes_depth
+        gradient = (point_loss_of(scored) is not None and tree is not None and not scored.observes_depth) or (
+            scored.observes_depth and getattr(scored, "observed_derivatives", False))
         return (self.local_optimizer if gradient else self.refiner), objective
 
     def min_budget(self, task: Task) -> int:
