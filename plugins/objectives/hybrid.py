@@ -38,6 +38,7 @@ docs' results page, section "The hybrid objective's depth weight").
 from __future__ import annotations
 
 import functools
+import weakref
 
 import numpy as np
 from pydantic import Field
@@ -66,8 +67,8 @@ class HybridSettings(Settings):
     tau_mm: float = Field(4.0, gt=0, description="rho's truncation, mm: a larger distance costs as much as tau")
     free_space_mm: float = Field(3.0, ge=0, description="a model point's surface this far in front of the observed "
                                  "depth is free (sensor noise), mm")
-    fill_px: int = Field(2, ge=0, le=32, description="holes in the hand mask up to about this many pixels across "
-                         "are filled before its distance transform (missing pixels)")
+    margin_px: float = Field(0.0, ge=0, le=32, description="off the hand's mask, a model point's distance counts from "
+                             "this many pixels beyond it: small holes and a ragged edge (missing pixels) cost nothing")
     proposals: ClampedConfidenceSettings = Field(default_factory=ClampedConfidenceSettings,
                                                  description="the proposal term's settings (clamped-confidence)")
     surface: HandSurface = Field(default_factory=HandSurface, description="the model's surface (as the synthetic "
@@ -79,7 +80,8 @@ class FrameDepth:
     the hand mask's distance transform (h, w) px and depth (h, w) mm of the crop, and the
     crop's pinhole intrinsics (fx, fy, cx, cy)."""
 
-    def __init__(self, observation: Observation, points: int, fill_px: int):
+    def __init__(self, observation: Observation, points: int, margin_px: float):
+        self.source = weakref.ref(observation)
         depth = np.asarray(observation.depth_mm, dtype=np.float64)
         u0, v0 = observation.box[:2]
         k = observation.intrinsics
@@ -94,10 +96,9 @@ class FrameDepth:
         self.points = np.ascontiguousarray(np.stack([(us - cx) * z / fx, (vs - cy) * z / fy, z]))
         self.centre = self.points.mean(axis=1) if len(z) else np.zeros(3)
         self.compact = np.ascontiguousarray(self.points - self.centre[:, None], dtype=np.float32)
-        mask = ndimage.binary_closing(hand, iterations=fill_px) | hand if fill_px else hand
-        mask = np.pad(mask, ((0, max(0, 2 - mask.shape[0])), (0, max(0, 2 - mask.shape[1]))))
+        mask = np.pad(hand, ((0, max(0, 2 - hand.shape[0])), (0, max(0, 2 - hand.shape[1]))))
         self.depth = np.ascontiguousarray(np.pad(depth, [(0, a - b) for a, b in zip(mask.shape, depth.shape)]))
-        self.dt = np.ascontiguousarray(ndimage.distance_transform_edt(~mask), dtype=np.float64)
+        self.dt = np.maximum(ndimage.distance_transform_edt(~mask) - margin_px, 0.0)
 
 
 def model_cones(model, surface: HandSurface):
@@ -110,9 +111,9 @@ class DepthTerms:
     """The two depth terms of a model and a frame (:mod:`hybridfit.model.surface`), with the
     objective's settings."""
 
-    def __init__(self, settings: HybridSettings, observation: Observation, model, cones=None):
+    def __init__(self, settings: HybridSettings, observation: Observation, model, cones=None, frame=None):
         self.map, self.ra, self.rb = cones or model_cones(model, settings.surface)
-        self.frame = FrameDepth(observation, settings.points, settings.fill_px)
+        self.frame = frame or FrameDepth(observation, settings.points, settings.margin_px)
         self.samples = np.linspace(0.0, 1.0, settings.samples) if settings.samples > 1 else np.array([0.5])
         s = settings
         f = self.frame
@@ -152,6 +153,9 @@ class Hybrid(Objective):
     additive = False
     observed_derivatives = True
 
+    def __getstate__(self):  # the caches of bound frames stay behind (a WeakValueDictionary does not pickle)
+        return {k: v for k, v in self.__dict__.items() if k not in ("_cones", "_frames")}
+
     def bind(self, proposals, weights):
         raise NotImplementedError("hybrid also compares with the depth image: use bind_observed")
 
@@ -161,7 +165,13 @@ class Hybrid(Objective):
         cones = self.__dict__.setdefault("_cones", {})  # per model, built once (a fit binds every frame)
         if cones.get(id(model), (None,))[0] is not model:
             cones[id(model)] = (model, model_cones(model, s.surface))
-        terms = DepthTerms(s, observation, model, cones[id(model)][1])
+        # a frame's depth as the terms read it, shared with the local objective's binding of that frame
+        frames = self.__dict__.setdefault("_frames", weakref.WeakValueDictionary())
+        key = (id(observation), s.points, s.margin_px)
+        frame = frames.get(key)
+        if frame is None or frame.source() is not observation:
+            frame = frames[key] = FrameDepth(observation, s.points, s.margin_px)
+        terms = DepthTerms(s, observation, model, cones[id(model)][1], frame)
 
         proposals = np.ascontiguousarray(proposals, dtype=np.float64)[None]
         weights = np.ascontiguousarray(weights, dtype=np.float64)[None]
@@ -193,6 +203,8 @@ class Hybrid(Objective):
     def local_objective(self) -> Hybrid:
         """The local stage's: the same terms, the depth weighted by ``local_data_weight`` and ``local_model_weight``."""
         s = self.settings
-        return self.with_params(data_weight=s.local_data_weight, model_weight=s.local_model_weight)
+        local = self.with_params(data_weight=s.local_data_weight, model_weight=s.local_model_weight)
+        local.__dict__["_frames"] = self.__dict__.setdefault("_frames", weakref.WeakValueDictionary())
+        return local
 
     lower_bound = ClampedConfidence.lower_bound  # the proposal term's (the depth terms are >= 0)

@@ -5,6 +5,7 @@ stage that takes gradient steps on them."""
 from __future__ import annotations
 
 import json
+import pickle
 
 import numpy as np
 import pytest
@@ -95,6 +96,16 @@ def test_the_sampled_points_are_the_frame_s_hand_pixels_back_projected():
     np.testing.assert_array_equal(again, frame.points)  # a fixed sample: the same each time
 
 
+def test_off_the_mask_distances_count_from_the_margin():
+    from scipy import ndimage
+
+    obs = Observation.from_depth(DEPTH[2], K)
+    for margin in (0.0, 2.5):
+        dt = bound(2, {"margin_px": margin})[1].terms.frame.dt
+        np.testing.assert_allclose(dt, np.maximum(ndimage.distance_transform_edt(obs.depth_mm <= 0) - margin, 0))
+        assert (dt[obs.depth_mm > 0] == 0).all()
+
+
 def test_derivatives_are_the_proposal_term_s_per_point_and_the_depth_terms_per_joint():
     _, loss = bound(3, {"data_weight": 0.6, "model_weight": 0.3})
     joints = MODEL.forward(perturbed(3, 1, 3, 0.3))
@@ -179,6 +190,23 @@ def test_the_local_objective_is_hybrid_with_the_local_weights():
     local = obj.local_objective()
     assert type(local) is type(obj) and local.settings == obj.settings.model_copy(
         update={"data_weight": 7.0, "model_weight": 0.5})
+
+
+def test_the_search_and_the_local_objective_read_a_frame_once_and_a_used_objective_pickles():
+    obj = hybridfit.create("objective", "hybrid")
+    props, weights = _proposals(1)
+    obs = Observation.from_depth(DEPTH[1], K)
+    search = obj.bind_observed(props, weights, obs, MODEL)
+    local = obj.local_objective().bind_observed(props, weights, obs, MODEL)
+    assert local.terms.frame is search.terms.frame
+    other = obj.bind_observed(props, weights, Observation.from_depth(DEPTH[1], K), MODEL)  # an equal, other frame
+    assert other.terms.frame is not search.terms.frame
+    np.testing.assert_array_equal(other.terms.frame.dt, search.terms.frame.dt)
+    again = pickle.loads(pickle.dumps(obj))
+    assert again == obj
+    joints = MODEL.forward(perturbed(1, 3, 4, 0.5))
+    np.testing.assert_array_equal(again.bind_observed(props, weights, obs, MODEL)(joints, EVERY, joints),
+                                  search(joints, EVERY, joints))
 
 
 def test_gradient_steps_lower_the_loss_from_where_the_search_left_it():
