@@ -92,7 +92,7 @@ def surface_rates(model, poses, depth, intrinsics) -> list[list]:
         for name, X in zip(rows, (palm, finger)):
             joints = model.forward(model.clip(X))
             terms.losses(joints)
-            rows[name].append(len(X) / median_time(lambda: terms.losses(joints), repeat=15, number=20,
+            rows[name].append(len(X) / median_time(lambda t=terms, j=joints: t.losses(j), repeat=15, number=20,
                                                    clock=time.process_time))
     return [[name, float(np.median(r))] for name, r in rows.items()]
 

@@ -2,11 +2,11 @@
 
     loss = -E(P, h) + data_weight * D(O, h) + model_weight * S(O, h)
 
-a pair, as ``clamped-then-soft-l1`` is: the search stages (a swarm per stage, most of the hand
-where the initial guess left it) minimise it with light depth weights, so a finger not yet
-fitted cannot drag the palm; the local stage minimises its ``local_objective``, the same with
-``local_data_weight`` and ``local_model_weight``, by Levenberg-Marquardt steps on the terms'
-analytic derivatives. The fit's loss is this objective's at the final pose.
+It is a pair, as ``clamped-then-soft-l1`` is: the search stages (a swarm per stage, most of
+the hand where the initial guess left it) minimise it with light depth weights, so a finger
+not yet fitted cannot drag the palm; the local stage minimises its ``local_objective``, the
+same with ``local_data_weight`` and ``local_model_weight``, by Levenberg-Marquardt steps on
+the terms' analytic derivatives. The fit's loss is this objective's at the final pose.
 
 -E is ``clamped-confidence`` (the paper's Eq. 1, in [-J, 0], on the scored subset of
 points); D and S compare the model's rounded-cone surface (:mod:`hybridfit.model.render`'s,
@@ -117,8 +117,8 @@ class DepthTerms:
         self.samples = np.linspace(0.0, 1.0, settings.samples) if settings.samples > 1 else np.array([0.5])
         s = settings
         f = self.frame
-        self.args = (*self.map, self.ra, self.rb, f.points, f.centre, f.compact, s.delta_mm, s.tau_mm, self.samples, *f.camera, f.dt,
-                     f.depth, s.free_space_mm, s.delta_mm, s.tau_mm)
+        self.args = (*self.map, self.ra, self.rb, f.points, f.centre, f.compact, s.delta_mm, s.tau_mm, self.samples,
+                     *f.camera, f.dt, f.depth, s.free_space_mm, s.delta_mm, s.tau_mm)
 
     def losses(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(data (N,), model (N,)) mean costs, mm, of joints (N, J, 3) mm."""

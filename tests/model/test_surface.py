@@ -201,7 +201,7 @@ def test_the_curvature_is_the_gauss_newton_matrix_of_the_residuals():
     rng = np.random.default_rng(3)
     P = joints[rng.integers(0, 21, 8)] + rng.normal(0, 1.0, (8, 3))
     delta = 1e3  # every residual in the quadratic zone
-    dg, dc, _, _ = derivatives(joints[None], P, delta=delta, tau=2e3)
+    _, dc, _, _ = derivatives(joints[None], P, delta=delta, tau=2e3)
     rows = []
     h = 1e-6
     for s in range(len(P)):  # each point's residual's gradient, by finite differences of the reference
@@ -210,7 +210,8 @@ def test_the_curvature_is_the_gauss_newton_matrix_of_the_residuals():
             up, down = joints.copy().reshape(-1), joints.copy().reshape(-1)
             up[k] += h
             down[k] -= h
-            g[k] = (_reference_residual(up.reshape(21, 3), P[s]) - _reference_residual(down.reshape(21, 3), P[s])) / (2 * h)
+            g[k] = (_reference_residual(up.reshape(21, 3), P[s])
+                    - _reference_residual(down.reshape(21, 3), P[s])) / (2 * h)
         rows.append(g)
     R = np.array(rows)
     np.testing.assert_allclose(dc[0], R.T @ R / (delta * len(P)), atol=1e-6 * np.abs(dc[0]).max())

@@ -149,7 +149,8 @@ def test_the_scorer_chains_them_into_the_loss_gradient_of_the_parameters(derived
     points = truth if M is None else M @ truth
     props = points[:, None] + rng.normal(0, 5, (len(points), 2, 3))
     # rho untruncated within reach (tau 30 mm): its kinks would take over central differences
-    loss = hybridfit.create("objective", "hybrid", {"data_weight": 0.5, "model_weight": 0.5, "tau_mm": 30.0}).bind_observed(
+    objective = hybridfit.create("objective", "hybrid", {"data_weight": 0.5, "model_weight": 0.5, "tau_mm": 30.0})
+    loss = objective.bind_observed(
         props, np.full((len(points), 2), 0.5), Observation.from_depth(DEPTH[4], K), MODEL)
     every = np.arange(len(points), dtype=np.int64)
 
