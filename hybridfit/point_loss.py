@@ -48,9 +48,11 @@ def point_losses(points, subset, proposals, weights, constants, out):
                 out[i] += term[i]
 
 
-def _fingerprint(function) -> str:
-    """A name for a per-point loss that changes when it or its module's file changes (so a
-    cached loop is never reused for an edited function)."""
+def _fingerprint(function, options=None) -> str:
+    """A name for a per-point loss that changes when it, its module's file or its compile
+    ``options`` change (so a cached loop is never reused for an edited function, nor for the same
+    function compiled with other floating-point options: numba's cache index does not tell them
+    apart)."""
     code = function.__code__
     try:
         path = inspect.getsourcefile(function) or ""
@@ -58,7 +60,7 @@ def _fingerprint(function) -> str:
     except (OSError, TypeError):
         stamp = None
     key = repr((function.__module__, function.__qualname__, code.co_code, code.co_consts, code.co_names,
-                None if stamp is None else (stamp.st_mtime_ns, stamp.st_size)))
+                None if stamp is None else (stamp.st_mtime_ns, stamp.st_size), sorted((k, sorted(v) if isinstance(v, (set, frozenset)) else v) for k, v in (options or {}).items())))
     return hashlib.sha1(key.encode()).hexdigest()[:16]
 
 
@@ -73,7 +75,7 @@ def specialise(loop, function):
     kernel = nb.njit(inline="always", **options)(py_func)  # inlined into the loop's own code, as if written there
     own = dict(loop.__globals__, point_loss=kernel)  # the loop's module globals, and this point_loss
     copy = types.FunctionType(loop.__code__, own, loop.__name__, loop.__defaults__)
-    copy.__qualname__ = f"{loop.__qualname__}_{_fingerprint(py_func)}"
+    copy.__qualname__ = f"{loop.__qualname__}_{_fingerprint(py_func, options)}"
     copy.__module__ = loop.__module__
     copy.__doc__ = loop.__doc__
     # the point function's own floating-point options: the loops' own arithmetic is elementwise

@@ -53,6 +53,7 @@ __all__ = [
     "check_model_parameter_names", "check_model_shapes", "check_model_stages", "check_objective",
     "check_objective_casadi_agrees", "check_objective_deterministic", "check_objective_forms",
     "check_objective_keeps_input", "check_objective_lower_bound", "check_objective_observed",
+    "check_objective_observed_derivatives", "DERIVATIVE_STEP_MM", "DERIVATIVE_RTOL",
     "check_objective_point_loss", "check_objective_point_loss_agrees", "check_objective_shapes",
     "check_objective_sum_over_points", "check_optimizer", "check_optimizer_batch_steps", "check_optimizer_bounds",
     "check_optimizer_budget", "check_optimizer_deterministic", "check_optimizer_forms", "check_optimizer_improves",
@@ -438,7 +439,9 @@ def _frame(seed: int, objective: Objective | None = None, K: int = 3, bound_to: 
     intrinsics = Intrinsics(width=160, height=120, cx=80.0, cy=60.0, fx=120.0, fy=120.0)
     observation = Observation.from_depth(Renderer(model, intrinsics).render(pose)[0][0], intrinsics)
     bound = objective.bind_observed(*given, observation, model)
-    return proposals, weights, points, lambda points, subset=every: bound(points, subset, points)
+    scored = lambda points, subset=every: bound(points, subset, points)  # noqa: E731
+    scored.bound = bound  # the loss as bind_observed returned it
+    return proposals, weights, points, scored
 
 
 def check_objective_forms(objective: Objective) -> None:
@@ -617,6 +620,56 @@ def check_objective_observed(objective: Objective) -> None:
              f"worse than a perturbed pose ({values[1:].min()})")
     _refuses(objective, lambda: Problem(ToyHand(), objective, proposals, weights),
              "a Problem without the depth image", "depth")
+
+
+#: check_objective_observed_derivatives' central-difference step (mm) and its tolerance: a share of the
+#: largest directional derivative (depth terms may be computed in float32)
+DERIVATIVE_STEP_MM, DERIVATIVE_RTOL = 1e-2, 0.05
+
+
+def check_objective_observed_derivatives(objective: Objective) -> None:
+    """An objective with ``observed_derivatives``: its loss's ``derivatives(points, subset, joints)``
+    give the loss, its gradients with respect to the points and to the joints (each along 3 random
+    directions, as central differences of the loss give them) and symmetric positive semi-definite
+    curvatures, in the documented shapes (:data:`hybridfit.objective.ObservedLoss`)."""
+    if not (objective.observes_depth and objective.observed_derivatives):
+        not_applicable(objective, "its loss offers no derivatives (observed_derivatives = False)")
+    _, _, joints, scored = _frame(6, objective)
+    loss, label = scored.bound, _label(objective)
+    _require(callable(getattr(loss, "derivatives", None)),
+             f"{label}: observed_derivatives = True, but bind_observed's loss has no derivatives")
+    N, J = joints.shape[:2]
+    every = np.arange(J, dtype=np.int64)
+    out = loss.derivatives(joints.copy(), every, joints.copy())
+    _require(isinstance(out, tuple) and len(out) == 5,
+             f"{label}: derivatives gives {type(out).__name__}, not (losses, point gradients, point curvatures, "
+             "joint gradients, joint curvatures)")
+    values, pg, ph, jg, jc = (np.asarray(a, dtype=np.float64) for a in out)
+    for name, array, shape in (("losses", values, (N,)), ("point gradients", pg, (N, J, 3)),
+                               ("point curvatures", ph, (N, J, 3, 3)), ("joint gradients", jg, (N, J, 3)),
+                               ("joint curvatures", jc, (N, 3 * J, 3 * J))):
+        _require(array.shape == shape and bool(np.isfinite(array).all()),
+                 f"{label}: derivatives' {name} are {array.shape}, not finite {shape}")
+    np.testing.assert_allclose(values, loss(joints, every, joints), rtol=1e-12, atol=1e-12,
+                               err_msg=f"{label}: derivatives' losses are not the loss's")
+    rng, h = np.random.default_rng(7), DERIVATIVE_STEP_MM
+    for name, gradient, moved in (("points", pg, 0), ("joints", jg, 1)):
+        for _ in range(3):
+            direction = rng.normal(size=joints.shape)
+            up, down = [joints, joints], [joints, joints]
+            up[moved], down[moved] = joints + h * direction, joints - h * direction
+            numeric = (loss(up[0], every, up[1]) - loss(down[0], every, down[1])) / (2 * h)
+            analytic = np.einsum("njc,njc->n", gradient, direction)
+            worst = np.abs(numeric - analytic).max()
+            _require(bool(worst <= DERIVATIVE_RTOL * max(np.abs(numeric).max(), 1e-3)),
+                     f"{label}: the gradient with respect to the {name} is {analytic}, central differences give "
+                     f"{numeric}")
+    for name, curvature in (("point", ph), ("joint", jc)):
+        scale = max(np.abs(curvature).max(), 1.0)
+        _require(bool(np.allclose(curvature, np.swapaxes(curvature, -1, -2), atol=1e-9 * scale)),
+                 f"{label}: the {name} curvatures are not symmetric")
+        _require(bool(np.linalg.eigvalsh(curvature).min() >= -1e-9 * scale),
+                 f"{label}: the {name} curvatures are not positive semi-definite")
 
 
 # ------------------------------------------------------------------ optimizers
@@ -829,7 +882,7 @@ _CHECKS: dict[str, tuple[Callable, ...]] = {
                             check_objective_lower_bound, check_objective_deterministic, check_objective_keeps_input,
                             check_objective_point_loss,
                             check_objective_point_loss_agrees, check_objective_casadi_agrees,
-                            check_objective_observed),
+                            check_objective_observed, check_objective_observed_derivatives),
     "optimizer": _COMMON + (check_optimizer_forms, check_optimizer_budget, check_optimizer_deterministic,
                             check_optimizer_bounds, check_optimizer_subset, check_optimizer_improves,
                             check_optimizer_batch_steps),

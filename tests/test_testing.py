@@ -553,3 +553,41 @@ def test_every_check_is_public_and_in_the_contracts_table():
             assert check.__name__ in testing.__all__, check.__name__
             assert any(line.startswith(f"| `{check.__name__}`") for line in table), check.__name__
     assert "check_optimizer_improves" in testing.__all__
+
+
+def _hybrid_with(fault):
+    """hybrid whose bound loss's derivatives are changed by ``fault(out) -> out``."""
+    from hybridfit_plugins.objectives.hybrid import Hybrid
+
+    class Faulty(Hybrid):
+        def bind_observed(self, proposals, weights, observation, model):
+            loss = super().bind_observed(proposals, weights, observation, model)
+            derivatives = loss.derivatives
+
+            def faulty(*args):
+                return fault(derivatives(*args))
+
+            loss.derivatives = faulty
+            return loss
+
+    return Faulty(data_weight=1.0, model_weight=1.0)
+
+
+@pytest.mark.parametrize("fault, match", [
+    (lambda out: (out[0], out[1], out[2], 2 * out[3], out[4]), "with respect to the joints"),
+    (lambda out: (out[0], -out[1], out[2], out[3], out[4]), "with respect to the points"),
+    (lambda out: (out[0] + 1, *out[1:]), "losses are not the loss's"),
+    (lambda out: (*out[:4], -out[4]), "joint curvatures are not positive semi-definite"),
+    (lambda out: out[:4], "not \\(losses, point gradients"),
+    (lambda out: (out[0], out[1][:, :2], *out[2:]), "point gradients are"),
+], ids=["joint gradient doubled", "point gradient negated", "losses shifted", "curvature negated",
+        "four arrays", "wrong shape"])
+def test_wrong_observed_derivatives_fail_their_check(fault, match):
+    with pytest.raises(AssertionError, match=match):
+        testing.check_objective_observed_derivatives(_hybrid_with(fault))
+
+
+def test_the_derivatives_check_is_skipped_for_an_objective_without_them():
+    for name in ("clamped-confidence", "rendered-depth"):
+        with pytest.raises(unittest.SkipTest, match="observed_derivatives = False"):
+            testing.check_objective_observed_derivatives(registry.create("objective", name))

@@ -44,6 +44,9 @@ if TYPE_CHECKING:
 #: frames per chunk of the driver (progress and Ctrl-C granularity; with jobs > 1, jobs
 #: chunks run at once while the next is prepared)
 CHUNK = 256
+#: frames per chunk of a lockstep schedule scored in Python (a depth objective: each frame's depth is
+#: held while its chunk runs)
+OBSERVED_CHUNK = 16
 
 #: seconds between checks for a stop signal while worker processes fit (the process-pool path)
 STOP_POLL_S = 0.25
@@ -279,21 +282,22 @@ def fit(
         result.errors.update(fitted.errors)
         done[fitted.frames] = True
 
-    # schedules of batch steps run chunks of frames in lockstep, on threads with jobs > 1; others
-    # (callback solvers, depth objectives) frame by frame, in worker processes with jobs > 1
+    # schedules of batch or derivative steps run chunks of frames in lockstep (on threads with jobs > 1
+    # where the scoring is compiled: no depth, a sum over points); callback solvers frame by frame; with
+    # jobs > 1 the others in worker processes
     fitter = driver.Driver(model, objective, optimizer, names, budget, seed, search_radius_mm, indices)
     # the first frame's plan, made once: the driver keeps it for the frames with its observed points
-    lockstep = (problem is not None and observations is None and not fitter.observed and fitter.additive
-                and fitter.layout(problem).lockstep)
+    lockstep = problem is not None and fitter.layout(problem).lockstep
+    threads = lockstep and observations is None and not fitter.observed and fitter.additive
     bar = tqdm(total=F, disable=not progress, unit="frame", desc="fit")
     try:
         with stops.deferred():  # a stop signal is raised between chunks or frames, never inside compiled code
             if scheduler is not None:
                 _fit_on_cluster(scheduler, spec, F, proposals, confidences, observations, store, bar)
-            elif lockstep or jobs <= 1 or F <= 1:
-                size = min(CHUNK if lockstep else 1, max(1, -(-F // jobs)))  # jobs > 1: >= jobs chunks
+            elif threads or jobs <= 1 or F <= 1:
+                size = min((CHUNK if threads else OBSERVED_CHUNK) if lockstep else 1, max(1, -(-F // jobs)))
                 chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // size)))]
-                for fitted in fitter.fit_chunks(chunks, proposals, confidences, jobs if lockstep else 1,
+                for fitted in fitter.fit_chunks(chunks, proposals, confidences, jobs if threads else 1,
                                                observations):
                     store(fitted)
                     bar.update(len(fitted))

@@ -219,3 +219,21 @@ def test_gradient_steps_lower_the_loss_from_where_the_search_left_it():
                       x0=search.params[0])
     refined = run_problem(hybridfit.create("optimizer", "levenberg-marquardt"), problem, 280)
     assert refined.loss < problem.evaluate(search.params[:1])[0] - 1e-3
+
+
+def test_frames_fitted_together_fit_as_each_alone(monkeypatch):
+    """A depth objective's frames run in lockstep in chunks (fitting.OBSERVED_CHUNK): the fits are
+    those of one frame at a time, and of worker processes, bit for bit."""
+    from hybridfit.fitting import frames as fitting
+
+    data = [_proposals(f) for f in range(6)]
+    props, conf = np.stack([p for p, _ in data]), np.stack([c for _, c in data])
+    obs = [Observation.from_depth(d, K) for d in DEPTH]
+    fits = {}
+    for chunk in (1, 4, 16):
+        monkeypatch.setattr(fitting, "OBSERVED_CHUNK", chunk)
+        fits[chunk] = hybridfit.fit(props, conf, objective="hybrid", observations=obs, budget=500, seed=2)
+    fits["jobs"] = hybridfit.fit(props, conf, objective="hybrid", observations=obs, budget=500, seed=2, jobs=2)
+    for other in fits.values():
+        assert np.array_equal(other.params, fits[1].params) and np.array_equal(other.objective, fits[1].objective)
+    assert (fits[16].evaluations == 500).all() and not fits[16].failed.any()
