@@ -48,16 +48,47 @@ from .synthetic.proposals import synthetic_proposals
 from .task import StagePlan, Task
 
 __all__ = [
-    "RecordingTask", "ToyClamped", "ToyHand", "ToyLeastSquares", "ToySquared", "check_config_round_trip", "check_model",
-    "check_model_bone_lengths", "check_model_deterministic", "check_model_joint_names", "check_model_keeps_input",
-    "check_model_parameter_names", "check_model_shapes", "check_model_stages", "check_objective",
-    "check_objective_casadi_agrees", "check_objective_deterministic", "check_objective_forms",
-    "check_objective_keeps_input", "check_objective_lower_bound", "check_objective_observed",
-    "check_objective_observed_derivatives", "DERIVATIVE_STEP_MM", "DERIVATIVE_RTOL",
-    "check_objective_point_loss", "check_objective_point_loss_agrees", "check_objective_shapes",
-    "check_objective_sum_over_points", "check_optimizer", "check_optimizer_batch_steps", "check_optimizer_bounds",
-    "check_optimizer_budget", "check_optimizer_deterministic", "check_optimizer_forms", "check_optimizer_improves",
-    "check_optimizer_subset", "check_pickle", "check_plugin", "check_problem", "check_unknown_setting", "checks",
+    "DERIVATIVE_RTOL",
+    "DERIVATIVE_STEP_MM",
+    "RecordingTask",
+    "ToyClamped",
+    "ToyHand",
+    "ToyLeastSquares",
+    "ToySquared",
+    "check_config_round_trip",
+    "check_model",
+    "check_model_bone_lengths",
+    "check_model_deterministic",
+    "check_model_joint_names",
+    "check_model_keeps_input",
+    "check_model_parameter_names",
+    "check_model_shapes",
+    "check_model_stages",
+    "check_objective",
+    "check_objective_casadi_agrees",
+    "check_objective_deterministic",
+    "check_objective_forms",
+    "check_objective_keeps_input",
+    "check_objective_lower_bound",
+    "check_objective_observed",
+    "check_objective_observed_derivatives",
+    "check_objective_point_loss",
+    "check_objective_point_loss_agrees",
+    "check_objective_shapes",
+    "check_objective_sum_over_points",
+    "check_optimizer",
+    "check_optimizer_batch_steps",
+    "check_optimizer_bounds",
+    "check_optimizer_budget",
+    "check_optimizer_deterministic",
+    "check_optimizer_forms",
+    "check_optimizer_improves",
+    "check_optimizer_subset",
+    "check_pickle",
+    "check_plugin",
+    "check_problem",
+    "check_unknown_setting",
+    "checks",
     "not_applicable",
 ]
 
@@ -439,7 +470,7 @@ def _frame(seed: int, objective: Objective | None = None, K: int = 3, bound_to: 
     intrinsics = Intrinsics(width=160, height=120, cx=80.0, cy=60.0, fx=120.0, fy=120.0)
     observation = Observation.from_depth(Renderer(model, intrinsics).render(pose)[0][0], intrinsics)
     bound = objective.bind_observed(*given, observation, model)
-    scored = lambda points, subset=every: bound(points, subset, points)  # noqa: E731
+    scored = lambda points, subset=every: bound(points, subset, points)
     scored.bound = bound  # the loss as bind_observed returned it
     return proposals, weights, points, scored
 
