@@ -40,6 +40,7 @@ from __future__ import annotations
 import functools
 import weakref
 
+import numba as nb
 import numpy as np
 from pydantic import Field
 from scipy import ndimage
@@ -48,8 +49,12 @@ from hybridfit.model.render import HandSurface, build_primitives
 from hybridfit.model.surface import cone_map, surface_derivatives, surface_losses
 from hybridfit.objective import Objective, Observation
 from hybridfit.plugin import Settings
+from hybridfit.point_loss import point_losses, specialise
 
 from .clamped_confidence import ClampedConfidence, ClampedConfidenceSettings, clamped_confidence_point
+
+#: the proposal term's loop: clamped-confidence's per-point loss compiled into point_losses
+_proposal_losses = specialise(point_losses, clamped_confidence_point)
 
 
 class HybridSettings(Settings):
@@ -97,8 +102,11 @@ class FrameDepth:
         self.centre = self.points.mean(axis=1) if len(z) else np.zeros(3)
         self.compact = np.ascontiguousarray(self.points - self.centre[:, None], dtype=np.float32)
         mask = np.pad(hand, ((0, max(0, 2 - hand.shape[0])), (0, max(0, 2 - hand.shape[1]))))
-        self.depth = np.ascontiguousarray(np.pad(depth, [(0, a - b) for a, b in zip(mask.shape, depth.shape)]))
-        self.dt = np.maximum(ndimage.distance_transform_edt(~mask) - margin_px, 0.0)
+        # float32 pairs (distance, depth) side by side: what a model point reads is in one or two cache lines
+        image = np.zeros(mask.shape + (2,), dtype=np.float32)
+        image[:depth.shape[0], :depth.shape[1], 1] = depth
+        image[..., 0] = np.maximum(ndimage.distance_transform_edt(~mask) - margin_px, 0.0)
+        self.dt, self.depth = image[..., 0], image[..., 1]
 
 
 def model_cones(model, surface: HandSurface):
@@ -137,6 +145,29 @@ class DepthTerms:
         return out
 
 
+@nb.njit(cache=True, nogil=True)
+def hybrid_losses(points, subset, proposals, weights, constants, data_weight, model_weight, joints, ptr, joint, weight,
+                  ra, rb, frame_points, centre, compact, data_delta, data_tau, samples, fx, fy, cx, cy, dt, depth,
+                  free_tol, model_delta, model_tau, out):
+    """out (N,) = -E over the ``subset`` of points (N, Q, 3) mm against proposals (Q, K, 3) and
+    weights (Q, K) (clamped-confidence, ``constants`` its point loss's) + data_weight * D +
+    model_weight * S of the joints (N, J, 3) mm (:func:`~hybridfit.model.surface.surface_losses`,
+    whose arguments follow): the whole loss in one call."""
+    N, Q = points.shape[0], points.shape[1]
+    hypothesis_innermost = np.empty((Q, 3, N))
+    for n in range(N):
+        for q in range(Q):
+            for c in range(3):
+                hypothesis_innermost[q, c, n] = points[n, q, c]
+    _proposal_losses(hypothesis_innermost, subset, proposals, weights, constants, out)
+    if data_weight > 0.0 or model_weight > 0.0:
+        data, model = np.empty(N), np.empty(N)
+        surface_losses(joints, ptr, joint, weight, ra, rb, frame_points, centre, compact, data_delta, data_tau, samples,
+                       fx, fy, cx, cy, dt, depth, free_tol, model_delta, model_tau, data, model)
+        for n in range(N):
+            out[n] = out[n] + data_weight * data[n] + model_weight * model[n]
+
+
 @functools.cache
 def _proposal_derivatives():
     """The driver's per-point derivatives (:mod:`hybridfit.fitting.derivatives`) of clamped-confidence."""
@@ -161,7 +192,6 @@ class Hybrid(Objective):
 
     def bind_observed(self, proposals, weights, observation, model):
         s = self.settings
-        prop = ClampedConfidence(**s.proposals.model_dump()).bind(proposals, weights)
         cones = self.__dict__.setdefault("_cones", {})  # per model, built once (a fit binds every frame)
         if cones.get(id(model), (None,))[0] is not model:
             cones[id(model)] = (model, model_cones(model, s.surface))
@@ -178,10 +208,10 @@ class Hybrid(Objective):
         constants = ClampedConfidence(**s.proposals.model_dump()).point_loss()[1]
 
         def loss(points, subset, joints):
-            out = prop(points, subset)
-            if s.data_weight > 0 or s.model_weight > 0:
-                data, silhouette = terms.losses(joints)
-                out = out + s.data_weight * data + s.model_weight * silhouette
+            out = np.empty(len(points))
+            hybrid_losses(np.asarray(points, dtype=np.float64), np.asarray(subset, dtype=np.int64), proposals[0],
+                          weights[0], constants, s.data_weight, s.model_weight, np.asarray(joints, dtype=np.float64),
+                          *terms.args, out)
             return out
 
         def derivatives(points, subset, joints):
