@@ -128,7 +128,7 @@ SEARCH = {
     "pso": ("pso", "the built-in PSO: numba batch steps, every frame in lockstep"),
     "nlopt": ("nlopt", "NLopt (default neldermead), its C library calling a compiled objective"),
     "cmaes": ("cmaes", "CMA-ES as numba batch steps, every frame in lockstep"),
-    "casadi-ik": ("casadi-ik", "IPOPT on CasADi's symbolic kinematics"),
+    "casadi-ik": ("casadi-ik", "CasADi's SQP method (daqp QPs) on its symbolic kinematics, one problem per stage"),
     "pycma": (registry.reference(PycmaCMAES), "CMA-ES through pycma: batched ask/tell per frame (0.13's cmaes)"),
     "cmaes package": (registry.reference(PackageCMAES), "CMA-ES through the cmaes package: ask/tell per frame"),
 }
@@ -224,7 +224,7 @@ def rows(figures: dict, missing: dict) -> list[list]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=40, help="synthetic frames (default 40)")
-    ap.add_argument("--hybrid-frames", type=int, default=8, help="frames of the rendered sequence (default 8)")
+    ap.add_argument("--hybrid-frames", type=int, default=40, help="frames of the rendered sequence (default 40)")
     ap.add_argument("--budget", type=int, default=3400, help="evaluations per frame (default 3400)")
     ap.add_argument("--repeat", type=int, default=5, help="rounds, each row once a round (default 5)")
     ap.add_argument("--only", nargs="+", metavar="NAME", help=f"these rows only ({', '.join(SEARCH)}, hybrid); "

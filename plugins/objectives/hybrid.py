@@ -43,8 +43,8 @@ import weakref
 import numba as nb
 import numpy as np
 from pydantic import Field
-from scipy import ndimage
 
+from hybridfit.model.distance_transform import distance_transform
 from hybridfit.model.render import HandSurface, build_primitives
 from hybridfit.model.surface import cone_map, surface_derivatives, surface_losses
 from hybridfit.objective import Objective, Observation
@@ -105,7 +105,7 @@ class FrameDepth:
         # float32 pairs (distance, depth) side by side: what a model point reads is in one or two cache lines
         image = np.zeros(mask.shape + (2,), dtype=np.float32)
         image[:depth.shape[0], :depth.shape[1], 1] = depth
-        image[..., 0] = np.maximum(ndimage.distance_transform_edt(~mask) - margin_px, 0.0)
+        image[..., 0] = np.maximum(distance_transform(mask) - margin_px, 0.0)
         self.dt, self.depth = image[..., 0], image[..., 1]
 
 
