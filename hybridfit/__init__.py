@@ -57,7 +57,7 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
 
-__version__ = "0.14.0"
+__version__ = "0.15.0"
 
 __all__ = [
     "FitResult", "HandModel", "HybridEstimator", "HybridfitError", "Objective", "OptimizeResult", "Optimizer",
