@@ -59,8 +59,10 @@ def _fingerprint(function, options=None) -> str:
         stamp = os.stat(path) if path else None
     except (OSError, TypeError):
         stamp = None
+    # a set of fastmath flags sorted: its order changes from process to process
+    flags = sorted((k, sorted(v) if isinstance(v, (set, frozenset)) else v) for k, v in (options or {}).items())
     key = repr((function.__module__, function.__qualname__, code.co_code, code.co_consts, code.co_names,
-                None if stamp is None else (stamp.st_mtime_ns, stamp.st_size), sorted((k, sorted(v) if isinstance(v, (set, frozenset)) else v) for k, v in (options or {}).items())))
+                None if stamp is None else (stamp.st_mtime_ns, stamp.st_size), flags))
     return hashlib.sha1(key.encode()).hexdigest()[:16]
 
 

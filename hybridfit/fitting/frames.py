@@ -295,7 +295,8 @@ def fit(
             if scheduler is not None:
                 _fit_on_cluster(scheduler, spec, F, proposals, confidences, observations, store, bar)
             elif threads or jobs <= 1 or F <= 1:
-                size = min((CHUNK if threads else OBSERVED_CHUNK) if lockstep else 1, max(1, -(-F // jobs)))
+                size = (CHUNK if threads else OBSERVED_CHUNK) if lockstep else 1
+                size = min(size, max(1, -(-F // jobs)))  # jobs > 1: >= jobs chunks
                 chunks = [[int(f) for f in c] for c in np.array_split(np.arange(F), max(1, -(-F // size)))]
                 for fitted in fitter.fit_chunks(chunks, proposals, confidences, jobs if threads else 1,
                                                observations):
